@@ -1,0 +1,229 @@
+"""Every setting of the swarm, in one place.
+
+The whole configuration is one `SwarmConfig` made of four sections (mission, agent, sim, bus). It loads from
+a TOML file whose tables have the same names, and any field can be overridden on the command line with a
+dotted key (`--set agent.altitude_m=2.0`). A value that does not validate is reported as one line naming the
+field; the CLI turns `ConfigError` into exit code 2.
+
+Frames: the world frame is z-up (x east, y north, z up), in metres. The autopilot's local frame is NED with its
+origin at the vehicle's home; `GeoOrigin` is the geodetic point that the world origin maps to, shared by the
+simulator and every agent so they agree on one world frame.
+"""
+
+from __future__ import annotations
+
+import re
+import tomllib
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from swarm.errors import SwarmError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+Vec3 = tuple[float, float, float]
+PositiveFloat = Annotated[float, Field(gt=0)]
+
+_NAME_RE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
+
+# Port layout, as PX4 multi-vehicle SITL: vehicle with id k (k >= 1, MAVLink sysid k) binds
+# vehicle_base_port + k - 1 and sends to gcs_base_port + k - 1, where that drone's agent listens.
+DEFAULT_GCS_BASE_PORT = 14540
+DEFAULT_VEHICLE_BASE_PORT = 14580
+DEFAULT_BUS_BASE_PORT = 7450
+
+
+class ConfigError(SwarmError):
+    """A configuration that cannot be used; the message is one line meant for a person."""
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+
+class GeoOrigin(_Section):
+    """The geodetic point of the world frame's origin (PX4 SITL's default home)."""
+
+    lat_deg: float = Field(47.397742, ge=-89.0, le=89.0)
+    lon_deg: float = Field(8.545594, ge=-180.0, le=180.0)
+    alt_amsl_m: float = 488.0
+
+
+class Box(_Section):
+    """An axis-aligned box in the world frame."""
+
+    min: Vec3
+    max: Vec3
+
+    @model_validator(mode="after")
+    def _ordered(self) -> Box:
+        if any(lo >= hi for lo, hi in zip(self.min, self.max)):
+            raise ValueError(f"box min {self.min} must be below max {self.max} on every axis")
+        return self
+
+
+class MissionSettings(_Section):
+    """What the swarm is asked to do, and where."""
+
+    name: str = Field("default", description="mission name; every key expression lives under swarm/<name>/")
+    drones: int = Field(3, ge=1, le=16)
+    world: str = Field("office", description="a built-in world name or a path to a .ply/.obj/.stl mesh")
+    start: Vec3 | None = Field(None, description="take-off area centre; the world's default when unset")
+    spawn_spacing_m: PositiveFloat = 1.5
+    volume: Box | None = Field(None, description="mission volume; the world mesh bounds when unset")
+    max_time_s: PositiveFloat = 170.0
+    seed: int = 0
+    out: Path | None = Field(None, description="run directory; runs/<timestamp>-<world> when unset")
+    origin: GeoOrigin = GeoOrigin()
+
+    @field_validator("name")
+    @classmethod
+    def _key_safe(cls, v: str) -> str:
+        if not _NAME_RE.match(v):
+            raise ValueError("must be 1-64 characters of letters, digits, '_' or '-'")
+        return v
+
+
+class AgentSettings(_Section):
+    """One drone's agent process."""
+
+    id: int = Field(1, ge=1, le=250, description="drone id, also its MAVLink system id; lowest id leads")
+    autopilot: str = Field(
+        f"udpin://0.0.0.0:{DEFAULT_GCS_BASE_PORT}", description="MAVSDK connection URL of the autopilot"
+    )
+    altitude_m: PositiveFloat = Field(1.5, description="take-off and cruise altitude above home")
+    cruise_speed_m_s: PositiveFloat = 1.5
+    heartbeat_hz: float = Field(5.0, ge=5.0, le=50.0)
+    connect_timeout_s: PositiveFloat = 20.0
+    health_timeout_s: PositiveFloat = 20.0
+    command_timeout_s: PositiveFloat = 5.0
+    telemetry_timeout_s: PositiveFloat = Field(1.5, description="no telemetry for this long: hold, then land")
+    peer_timeout_s: PositiveFloat = Field(3.0, description="a peer silent for this long has left")
+    waypoint_tolerance_m: PositiveFloat = 0.3
+    waypoints: list[Vec3] = Field(default_factory=list, description="scripted route, world frame")
+    hover_s: float = Field(0.0, ge=0.0, description="hold at the end of the route before landing")
+    out_dir: Path | None = Field(None, description="where the agent writes its summary and logs")
+    mavsdk_threads: int = Field(8, ge=2, le=64)
+
+    @field_validator("autopilot")
+    @classmethod
+    def _known_scheme(cls, v: str) -> str:
+        schemes = ("udpin://", "udpout://", "tcpin://", "tcpout://", "serial://", "udp://", "tcp://")
+        if not v.startswith(schemes):
+            raise ValueError(f"'{v}' is not a MAVSDK connection URL (use one of {', '.join(schemes)})")
+        return v
+
+
+class SimSettings(_Section):
+    """The simulated autopilots (one process hosts every vehicle)."""
+
+    host: str = "127.0.0.1"
+    vehicle_base_port: int = Field(DEFAULT_VEHICLE_BASE_PORT, ge=1024, le=65000)
+    gcs_base_port: int = Field(DEFAULT_GCS_BASE_PORT, ge=1024, le=65000)
+    physics_hz: float = Field(50.0, ge=10.0, le=500.0)
+    telemetry_hz: float = Field(20.0, ge=1.0, le=100.0)
+    heartbeat_hz: float = Field(2.0, ge=0.5, le=10.0)
+    max_speed_xy_m_s: PositiveFloat = 3.0
+    max_speed_up_m_s: PositiveFloat = 1.5
+    max_speed_down_m_s: PositiveFloat = 1.0
+    max_accel_m_s2: PositiveFloat = 3.0
+    position_gain: PositiveFloat = Field(1.2, description="velocity command = gain * position error")
+    land_speed_m_s: PositiveFloat = 0.7
+    takeoff_alt_m: PositiveFloat = Field(1.5, description="MIS_TAKEOFF_ALT default")
+    drone_radius_m: PositiveFloat = Field(0.2, description="collision sphere radius")
+    offboard_timeout_s: PositiveFloat = Field(1.0, description="no setpoint for this long: hold (as PX4)")
+    spawns: list[Vec3] = Field(default_factory=list, description="vehicle home positions; set by swarm run")
+    status_path: Path | None = Field(None, description="where the simulator writes its status JSON")
+
+
+class BusSettings(_Section):
+    """The Zenoh session of a swarm process."""
+
+    mode: Literal["peer", "router"] = "peer"
+    listen: list[str] = Field(default_factory=list, description="Zenoh listen endpoints, e.g. tcp/127.0.0.1:7451")
+    connect: list[str] = Field(default_factory=list, description="Zenoh endpoints to connect to")
+    multicast_scouting: bool = False
+    lease_ms: int = Field(1000, ge=200, le=60000, description="lost-peer detection time")
+    keep_alive: int = Field(4, ge=1, le=20)
+    shared_memory: bool = False
+    base_port: int = Field(DEFAULT_BUS_BASE_PORT, ge=1024, le=65000, description="loopback ports for swarm run")
+
+
+class SwarmConfig(_Section):
+    mission: MissionSettings = MissionSettings()
+    agent: AgentSettings = AgentSettings()
+    sim: SimSettings = SimSettings()
+    bus: BusSettings = BusSettings()
+
+
+def _format_error(err: ValidationError) -> str:
+    first = err.errors()[0]
+    where = ".".join(str(p) for p in first["loc"]) or "config"
+    msg = first["msg"].removeprefix("Value error, ")
+    if first["type"] == "extra_forbidden":
+        msg = "unknown setting"
+    given = first.get("input")
+    if first["type"] != "missing" and not isinstance(given, dict) and given is not None:
+        return f"{where}: {msg} (got {given!r})"
+    return f"{where}: {msg}"
+
+
+def parse_override(text: str) -> tuple[str, Any]:
+    """Parse one `section.field=value` override; the value is read as TOML, else taken as a string."""
+    key, sep, raw = text.partition("=")
+    key = key.strip()
+    if not sep or not key or not all(key.split(".")):
+        raise ConfigError(f"override '{text}' is not of the form section.field=value")
+    try:
+        value = tomllib.loads(f"v = {raw.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw.strip()
+    return key, value
+
+
+def _apply(tree: dict[str, Any], dotted: str, value: Any) -> None:
+    *parents, leaf = dotted.split(".")
+    node = tree
+    for part in parents:
+        child = node.setdefault(part, {})
+        if not isinstance(child, dict):
+            raise ConfigError(f"override '{dotted}': '{part}' is not a section")
+        node = child
+    node[leaf] = value
+
+
+def load_config(path: Path | None = None, overrides: dict[str, Any] | None = None) -> SwarmConfig:
+    """Load a configuration from an optional TOML file plus dotted overrides; raise ConfigError on bad input."""
+    tree: dict[str, Any] = {}
+    if path is not None:
+        try:
+            tree = tomllib.loads(Path(path).read_text())
+        except FileNotFoundError:
+            raise ConfigError(f"config file {path} does not exist") from None
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"config file {path} cannot be read: {exc}") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise ConfigError(f"config file {path} is not valid TOML: {exc}") from None
+    for key, value in (overrides or {}).items():
+        _apply(tree, key, value)
+    try:
+        return SwarmConfig.model_validate(tree)
+    except ValidationError as exc:
+        raise ConfigError(_format_error(exc)) from None
+
+
+def dump_config(config: SwarmConfig) -> dict[str, Any]:
+    """A TOML-ready dict of the configuration (None values left out, paths as strings)."""
+    return config.model_dump(mode="json", exclude_none=True)
+
+
+def gcs_port(sim: SimSettings, drone_id: int) -> int:
+    return sim.gcs_base_port + drone_id - 1
+
+
+def vehicle_port(sim: SimSettings, drone_id: int) -> int:
+    return sim.vehicle_base_port + drone_id - 1
+
+
+def bus_port(bus: BusSettings, drone_id: int) -> int:
+    """Loopback Zenoh port of a drone's agent in `swarm run`; id 0 is the observer."""
+    return bus.base_port + drone_id
