@@ -1,0 +1,71 @@
+#!/usr/bin/env bash
+# Sets up everything Swarm needs on Debian 12 with Python 3.11 (as root, or with sudo), then runs a job:
+#
+#   ./bootstrap.sh run  [swarm run flags]   fly a simulated swarm in a built-in world, report in runs/
+#   ./bootstrap.sh test [pytest flags]      run the test suite
+#   ./bootstrap.sh env                      only set up; prints the environment's path
+#
+# Installs the system libraries Open3D links against and the tools the network experiments use, creates a
+# virtual environment in .venv (or uses the one that is active) and installs the package with its test
+# extras there. Each step is skipped when already done, so running it again costs a second.
+set -euo pipefail
+cd "$(dirname "$0")"
+
+SYSTEM_PACKAGES=(libusb-1.0-0 libgl1 libegl1 libx11-6 libgomp1 iproute2 nftables)
+
+say() { printf 'bootstrap: %s\n' "$*" >&2; }
+
+install_system_packages() {
+  local missing=()
+  for pkg in "${SYSTEM_PACKAGES[@]}"; do
+    dpkg -s "$pkg" >/dev/null 2>&1 || missing+=("$pkg")
+  done
+  python3 -c 'import ensurepip, venv' >/dev/null 2>&1 || missing+=(python3-venv)
+  [ ${#missing[@]} -eq 0 ] && return
+  local sudo=""
+  [ "$(id -u)" -ne 0 ] && sudo="sudo"
+  say "installing system packages: ${missing[*]}"
+  $sudo apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+}
+
+python_env() {
+  if [ -n "${VIRTUAL_ENV:-}" ]; then
+    echo "$VIRTUAL_ENV"
+    return
+  fi
+  if [ ! -x .venv/bin/python ]; then
+    say "creating virtual environment .venv"
+    python3 -m venv .venv
+  fi
+  echo "$PWD/.venv"
+}
+
+install_package() {
+  local env="$1" stamp="$1/.swarm-setup-stamp" want
+  want="$(sha256sum pyproject.toml | cut -d' ' -f1) $PWD"
+  if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then
+    return
+  fi
+  say "installing swarm and its dependencies into $env"
+  "$env/bin/python" -m pip install -q --upgrade pip >/dev/null
+  "$env/bin/python" -m pip install -q -e '.[test]'
+  echo "$want" >"$stamp"
+}
+
+job="${1:-}"
+[ $# -gt 0 ] && shift
+case "$job" in
+  run | test | env) ;;
+  *) echo "usage: ./bootstrap.sh run|test|env [args...]" >&2; exit 2 ;;
+esac
+
+install_system_packages
+env_dir="$(python_env)"
+install_package "$env_dir"
+
+case "$job" in
+  run) exec "$env_dir/bin/swarm" run "$@" ;;
+  test) exec "$env_dir/bin/python" -m pytest "$@" ;;
+  env) echo "$env_dir" ;;
+esac

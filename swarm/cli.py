@@ -1,0 +1,161 @@
+"""The `swarm` command. Thin: it parses flags into a SwarmConfig and calls into the packages.
+
+Every error a person can cause (bad flags, bad config, unusable world, port in use) is one line on stderr
+and a non-zero exit: 2 for bad input (flags, config), 1 for anything else that stopped the command.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, NoReturn
+
+from swarm.config import ConfigError, SwarmConfig, load_config, parse_override
+from swarm.errors import SwarmError
+
+EXIT_FAILED, EXIT_BAD_INPUT = 1, 2
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> NoReturn:
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message}\n")
+
+
+def _vec3(text: str) -> tuple[float, float, float]:
+    parts = text.split(",")
+    try:
+        values = tuple(float(p) for p in parts)
+    except ValueError:
+        values = ()
+    if len(values) != 3:
+        raise argparse.ArgumentTypeError(f"'{text}' is not x,y,z in metres")
+    return values  # type: ignore[return-value]
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a whole number") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1 (got {value})")
+    return value
+
+
+def _int_list(text: str) -> list[int]:
+    return [_positive_int(p) for p in text.split(",")]
+
+
+def _add_config_flags(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", type=Path, help="TOML file with [mission], [agent], [sim], [bus] tables")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.FIELD=VALUE",
+                   help="override one setting (repeatable), e.g. --set agent.altitude_m=2.0")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="swarm", description="Drone swarms that explore and map buildings together.")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    run = sub.add_parser("run", help="fly a simulated swarm in a world and write a report")
+    run.add_argument("--drones", type=_positive_int, help="number of drones (default 3)")
+    run.add_argument("--world", help="built-in world (office, warehouse, box) or a .ply/.obj/.stl mesh")
+    run.add_argument("--start", type=_vec3, help="take-off area x,y,z in world metres")
+    run.add_argument("--out", type=Path, help="run directory (default runs/<time>-<world>)")
+    run.add_argument("--max-time", type=float, dest="max_time", help="mission time limit in seconds")
+    run.add_argument("--seed", type=int)
+    run.add_argument("--no-live", action="store_true", help="plain progress lines instead of a live table")
+    _add_config_flags(run)
+
+    sim = sub.add_parser("sim", help="run the simulated vehicles alone (MAVLink over UDP)")
+    sim.add_argument("--world", help="built-in world or mesh path")
+    sim.add_argument("--vehicles", type=_positive_int, help="number of vehicles")
+    sim.add_argument("--start", type=_vec3, help="take-off area x,y,z")
+    _add_config_flags(sim)
+
+    agent = sub.add_parser("agent", help="run one drone's agent (next to a real or simulated autopilot)")
+    agent.add_argument("--id", type=_positive_int, help="drone id (also its MAVLink system id)")
+    agent.add_argument("--autopilot", help="MAVSDK connection URL, e.g. udpin://0.0.0.0:14540")
+    _add_config_flags(agent)
+
+    observe = sub.add_parser("observe", help="follow a swarm on the bus and write its status")
+    observe.add_argument("--status", type=Path, required=True, help="status JSON to (re)write")
+    _add_config_flags(observe)
+
+    bench = sub.add_parser("bench", help="benchmarks that print their figures")
+    bench_sub = bench.add_subparsers(dest="bench", required=True, parser_class=_Parser)
+    flight = bench_sub.add_parser("flight", help="CPU and memory per process for swarms of several sizes")
+    flight.add_argument("--drones", type=_int_list, default=[1, 3, 5], help="swarm sizes, e.g. 1,3,5")
+    flight.add_argument("--world", default="office")
+    flight.add_argument("--out", type=Path, help="where to keep the runs (default a temp dir)")
+    _add_config_flags(flight)
+    return parser
+
+
+def _config_from(args: argparse.Namespace, flags: dict[str, Any]) -> SwarmConfig:
+    overrides: dict[str, Any] = dict(parse_override(o) for o in args.overrides)
+    overrides.update({k: v for k, v in flags.items() if v is not None})
+    return load_config(args.config, overrides)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return _dispatch(args)
+    except ConfigError as exc:
+        print(f"swarm {args.command}: config error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except SwarmError as exc:
+        print(f"swarm {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    except KeyboardInterrupt:
+        return 130
+
+
+def _dispatch(args: argparse.Namespace) -> int:
+    if args.command == "run":
+        config = _config_from(args, {
+            "mission.drones": args.drones, "mission.world": args.world, "mission.start": args.start,
+            "mission.out": str(args.out) if args.out else None, "mission.max_time_s": args.max_time,
+            "mission.seed": args.seed,
+        })
+        from swarm.mission.run import run_mission
+
+        report = run_mission(config, live=False if args.no_live else None)
+        _print_summary(report)
+        return 0 if report["status"] == "complete" else EXIT_FAILED
+    if args.command == "sim":
+        config = _config_from(args, {
+            "mission.world": args.world, "mission.drones": args.vehicles, "mission.start": args.start,
+        })
+        from swarm.sim.server import sim_command
+
+        return sim_command(config)
+    if args.command == "agent":
+        config = _config_from(args, {"agent.id": args.id, "agent.autopilot": args.autopilot})
+        from swarm.agent.main import agent_command
+
+        return agent_command(config)
+    if args.command == "observe":
+        from swarm.mission.observer import observe_command
+
+        return observe_command(_config_from(args, {}), args.status)
+    if args.command == "bench" and args.bench == "flight":
+        from swarm.mission.bench import bench_flight
+
+        return bench_flight(_config_from(args, {"mission.world": args.world}), args.drones, args.out)
+    raise SwarmError(f"unknown command {args.command}")
+
+
+def _print_summary(report: dict[str, Any]) -> None:
+    agents = report["agents"]
+    landed = sum(1 for a in agents if a["landed"])
+    print(
+        f"{report['status']}: {report['drones']} drones in '{report['world']}' for {report['duration_s']:.1f} s, "
+        f"collisions {report['collisions']}, landed {landed}/{len(agents)} — {report['reason']}"
+    )
+    for a in agents:
+        print(f"  drone {a['id']}: flew {a['distance_m']:.1f} m, sent {a['bytes_sent']} B, "
+              f"received {a['bytes_received']} B, {a['phase']}")
+    print(f"report: {Path(report['run_dir']) / 'report.json'}")

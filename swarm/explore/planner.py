@@ -1,0 +1,205 @@
+"""Collision-free paths on an inflated occupancy grid: A* over free cells, then line-of-sight shortcutting.
+
+The grid given to `plan_path` must already be inflated by the drone's radius (`OccupancyGrid.inflate`): the
+planner treats a point as safe exactly when its cell is free. Replanning after a map update is a new call on
+the new grid; `path_is_free` tells whether a path planned earlier is still clear.
+"""
+
+from __future__ import annotations
+
+import array
+import heapq
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from swarm.config import Vec3
+from swarm.explore.grid import OccupancyGrid
+
+# A start or goal in a blocked cell is moved to the nearest free cell centre at most this many cell edges away.
+SNAP_RADIUS_CELLS = 2.0
+
+_SQRT2 = math.sqrt(2.0)
+_SQRT3 = math.sqrt(3.0)
+_NEIGHBOUR_STEPS = np.array(
+    [(dx, dy, dz) for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1) if (dx, dy, dz) != (0, 0, 0)]
+)
+_STEP_LENGTHS = np.linalg.norm(_NEIGHBOUR_STEPS, axis=1)  # in cells: 1, sqrt(2) or sqrt(3)
+
+
+class NoPathError(Exception):
+    """No collision-free path; the message says why (outside grid, start/goal blocked, unreachable...)."""
+
+
+def plan_path(
+    grid: OccupancyGrid,
+    start: Vec3,
+    goal: Vec3,
+    *,
+    z_limits: tuple[float, float] | None = None,
+    max_expansions: int = 2_000_000,
+) -> list[Vec3]:
+    """World waypoints from `start` to `goal` whose every segment crosses only free cells of `grid`.
+
+    A* over the 26-connected free cells (Euclidean step cost), then greedy line-of-sight shortcutting, so a
+    straight corridor gives two points. The first and last points are `start` and `goal` themselves when
+    their cells are free; otherwise the nearest free cell centre within SNAP_RADIUS_CELLS cells, or
+    NoPathError. `z_limits` (min, max) restricts the search to the grid layers whose centre lies within it;
+    limits narrower than a cell select the one layer containing their middle.
+    """
+    search_grid = grid if z_limits is None else _restrict_to_layers(grid, z_limits)
+    start_point = _free_endpoint(grid, search_grid, start, "start")
+    goal_point = _free_endpoint(grid, search_grid, goal, "goal")
+    cells = _astar(search_grid, start_point, goal_point, max_expansions)
+    waypoints = [start_point, *(search_grid.centre_of(c) for c in cells), goal_point]
+    return [_as_vec3(p) for p in _shortcut(search_grid, _drop_repeats(waypoints))]
+
+
+def path_length(path: Sequence[Sequence[float]]) -> float:
+    if len(path) < 2:
+        return 0.0
+    points = np.asarray(path, dtype=float)
+    return float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
+
+
+def path_is_free(grid: OccupancyGrid, path: Sequence[Sequence[float]]) -> bool:
+    """Every segment of `path` is still collision-free on `grid` (e.g. after a map update)."""
+    if len(path) == 1:
+        return grid.is_free(path[0])
+    return all(grid.segment_is_free(a, b) for a, b in zip(path[:-1], path[1:]))
+
+
+def _restrict_to_layers(grid: OccupancyGrid, z_limits: tuple[float, float]) -> OccupancyGrid:
+    """The slab of `grid` made of the layers allowed by `z_limits` (a contiguous range)."""
+    z_min, z_max = sorted(z_limits)
+    nz = grid.shape[2]
+    centres_z = grid.origin[2] + (np.arange(nz) + 0.5) * grid.resolution
+    tolerance = 1e-6 * grid.resolution
+    allowed = np.flatnonzero((centres_z >= z_min - tolerance) & (centres_z <= z_max + tolerance))
+    if len(allowed) == 0:
+        layer = math.floor(((z_min + z_max) / 2 - grid.origin[2]) / grid.resolution)
+        if not 0 <= layer < nz:
+            raise NoPathError(f"z_limits {z_limits} lie outside the grid's altitude range")
+        allowed = np.array([layer])
+    low, high = int(allowed[0]), int(allowed[-1]) + 1
+    origin = grid.origin + np.array([0.0, 0.0, low * grid.resolution])
+    unknown = None if grid.unknown is None else grid.unknown[:, :, low:high]
+    return OccupancyGrid(origin, grid.resolution, grid.occupied[:, :, low:high], unknown)
+
+
+def _free_endpoint(grid: OccupancyGrid, search_grid: OccupancyGrid, point: Vec3, name: str) -> np.ndarray:
+    p = np.asarray(point, dtype=float).reshape(3)
+    if grid.index_of(p) is None:
+        raise NoPathError(f"{name} {_fmt(p)} is outside the grid")
+    if search_grid.is_free(p):
+        return p
+    snap_radius = SNAP_RADIUS_CELLS * grid.resolution
+    snapped = search_grid.nearest_free(p, snap_radius)
+    if snapped is None:
+        where = "is blocked" if search_grid is grid else "is blocked or outside z_limits"
+        raise NoPathError(f"{name} {_fmt(p)} {where} and no free cell lies within {snap_radius:.2f} m")
+    return snapped
+
+
+def _astar(grid: OccupancyGrid, start: np.ndarray, goal: np.ndarray, max_expansions: int) -> list[np.ndarray]:
+    """Cell indices from the start cell to the goal cell, both included."""
+    # A one-cell blocked border makes every neighbour index of a grid cell valid: no bounds checks.
+    padded_free = np.pad(~grid.occupied, 1, constant_values=False)
+    shape = padded_free.shape
+    strides = np.array([shape[1] * shape[2], shape[2], 1])
+    steps_used = np.all((_NEIGHBOUR_STEPS == 0) | (np.array(grid.shape) > 1), axis=1)  # a flat grid: 8 steps
+    neighbours = list(
+        zip((_NEIGHBOUR_STEPS[steps_used] @ strides).tolist(), _STEP_LENGTHS[steps_used].tolist())
+    )
+    start_cell = np.asarray(grid.index_of(start)) + 1
+    goal_cell = np.asarray(grid.index_of(goal)) + 1
+    start_flat = int(start_cell @ strides)
+    goal_flat = int(goal_cell @ strides)
+
+    # The search loop runs in plain Python on flat buffers: for 26 neighbours, per-element access to
+    # array.array/bytearray beats numpy's per-call overhead about twice over (measured), at 8 bytes a cell.
+    heuristic = array.array("d", _octile_distance_to(goal_cell, shape).ravel().tobytes())
+    open_cells = bytearray(padded_free.ravel().tobytes())
+    cost = array.array("d", np.full(padded_free.size, np.inf).tobytes())
+    parent = array.array("q", np.full(padded_free.size, -1, dtype=np.int64).tobytes())
+    cost[start_flat] = 0.0
+    heap = [(heuristic[start_flat], 0.0, start_flat)]
+    push, pop = heapq.heappush, heapq.heappop
+    expansions = 0
+    while heap:
+        cell = pop(heap)[2]
+        if not open_cells[cell]:
+            continue  # a stale entry: the cell was reached more cheaply since
+        if cell == goal_flat:
+            return _trace(parent, goal_flat, shape)
+        open_cells[cell] = 0
+        expansions += 1
+        if expansions > max_expansions:
+            raise NoPathError(f"search gave up after {max_expansions} expansions")
+        cell_cost = cost[cell]
+        for offset, length in neighbours:
+            neighbour = cell + offset
+            if open_cells[neighbour]:
+                new_cost = cell_cost + length
+                if new_cost < cost[neighbour]:
+                    cost[neighbour] = new_cost
+                    parent[neighbour] = cell
+                    # Ties on f go to the deeper node (higher cost so far): far fewer expansions on plateaus.
+                    push(heap, (new_cost + heuristic[neighbour], -new_cost, neighbour))
+    raise NoPathError(f"goal {_fmt(goal)} is unreachable from start {_fmt(start)} ({expansions} cells searched)")
+
+
+def _octile_distance_to(goal_cell: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """Shortest 26-connected distance (in cells) from every cell to `goal_cell`, ignoring obstacles.
+
+    Admissible and consistent for Euclidean step costs, and much tighter than the straight-line distance,
+    which in 3D leaves A* expanding a wide ellipsoid of near-ties.
+    """
+    deltas = np.sort(
+        np.stack(np.meshgrid(*(np.abs(np.arange(n) - g) for n, g in zip(shape, goal_cell)), indexing="ij")),
+        axis=0,
+    ).astype(float)
+    small, middle, large = deltas
+    return (large - middle) + _SQRT2 * (middle - small) + _SQRT3 * small
+
+
+def _trace(parent: array.array, goal_flat: int, shape: tuple[int, ...]) -> list[np.ndarray]:
+    flat = [goal_flat]
+    while parent[flat[-1]] >= 0:
+        flat.append(parent[flat[-1]])
+    padded = np.stack(np.unravel_index(np.array(flat[::-1]), shape), axis=1)
+    return list(padded - 1)
+
+
+def _shortcut(grid: OccupancyGrid, points: list[np.ndarray]) -> list[np.ndarray]:
+    """Greedy string pulling: from each kept point, go straight to the farthest point still in sight."""
+    if len(points) <= 2:
+        return points
+    kept = [points[0]]
+    anchor = points[0]
+    for previous, candidate in zip(points[1:-1], points[2:]):
+        if not grid.segment_is_free(anchor, candidate):
+            kept.append(previous)
+            anchor = previous
+    kept.append(points[-1])
+    return kept
+
+
+def _drop_repeats(points: list[np.ndarray]) -> list[np.ndarray]:
+    kept = [points[0]]
+    for p in points[1:-1]:
+        if not np.array_equal(p, kept[-1]):
+            kept.append(p)
+    if len(kept) > 1 and np.array_equal(kept[-1], points[-1]):
+        kept.pop()
+    kept.append(points[-1])
+    return kept
+
+
+def _as_vec3(p: np.ndarray) -> Vec3:
+    return float(p[0]), float(p[1]), float(p[2])
+
+
+def _fmt(p: np.ndarray) -> str:
+    return "(" + ", ".join(f"{v:.2f}" for v in p) + ")"

@@ -1,0 +1,90 @@
+"""The mission observer: a passive member of the bus that records what the swarm says about itself.
+
+It holds no token and publishes nothing, so the agents never count it as a drone. It follows every agent's
+heartbeat and liveliness token, keeps a timeline of joins and leaves, and writes a status snapshot (JSON,
+atomically) twice a second for `swarm run`'s live view and report.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import signal
+import time
+from pathlib import Path
+from typing import Any
+
+from swarm.bus.bridge import AsyncBus
+from swarm.bus.messages import AgentState
+from swarm.config import SwarmConfig
+
+SNAPSHOT_PERIOD_S = 0.5
+
+
+class Observer:
+    def __init__(self, config: SwarmConfig, status_path: Path) -> None:
+        self.config = config
+        self.status_path = status_path
+        self.started = time.time()
+        self.agents: dict[int, dict[str, Any]] = {}
+        self.timeline: list[dict[str, Any]] = []
+        self.stop = asyncio.Event()
+
+    async def run(self) -> int:
+        loop = asyncio.get_running_loop()
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(signum, self.stop.set)
+        bus = await AsyncBus.open(self.config.bus, self.config.mission.name)
+        self.keys = bus.keys
+        bus.subscribe(bus.keys.all_states, AgentState, self._on_state)
+        bus.watch_liveliness(bus.keys.all_alive, self._on_join, self._on_leave)
+        try:
+            while not self.stop.is_set():
+                self._write(bus, done=False)
+                try:
+                    await asyncio.wait_for(self.stop.wait(), SNAPSHOT_PERIOD_S)
+                except TimeoutError:
+                    pass
+        finally:
+            self._write(bus, done=True)
+            await bus.close()
+        return 0
+
+    def _on_state(self, key: str, state: AgentState) -> None:
+        entry = self.agents.setdefault(state.id, {"heartbeats": 0, "alive": True})
+        entry.update(
+            phase=state.phase, role=state.role, leader=state.leader, flight_mode=state.flight_mode,
+            position=list(state.position), epoch=state.epoch, last_heard=time.time(),
+        )
+        entry["heartbeats"] += 1
+
+    def _on_join(self, key: str) -> None:
+        self._presence(key, alive=True)
+
+    def _on_leave(self, key: str) -> None:
+        self._presence(key, alive=False)
+
+    def _presence(self, key: str, alive: bool) -> None:
+        agent_id = self.keys.agent_id_of(key)
+        if agent_id is None:
+            return
+        self.agents.setdefault(agent_id, {"heartbeats": 0})["alive"] = alive
+        event = "joined" if alive else "left"
+        self.timeline.append({"t": round(time.time() - self.started, 3), "event": event, "agent": agent_id})
+
+    def _write(self, bus: AsyncBus, done: bool) -> None:
+        snapshot = {
+            "done": done,
+            "t": round(time.time() - self.started, 3),
+            "agents": {str(k): v for k, v in sorted(self.agents.items())},
+            "timeline": self.timeline,
+            "traffic": bus.counters.snapshot(),
+        }
+        tmp = self.status_path.with_suffix(".tmp")
+        tmp.write_text(json.dumps(snapshot))
+        os.replace(tmp, self.status_path)
+
+
+def observe_command(config: SwarmConfig, status_path: Path) -> int:
+    return asyncio.run(Observer(config, status_path).run())

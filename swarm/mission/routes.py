@@ -1,0 +1,90 @@
+"""Scripted routes for the flight-only mission: each drone tours its own sector of the mission volume.
+
+This is the stand-in for exploration until the swarm plans its own targets. The routes are planned on the
+world's ground-truth occupancy (the simulation harness knows the building; the drones do not), inflated by
+the drone radius plus a margin, so a scripted flight never touches a wall.
+
+Sectors are strips across the longer horizontal axis of the mission volume, handed to drones in the order of
+their spawn points along that axis so outbound legs do not cross; drones fly at staggered altitudes so that
+legs that do cross are vertically separated.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from swarm.config import Vec3
+from swarm.explore.grid import OccupancyGrid
+from swarm.explore.planner import NoPathError, path_length, plan_path
+from swarm.sim.worlds import World
+
+PLAN_RESOLUTION_M = 0.2
+SAFETY_MARGIN_M = 0.15
+ALTITUDES_M = (1.25, 0.8, 1.7)  # above each drone's home floor; 0.45 m apart > two drone radii
+MAX_TOUR_M = 45.0  # per drone, out and back: keeps the scripted mission to about a minute of flight
+CANDIDATES_TRIED = 12
+
+
+@dataclass
+class ScriptedRoute:
+    drone_id: int
+    altitude_m: float
+    waypoints: list[Vec3]
+    length_m: float
+
+
+def scripted_routes(
+    world: World, spawns: list[Vec3], lo: np.ndarray, hi: np.ndarray, drone_radius_m: float
+) -> list[ScriptedRoute]:
+    """One route per spawn (drone ids 1..N in spawn order), each ending above the drone's home."""
+    occupied_origin, occupied = world.occupancy(PLAN_RESOLUTION_M, lo, hi)
+    grid = OccupancyGrid(np.asarray(occupied_origin, float), PLAN_RESOLUTION_M, occupied)
+    free = grid.inflate(drone_radius_m + SAFETY_MARGIN_M)
+    axis = 0 if hi[0] - lo[0] >= hi[1] - lo[1] else 1
+    order = sorted(range(len(spawns)), key=lambda i: spawns[i][axis])
+    edges = np.linspace(lo[axis], hi[axis], len(spawns) + 1)
+    routes: list[ScriptedRoute] = []
+    for strip, index in enumerate(order):
+        altitude = ALTITUDES_M[index % len(ALTITUDES_M)]
+        home = np.array(spawns[index], float)
+        airborne = (float(home[0]), float(home[1]), float(home[2] + altitude))
+        sector = (edges[strip], edges[strip + 1])
+        tour = _sector_tour(free, airborne, axis, sector)
+        waypoints = tour[1:]  # the first point is where take-off leaves the drone
+        routes.append(ScriptedRoute(index + 1, altitude, waypoints, path_length(tour)))
+    return sorted(routes, key=lambda r: r.drone_id)
+
+
+def _sector_tour(free: OccupancyGrid, airborne: Vec3, axis: int, sector: tuple[float, float]) -> list[Vec3]:
+    """Out to the farthest reachable point of the sector (within MAX_TOUR_M there and back), then home."""
+    z = airborne[2]
+    z_limits = (z - PLAN_RESOLUTION_M / 2, z + PLAN_RESOLUTION_M / 2)
+    layer = free.index_of((airborne[0], airborne[1], z))
+    if layer is None:
+        return [airborne]
+    k = layer[2]
+    xs, ys = np.nonzero(~free.occupied[:, :, k])
+    centres = free.origin[:2] + (np.stack([xs, ys], axis=1) + 0.5) * free.resolution
+    inside = (centres[:, axis] >= sector[0]) & (centres[:, axis] < sector[1])
+    centres = centres[inside]
+    if len(centres) == 0:
+        return [airborne]
+    distance = np.linalg.norm(centres - np.array(airborne[:2]), axis=1)
+    best: list[Vec3] | None = None
+    # Farthest first, but only as far as half the tour budget allows as the crow flies.
+    candidates = centres[np.argsort(-np.where(distance <= MAX_TOUR_M / 2, distance, -1.0))]
+    for cx, cy in candidates[:CANDIDATES_TRIED]:
+        goal = (float(cx), float(cy), z)
+        try:
+            out = plan_path(free, airborne, goal, z_limits=z_limits)
+            back = plan_path(free, goal, airborne, z_limits=z_limits)
+        except NoPathError:
+            continue
+        tour = out + back[1:]
+        if path_length(tour) <= MAX_TOUR_M:
+            return tour
+        if best is None or path_length(tour) < path_length(best):
+            best = tour
+    return best if best is not None else [airborne]

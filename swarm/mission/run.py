@@ -1,0 +1,227 @@
+"""`swarm run`: a whole simulated swarm on one machine, from one command, with a report at the end.
+
+It is assembled from the same processes a real deployment uses: one `swarm sim` (every vehicle), one
+`swarm agent` per drone, and one `swarm observe`. Everything it needs is checked before anything starts
+(world, start point, ports), so bad input is one line and leaves no process behind; every child is stopped on
+every exit path.
+
+Run directory layout: config/ (the exact config each process ran with), logs/ (one log per process),
+sim.json and observer.json (live status, final at the end), agents/agent-K.json (each agent's summary), and
+report.json.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import signal
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import tomli_w
+
+from swarm.config import SwarmConfig, bus_port, dump_config, gcs_port, vehicle_port
+from swarm.errors import SwarmError
+from swarm.mission.ports import ensure_free
+from swarm.mission.processes import Child, start_child, stop_all, swarm_command
+from swarm.mission.progress import ProgressView
+from swarm.mission.report import build_report, write_report
+from swarm.mission.routes import ScriptedRoute, scripted_routes
+from swarm.sim.worlds import World, load_world, spawn_points
+
+SIM_READY_TIMEOUT_S = 30.0
+LANDING_GRACE_S = 60.0
+POLL_PERIOD_S = 0.25
+
+
+@dataclass
+class RunPlan:
+    config: SwarmConfig
+    world: World
+    out: Path
+    spawns: list[tuple[float, float, float]]
+    routes: list[ScriptedRoute]
+    volume: tuple[np.ndarray, np.ndarray]
+
+
+@dataclass
+class RunState:
+    sim: Child | None = None
+    observer: Child | None = None
+    agents: dict[int, Child] = field(default_factory=dict)
+    exit_codes: dict[int, int] = field(default_factory=dict)
+    started: float = 0.0
+    finished: float = 0.0
+    status: str = "failed"
+    reason: str = ""
+
+    @property
+    def children(self) -> list[Child]:
+        return [c for c in (*self.agents.values(), self.observer, self.sim) if c is not None]
+
+
+def prepare(config: SwarmConfig) -> RunPlan:
+    """Validate everything and plan the flights; raises SwarmError (one line) before any process starts."""
+    m = config.mission
+    world = load_world(m.world)
+    lo, hi = world.bounds
+    if m.volume is not None:
+        lo, hi = np.array(m.volume.min, float), np.array(m.volume.max, float)
+    spawns = spawn_points(world, m.start, m.drones, m.spawn_spacing_m)
+    host = config.sim.host
+    for k in range(1, m.drones + 1):
+        ensure_free(host, vehicle_port(config.sim, k), "udp", f"vehicle {k}")
+        ensure_free(host, gcs_port(config.sim, k), "udp", f"autopilot link of agent {k}")
+    for k in range(0, m.drones + 1):
+        ensure_free("127.0.0.1", bus_port(config.bus, k), "tcp", "observer bus" if k == 0 else f"bus of agent {k}")
+    routes = scripted_routes(world, spawns, lo, hi, config.sim.drone_radius_m)
+    out = m.out or Path("runs") / f"{dt.datetime.now():%Y%m%d-%H%M%S}-{world.name}"
+    if out.exists() and any(out.iterdir()):
+        raise SwarmError(f"output directory {out} is not empty")
+    return RunPlan(config, world, out, spawns, routes, (lo, hi))
+
+
+def _bus_for(config: SwarmConfig, index: int) -> dict[str, Any]:
+    """Loopback endpoints: process `index` (0 = observer, k = agent k) listens on its port, dials lower ones."""
+    return {
+        "listen": [f"tcp/127.0.0.1:{bus_port(config.bus, index)}"],
+        "connect": [f"tcp/127.0.0.1:{bus_port(config.bus, j)}" for j in range(index)],
+    }
+
+
+def _write_config(path: Path, config: SwarmConfig) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(tomli_w.dumps(dump_config(config)))
+    return path
+
+
+def _read_json(path: Path) -> dict[str, Any] | None:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def run_mission(
+    config: SwarmConfig,
+    *,
+    live: bool | None = None,
+    on_tick: Callable[[RunState], None] | None = None,
+    plan: RunPlan | None = None,
+) -> dict[str, Any]:
+    """Run the mission to its end and return the report (also written to OUT/report.json)."""
+    plan = plan or prepare(config)
+    out = plan.out
+    out.mkdir(parents=True, exist_ok=True)
+    state = RunState()
+    view = ProgressView(plan, live=live)
+    try:
+        _start_simulator(plan, state)
+        _start_swarm(plan, state)
+        with view:
+            _supervise(plan, state, view, on_tick)
+    except KeyboardInterrupt:
+        state.status, state.reason = "failed", "interrupted"
+        _land_agents(state)
+    finally:
+        codes = stop_all(state.children, grace_s=10.0)
+        for k, child in state.agents.items():
+            state.exit_codes.setdefault(k, codes.get(child.name, -1))
+        if not state.finished:
+            state.finished = time.monotonic()
+    report = build_report(plan, state, _read_json(out / "sim.json"), _read_json(out / "observer.json"))
+    write_report(out, report)
+    return report
+
+
+def _start_simulator(plan: RunPlan, state: RunState) -> None:
+    sim_config = plan.config.model_copy(deep=True)
+    sim_config.sim.spawns = plan.spawns
+    sim_config.sim.status_path = plan.out / "sim.json"
+    path = _write_config(plan.out / "config" / "sim.toml", sim_config)
+    state.sim = start_child("sim", swarm_command("sim", "--config", str(path)), plan.out / "logs" / "sim.log")
+    deadline = time.monotonic() + SIM_READY_TIMEOUT_S
+    while True:
+        status = _read_json(plan.out / "sim.json")
+        if status and status.get("ready"):
+            return
+        if state.sim.poll() is not None:
+            raise SwarmError(f"simulator exited early: {state.sim.last_log_line() or 'no output'}")
+        if time.monotonic() > deadline:
+            raise SwarmError(f"simulator not ready within {SIM_READY_TIMEOUT_S:.0f} s (see {state.sim.log_path})")
+        time.sleep(0.1)
+
+
+def _start_swarm(plan: RunPlan, state: RunState) -> None:
+    config = plan.config
+    observer_config = config.model_copy(update={"bus": config.bus.model_copy(update=_bus_for(config, 0))})
+    path = _write_config(plan.out / "config" / "observer.toml", observer_config)
+    state.observer = start_child(
+        "observer",
+        swarm_command("observe", "--config", str(path), "--status", str(plan.out / "observer.json")),
+        plan.out / "logs" / "observer.log",
+    )
+    state.started = time.monotonic()
+    for route in plan.routes:
+        k = route.drone_id
+        agent = config.agent.model_copy(
+            update={
+                "id": k,
+                "autopilot": f"udpin://{config.sim.host}:{gcs_port(config.sim, k)}",
+                "altitude_m": route.altitude_m,
+                "waypoints": route.waypoints,
+                "out_dir": plan.out / "agents",
+            }
+        )
+        agent_config = config.model_copy(
+            update={"agent": agent, "bus": config.bus.model_copy(update=_bus_for(config, k))}
+        )
+        path = _write_config(plan.out / "config" / f"agent-{k}.toml", agent_config)
+        state.agents[k] = start_child(
+            f"agent-{k}", swarm_command("agent", "--config", str(path)), plan.out / "logs" / f"agent-{k}.log"
+        )
+
+
+def _supervise(plan: RunPlan, state: RunState, view: ProgressView, on_tick: Callable[[RunState], None] | None) -> None:
+    max_time = plan.config.mission.max_time_s
+    while True:
+        for k, child in state.agents.items():
+            code = child.poll()
+            if code is not None and k not in state.exit_codes:
+                state.exit_codes[k] = code
+        elapsed = time.monotonic() - state.started
+        view.update(elapsed, _read_json(plan.out / "sim.json"), _read_json(plan.out / "observer.json"), state.exit_codes)
+        if on_tick is not None:
+            on_tick(state)
+        if len(state.exit_codes) == len(state.agents):
+            state.finished = time.monotonic()
+            failed = {k: c for k, c in state.exit_codes.items() if c != 0}
+            state.status = "failed" if failed else "complete"
+            state.reason = f"agents exited with errors: {failed}" if failed else "every drone flew its route and landed"
+            return
+        if state.sim is not None and state.sim.poll() is not None:
+            state.status, state.reason = "failed", f"simulator died: {state.sim.last_log_line()}"
+            _land_agents(state)
+            return
+        if elapsed > max_time:
+            state.status, state.reason = "timeout", f"max time {max_time:.0f} s reached"
+            _land_agents(state)
+            state.finished = time.monotonic()
+            return
+        time.sleep(POLL_PERIOD_S)
+
+
+def _land_agents(state: RunState) -> None:
+    """SIGTERM makes every agent land and exit; give them time to do it."""
+    for child in state.agents.values():
+        child.signal(signal.SIGTERM)
+    deadline = time.monotonic() + LANDING_GRACE_S
+    for k, child in state.agents.items():
+        while child.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.1)
+        if child.poll() is not None:
+            state.exit_codes.setdefault(k, child.poll())  # type: ignore[arg-type]

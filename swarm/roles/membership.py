@@ -1,0 +1,93 @@
+"""Who is in the swarm right now, as one agent sees it.
+
+A peer is present while its liveliness token is alive and its heartbeats keep coming; it leaves when the token
+goes (Zenoh's lease, about a second after its link dies) or when it falls silent for `timeout_s`, whichever is
+first. The cluster is this agent plus every present peer; its leader is the lowest id (Mahdoui's rule). Every
+agent starts as the leader of a cluster of one.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Literal
+
+Role = Literal["leader", "explorer"]
+MembershipEvent = Literal["joined", "left"]
+
+
+@dataclass
+class Peer:
+    id: int
+    first_seen: float
+    last_heard: float
+    position: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    phase: str = ""
+    epoch: int = 0
+    token_alive: bool = False
+    heartbeats: int = 0
+
+
+@dataclass
+class PeerTable:
+    own_id: int
+    timeout_s: float = 3.0
+    on_change: Callable[[MembershipEvent, int, str], None] | None = None
+    clock: Callable[[], float] = time.monotonic
+    peers: dict[int, Peer] = field(default_factory=dict)
+    ever_seen: set[int] = field(default_factory=set)
+
+    def heard(self, peer_id: int, position: tuple[float, float, float], phase: str, epoch: int) -> None:
+        """A heartbeat arrived from `peer_id`."""
+        if peer_id == self.own_id:
+            return
+        now = self.clock()
+        peer = self.peers.get(peer_id)
+        if peer is None:
+            peer = self.peers[peer_id] = Peer(peer_id, first_seen=now, last_heard=now)
+            self._emit("joined", peer_id, "heartbeat")
+        peer.last_heard = now
+        peer.position, peer.phase, peer.epoch = position, phase, epoch
+        peer.heartbeats += 1
+
+    def token_appeared(self, peer_id: int) -> None:
+        if peer_id == self.own_id:
+            return
+        now = self.clock()
+        peer = self.peers.get(peer_id)
+        if peer is None:
+            peer = self.peers[peer_id] = Peer(peer_id, first_seen=now, last_heard=now)
+            self._emit("joined", peer_id, "token")
+        peer.token_alive = True
+
+    def token_vanished(self, peer_id: int) -> None:
+        if self.peers.pop(peer_id, None) is not None:
+            self._emit("left", peer_id, "token")
+
+    def expire(self) -> list[int]:
+        """Drop peers silent for longer than timeout_s; returns their ids."""
+        now = self.clock()
+        gone = [p.id for p in self.peers.values() if now - p.last_heard > self.timeout_s]
+        for peer_id in gone:
+            del self.peers[peer_id]
+            self._emit("left", peer_id, "silent")
+        return gone
+
+    @property
+    def cluster(self) -> list[int]:
+        return sorted({self.own_id, *self.peers})
+
+    @property
+    def leader(self) -> int:
+        return min(self.cluster)
+
+    @property
+    def role(self) -> Role:
+        return "leader" if self.leader == self.own_id else "explorer"
+
+    def _emit(self, event: MembershipEvent, peer_id: int, cause: str) -> None:
+        if event == "joined":
+            self.ever_seen.add(peer_id)
+        if self.on_change is not None:
+            self.on_change(event, peer_id, cause)

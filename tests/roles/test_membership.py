@@ -1,0 +1,53 @@
+from swarm.roles.membership import PeerTable
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.now = 100.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def make(own: int = 2) -> tuple[PeerTable, list, Clock]:
+    events: list = []
+    clock = Clock()
+    table = PeerTable(own, timeout_s=3.0, on_change=lambda e, p, c: events.append((e, p, c)), clock=clock)
+    return table, events, clock
+
+
+def test_every_agent_starts_as_leader_of_itself() -> None:
+    table, _, _ = make(own=7)
+    assert table.cluster == [7]
+    assert table.leader == 7 and table.role == "leader"
+
+
+def test_lowest_id_leads_and_roles_follow_membership() -> None:
+    table, events, _ = make(own=2)
+    table.heard(3, (0, 0, 1), "flying", 1)
+    assert table.role == "leader"
+    table.token_appeared(1)
+    assert table.leader == 1 and table.role == "explorer"
+    table.token_vanished(1)
+    assert table.leader == 2 and table.role == "leader"
+    assert events == [("joined", 3, "heartbeat"), ("joined", 1, "token"), ("left", 1, "token")]
+
+
+def test_silent_peer_expires_after_timeout_and_rejoins_on_heartbeat() -> None:
+    table, events, clock = make()
+    table.heard(5, (1, 2, 3), "flying", 9)
+    clock.now += 2.9
+    assert table.expire() == []
+    clock.now += 0.2
+    assert table.expire() == [5]
+    assert table.cluster == [2]
+    table.heard(5, (1, 2, 3), "flying", 9)
+    assert [e[0] for e in events] == ["joined", "left", "joined"]
+    assert table.ever_seen == {5}
+
+
+def test_own_messages_are_ignored() -> None:
+    table, events, _ = make(own=4)
+    table.heard(4, (0, 0, 0), "flying", 1)
+    table.token_appeared(4)
+    assert table.cluster == [4] and events == []

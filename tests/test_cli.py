@@ -1,0 +1,39 @@
+"""The CLI's contract with a person: bad flags and bad config are one line on stderr and exit code 2."""
+
+import subprocess
+import sys
+
+import pytest
+
+
+def swarm(*args: str, timeout: float = 60) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "swarm", *args], capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ("run", "--drones", "0"),
+        ("run", "--drones", "three"),
+        ("run", "--start", "1,2"),
+        ("run", "--set", "mission.drones=-4"),
+        ("run", "--set", "agent.bogus=1"),
+        ("run", "--config", "/nonexistent/swarm.toml"),
+        ("agent", "--autopilot", "not-a-url"),
+        ("frobnicate",),
+    ],
+)
+def test_bad_input_is_one_line_and_exit_2(args: tuple[str, ...]) -> None:
+    result = swarm(*args)
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, result.stderr
+    assert "error" in lines[0]
+    assert "Traceback" not in result.stderr
+
+
+def test_help_lists_every_command() -> None:
+    result = swarm("--help")
+    assert result.returncode == 0
+    for command in ("run", "sim", "agent", "observe", "bench"):
+        assert command in result.stdout
