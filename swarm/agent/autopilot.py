@@ -108,6 +108,7 @@ class Autopilot:
         self._home_local_ned = local if all(math.isfinite(v) for v in local) else (0.0, 0.0, 0.0)
         await self._call("set rate", lambda: self._tel.set_rate_position_velocity_ned(20.0))
         self._start_streams()
+        await self.wait_until(lambda t: t.samples > 0, max(1.0, deadline - time.monotonic()), "position telemetry")
 
     # -- frames ------------------------------------------------------------------------------------------
 

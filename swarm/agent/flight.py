@@ -99,7 +99,7 @@ class Flight:
         await self.ap.arm_and_takeoff(altitude)
         self.airborne = True
         deadline = time.monotonic() + 15.0 + altitude / 0.3
-        while self.ap.height_above_home < 0.9 * altitude:
+        while not self.ap.height_above_home >= 0.9 * altitude:  # written so that an unknown (NaN) height waits
             await self._tick(stop, deadline, "take-off altitude")
 
     async def _fly_segment_to(self, goal: Vec3, stop: asyncio.Event) -> None:

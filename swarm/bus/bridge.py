@@ -1,8 +1,11 @@
 """The asyncio face of the bus: validated messages in and out of a Zenoh session.
 
 Zenoh calls back on its own threads. Every callback here only counts, decodes and hands the result to the
-event loop with `call_soon_threadsafe`; it never blocks and never lets an exception into Zenoh (an uncaught
-exception there can hang interpreter exit). Handlers, liveliness callbacks included, run on the loop thread.
+event loop with `call_soon_threadsafe`; it never blocks and never lets an exception into Zenoh. Handlers,
+liveliness callbacks included, run on the loop thread; an exception in a handler is logged and counted.
+
+Always close the bus (`await bus.close()`, or ``async with await AsyncBus.open(...) as bus``). A bus still
+open when the interpreter exits is closed by an exit hook, because Zenoh otherwise hangs the exit.
 
 Publishing never blocks the loop:
 - best-effort (heartbeats, default): BEST_EFFORT + CongestionControl.DROP + express, put directly on the
@@ -20,6 +23,7 @@ Publishing never blocks the loop:
 from __future__ import annotations
 
 import asyncio
+import atexit
 import collections
 import inspect
 import logging
@@ -117,13 +121,16 @@ class AsyncBus:
         self.counters = TrafficCounters()
         self.closed_cleanly: bool | None = None
         self._loop = loop
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()  # the entity tables; never taken in Zenoh callbacks
+        self._pending_lock = threading.Lock()
         self._publishers: dict[tuple[str, bool], zenoh.Publisher] = {}
         self._subscribers: list[Any] = []
         self._tokens: dict[str, zenoh.LivelinessToken] = {}
         self._writer: _ReliableWriter | None = None
         self._pending_bytes = 0
         self._closed = False
+        with _open_buses_lock:
+            _open_buses.add(self)
 
     @classmethod
     async def open(cls, bus: BusSettings, mission: str) -> AsyncBus:
@@ -225,10 +232,14 @@ class AsyncBus:
             except Exception:
                 log.exception("subscriber callback for %s failed", key_expr)
 
-        self._declare(lambda: self.session.declare_subscriber(key_expr, on_sample), key_expr)
+        # REMOTE: a session would otherwise receive its own publications, which are not traffic.
+        self._declare(
+            lambda: self.session.declare_subscriber(key_expr, on_sample, allowed_origin=zenoh.Locality.REMOTE),
+            key_expr,
+        )
 
     def _deliver(self, kind: str, nbytes: int, handler: Callable[[str, Any], None], key: str, msg: Any) -> None:
-        with self._lock:
+        with self._pending_lock:
             if self._pending_bytes + nbytes > MAX_PENDING_DELIVERY_BYTES:
                 self.counters.dropped(kind, "backlog")
                 return
@@ -239,7 +250,7 @@ class AsyncBus:
             self.counters.dropped(kind, "closed")
 
     def _run_handler(self, kind: str, nbytes: int, handler: Callable[[str, Any], None], key: str, msg: Any) -> None:
-        with self._lock:
+        with self._pending_lock:
             self._pending_bytes -= nbytes
         if self._closed:
             self.counters.dropped(kind, "closed")
@@ -327,43 +338,86 @@ class AsyncBus:
                 log.warning("undeclare failed during close: %s", zenoh_error_text(exc))
         self.session.close()
 
-    async def close(self, timeout_s: float = CLOSE_TIMEOUT_S) -> None:
-        """Undeclare everything and close the session; never waits longer than about `timeout_s`.
-
-        Closing runs on its own daemon thread: if Zenoh deadlocks, the thread is abandoned, an error is
-        logged and `closed_cleanly` is False. Safe to call twice.
-        """
-        if self._closed:
-            return
+    def _start_close(self, on_done: Callable[[BaseException | None], None]) -> None:
+        """Mark the bus closed and tear it down on a daemon thread, which ends with `on_done(error)`."""
         self._closed = True
-        done: asyncio.Future[None] = self._loop.create_future()
-
-        def finish(error: BaseException | None) -> None:
-            if done.done():
-                return
-            if error is None:
-                done.set_result(None)
-            else:
-                done.set_exception(error)
+        with _open_buses_lock:
+            _open_buses.discard(self)
 
         def run() -> None:
             error: BaseException | None = None
             try:
                 self._teardown()
-            except BaseException as exc:  # reported on the loop, never raised in this thread
+            except BaseException as exc:  # reported by the waiter, never raised in this thread
                 error = exc
-            try:
-                self._loop.call_soon_threadsafe(finish, error)
-            except RuntimeError:
-                pass
+            on_done(error)
 
         threading.Thread(target=run, name="bus-close", daemon=True).start()
-        try:
-            await asyncio.wait_for(asyncio.shield(done), timeout_s)
-            self.closed_cleanly = True
-        except asyncio.TimeoutError:
-            self.closed_cleanly = False
+
+    def _closing_ended(self, finished: bool, error: BaseException | None, timeout_s: float) -> None:
+        self.closed_cleanly = finished and error is None
+        if not finished:
             log.error("Zenoh session did not close within %.1f s; abandoning it", timeout_s)
-        except Exception as exc:
-            self.closed_cleanly = False
-            log.error("closing the Zenoh session failed: %s", zenoh_error_text(exc))
+        elif error is not None:
+            log.error("closing the Zenoh session failed: %s", zenoh_error_text(error))
+
+    async def close(self, timeout_s: float = CLOSE_TIMEOUT_S) -> None:
+        """Undeclare everything and close the session; never waits longer than about `timeout_s`.
+
+        Reliable messages still queued get up to 1 s to go out. Closing runs on its own daemon thread: if
+        Zenoh deadlocks, the thread is abandoned, an error is logged and `closed_cleanly` is False.
+        Safe to call twice.
+        """
+        if self._closed:
+            return
+        loop = asyncio.get_running_loop()
+        done: asyncio.Future[BaseException | None] = loop.create_future()
+
+        def on_done(error: BaseException | None) -> None:
+            try:
+                loop.call_soon_threadsafe(lambda: done.done() or done.set_result(error))
+            except RuntimeError:  # the loop is closed
+                pass
+
+        self._start_close(on_done)
+        try:
+            error = await asyncio.wait_for(asyncio.shield(done), timeout_s)
+        except asyncio.TimeoutError:
+            self._closing_ended(False, None, timeout_s)
+        else:
+            self._closing_ended(True, error, timeout_s)
+
+    def _close_blocking(self, timeout_s: float) -> None:
+        if self._closed:
+            return
+        finished = threading.Event()
+        errors: list[BaseException | None] = []
+
+        def on_done(error: BaseException | None) -> None:
+            errors.append(error)
+            finished.set()
+
+        self._start_close(on_done)
+        ended = finished.wait(timeout_s)
+        self._closing_ended(ended, errors[0] if errors else None, timeout_s)
+
+
+# A process that exits with a Zenoh callback still declared hangs in interpreter shutdown (measured: every
+# time, even with an undeclare in an `atexit` hook). Buses left open are closed from threading's exit hook,
+# which runs before the interpreter starts tearing down.
+_open_buses: set[AsyncBus] = set()
+_open_buses_lock = threading.Lock()
+
+
+def _close_leftover_buses() -> None:
+    with _open_buses_lock:
+        leftovers = list(_open_buses)
+    for bus in leftovers:
+        log.warning("the bus of mission %s was not closed; closing it at exit", bus.keys.mission)
+        bus._close_blocking(CLOSE_TIMEOUT_S)
+
+
+try:
+    threading._register_atexit(_close_leftover_buses)  # type: ignore[attr-defined]
+except (AttributeError, RuntimeError):  # not CPython >= 3.9, or already shutting down
+    atexit.register(_close_leftover_buses)

@@ -24,9 +24,12 @@ from pydantic_core import core_schema
 
 SCHEMA_VERSION = 1
 DEFAULT_MAX_BYTES = 1 << 20
-# Bounds the element count of any msgpack array or map; big numeric data belongs in an NDArray.
-MAX_CONTAINER_LEN = 1 << 17
-MAX_STR_LEN = 4096
+# Bounds the element count of any msgpack array or map: the unpacker allocates for the count it reads before
+# the elements arrive, at each of up to 1024 nesting levels (so at most 1024 * 16384 * 8 B = 128 MiB, mostly
+# untouched, for a hostile 80 kB input). Big numeric data belongs in an NDArray. Strings and bytes are
+# bounded by the input itself.
+MAX_CONTAINER_LEN = 1 << 14
+MAX_STR_LEN = 4096  # default bound of every str field; a field may set its own max_length
 
 ALLOWED_DTYPES = frozenset(
     {"bool", "int8", "int16", "int32", "int64", "uint8", "uint16", "uint32", "uint64", "float32", "float64"}
@@ -186,7 +189,7 @@ def _unpack(data: bytes | bytearray | memoryview, max_bytes: int) -> Any:
         strict_map_key=True,
         timestamp=0,
         ext_hook=_reject_ext,
-        max_str_len=min(max_bytes, MAX_STR_LEN),
+        max_str_len=max_bytes,
         max_bin_len=max_bytes,
         max_array_len=min(max_bytes, MAX_CONTAINER_LEN),
         max_map_len=min(max_bytes, MAX_CONTAINER_LEN),

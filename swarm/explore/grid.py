@@ -7,6 +7,8 @@ not. A point outside the grid is never free.
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -16,6 +18,9 @@ from scipy import ndimage
 # Cell-boundary crossings closer than this (in segment parameter) are one crossing: a segment through a cell
 # corner must not be split at a rounding-error sliver that lands in a neighbouring cell.
 _CROSSING_MERGE_T = 1e-9
+# Segments crossing more cells than this are looked up with numpy; shorter ones in plain Python, which avoids
+# numpy's per-call overhead (a one-cell check is ~4x faster; break-even near 100 cells, measured).
+_PYTHON_PROBE_LIMIT = 96
 
 
 @dataclass
@@ -74,28 +79,43 @@ class OccupancyGrid:
     def is_free(self, p: ArrayLike) -> bool:
         return bool(self.points_are_free(np.asarray(p, dtype=float).reshape(1, 3))[0])
 
-    def segment_is_free(self, a: ArrayLike, b: ArrayLike) -> bool:
-        """Every cell the segment a-b passes through is free.
+    def segment_is_free(self, a: Sequence[float], b: Sequence[float]) -> bool:
+        """Every cell the segment a-b passes through is free (and in the grid).
 
         Exact traversal rather than fixed-step sampling: one probe point between each pair of consecutive
         cell-boundary crossings, so no cell is skipped however thinly it is clipped (this subsumes sampling
         at resolution/2). Touching only an edge or corner of a cell does not count as passing through it.
         """
-        a_cells = (np.asarray(a, dtype=float).reshape(3) - self.origin) / self.resolution
-        b_cells = (np.asarray(b, dtype=float).reshape(3) - self.origin) / self.resolution
-        delta = b_cells - a_cells
-        crossings = [np.array([0.0, 1.0])]
-        for axis in range(3):
-            if delta[axis] == 0.0:
-                continue
-            lo, hi = sorted((a_cells[axis], b_cells[axis]))
-            boundaries = np.arange(np.floor(lo) + 1.0, np.ceil(hi))
-            crossings.append((boundaries - a_cells[axis]) / delta[axis])
-        t = np.unique(np.concatenate(crossings))
-        t = t[np.concatenate(([True], np.diff(t) > _CROSSING_MERGE_T))]
-        probes_t = (t[:-1] + t[1:]) / 2 if len(t) > 1 else t
-        probes = self.origin + (a_cells + probes_t[:, None] * delta) * self.resolution
-        return bool(self.points_are_free(probes).all())
+        start, end = self._cell_coords(a), self._cell_coords(b)
+        if start is None or end is None:
+            return False
+        delta = [e - s for s, e in zip(start, end)]
+        crossings = [0.0, 1.0]
+        for s, e, d in zip(start, end, delta):
+            if d != 0.0:
+                crossings.extend((k - s) / d for k in range(math.floor(min(s, e)) + 1, math.ceil(max(s, e))))
+        crossings.sort()
+        probes_t = [(t0 + t1) * 0.5 for t0, t1 in zip(crossings, crossings[1:]) if t1 - t0 > _CROSSING_MERGE_T]
+        if len(probes_t) > _PYTHON_PROBE_LIMIT:
+            t = np.array(probes_t)[:, None]
+            cells = np.floor(np.array(start) + t * np.array(delta)).astype(np.int64)
+            if cells.min() < 0 or (cells.max(axis=0) >= self.occupied.shape).any():
+                return False
+            return not self.occupied[cells[:, 0], cells[:, 1], cells[:, 2]].any()
+        (sx, sy, sz), (dx, dy, dz), (nx, ny, nz) = start, delta, self.shape
+        occupied = self.occupied
+        for t in probes_t:
+            i, j, k = math.floor(sx + t * dx), math.floor(sy + t * dy), math.floor(sz + t * dz)
+            if not (0 <= i < nx and 0 <= j < ny and 0 <= k < nz) or occupied[i, j, k]:
+                return False
+        return True
+
+    def _cell_coords(self, p: Sequence[float]) -> tuple[float, float, float] | None:
+        """`p` in units of cells from the grid origin, as plain floats; None when not finite."""
+        ox, oy, oz = self.origin.tolist()
+        r = self.resolution
+        coords = ((float(p[0]) - ox) / r, (float(p[1]) - oy) / r, (float(p[2]) - oz) / r)
+        return coords if all(map(math.isfinite, coords)) else None
 
     def nearest_free(self, p: ArrayLike, max_radius: float) -> np.ndarray | None:
         """Centre of the free cell closest to `p` within `max_radius` metres, or None."""

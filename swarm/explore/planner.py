@@ -46,7 +46,9 @@ def plan_path(
     straight corridor gives two points. The first and last points are `start` and `goal` themselves when
     their cells are free; otherwise the nearest free cell centre within SNAP_RADIUS_CELLS cells, or
     NoPathError. `z_limits` (min, max) restricts the search to the grid layers whose centre lies within it;
-    limits narrower than a cell select the one layer containing their middle.
+    limits no wider than a cell, such as (z, z), select the one layer containing their middle. Intermediate
+    waypoints are cell centres; a free start or goal keeps its own altitude, which may differ from its
+    layer's centre by up to half a cell.
     """
     search_grid = grid if z_limits is None else _restrict_to_layers(grid, z_limits)
     start_point = _free_endpoint(grid, search_grid, start, "start")
@@ -74,15 +76,19 @@ def _restrict_to_layers(grid: OccupancyGrid, z_limits: tuple[float, float]) -> O
     """The slab of `grid` made of the layers allowed by `z_limits` (a contiguous range)."""
     z_min, z_max = sorted(z_limits)
     nz = grid.shape[2]
-    centres_z = grid.origin[2] + (np.arange(nz) + 0.5) * grid.resolution
     tolerance = 1e-6 * grid.resolution
-    allowed = np.flatnonzero((centres_z >= z_min - tolerance) & (centres_z <= z_max + tolerance))
-    if len(allowed) == 0:
-        layer = math.floor(((z_min + z_max) / 2 - grid.origin[2]) / grid.resolution)
-        if not 0 <= layer < nz:
-            raise NoPathError(f"z_limits {z_limits} lie outside the grid's altitude range")
-        allowed = np.array([layer])
-    low, high = int(allowed[0]), int(allowed[-1]) + 1
+    if z_max - z_min <= grid.resolution + tolerance:
+        # (z, z) or (z - res/2, z + res/2): the layer `index_of` gives for z, never two, even when the
+        # limits fall exactly on layer centres.
+        low = math.floor(((z_min + z_max) / 2 - grid.origin[2]) / grid.resolution)
+        high = low + 1
+    else:
+        centres_z = grid.origin[2] + (np.arange(nz) + 0.5) * grid.resolution
+        allowed = np.flatnonzero((centres_z >= z_min - tolerance) & (centres_z <= z_max + tolerance))
+        low, high = (int(allowed[0]), int(allowed[-1]) + 1) if len(allowed) else (nz, nz)
+    low, high = max(low, 0), min(high, nz)
+    if low >= high:
+        raise NoPathError(f"z_limits {z_limits} lie outside the grid's altitude range")
     origin = grid.origin + np.array([0.0, 0.0, low * grid.resolution])
     unknown = None if grid.unknown is None else grid.unknown[:, :, low:high]
     return OccupancyGrid(origin, grid.resolution, grid.occupied[:, :, low:high], unknown)
@@ -103,7 +109,7 @@ def _free_endpoint(grid: OccupancyGrid, search_grid: OccupancyGrid, point: Vec3,
 
 
 def _astar(grid: OccupancyGrid, start: np.ndarray, goal: np.ndarray, max_expansions: int) -> list[np.ndarray]:
-    """Cell indices from the start cell to the goal cell, both included."""
+    """Indices of the cells from the start cell to the goal cell, both included."""
     # A one-cell blocked border makes every neighbour index of a grid cell valid: no bounds checks.
     padded_free = np.pad(~grid.occupied, 1, constant_values=False)
     shape = padded_free.shape
@@ -130,7 +136,7 @@ def _astar(grid: OccupancyGrid, start: np.ndarray, goal: np.ndarray, max_expansi
     while heap:
         cell = pop(heap)[2]
         if not open_cells[cell]:
-            continue  # a stale entry: the cell was reached more cheaply since
+            continue  # stale entry: already expanded through a cheaper one
         if cell == goal_flat:
             return _trace(parent, goal_flat, shape)
         open_cells[cell] = 0
@@ -156,11 +162,11 @@ def _octile_distance_to(goal_cell: np.ndarray, shape: tuple[int, ...]) -> np.nda
     Admissible and consistent for Euclidean step costs, and much tighter than the straight-line distance,
     which in 3D leaves A* expanding a wide ellipsoid of near-ties.
     """
-    deltas = np.sort(
-        np.stack(np.meshgrid(*(np.abs(np.arange(n) - g) for n, g in zip(shape, goal_cell)), indexing="ij")),
-        axis=0,
-    ).astype(float)
-    small, middle, large = deltas
+    dx, dy, dz = (np.abs(np.arange(n, dtype=float) - g) for n, g in zip(shape, goal_cell))
+    dx, dy, dz = dx[:, None, None], dy[None, :, None], dz[None, None, :]
+    large = np.maximum(np.maximum(dx, dy), dz)
+    small = np.minimum(np.minimum(dx, dy), dz)
+    middle = (dx + dy + dz) - large - small
     return (large - middle) + _SQRT2 * (middle - small) + _SQRT3 * small
 
 
@@ -173,7 +179,11 @@ def _trace(parent: array.array, goal_flat: int, shape: tuple[int, ...]) -> list[
 
 
 def _shortcut(grid: OccupancyGrid, points: list[np.ndarray]) -> list[np.ndarray]:
-    """Greedy string pulling: from each kept point, go straight to the farthest point still in sight."""
+    """Greedy string pulling: from each kept point, go straight to the last point before one is out of sight.
+
+    Consecutive points are adjacent cells of the A* path, so every kept segment is either checked here or one
+    A* step; each step between neighbouring free cells is itself free.
+    """
     if len(points) <= 2:
         return points
     kept = [points[0]]

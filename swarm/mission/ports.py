@@ -1,7 +1,7 @@
 """Check up front that the ports a swarm needs are free, so a clash is one clear line, not a silent failure.
 
-MAVSDK binds UDP with SO_REUSEADDR and would share (and silently lose) a port another process holds, so a
-plain bind without that option is the only reliable test.
+MAVSDK binds UDP with SO_REUSEADDR and would share (and silently lose) a port another process holds, so for
+UDP a plain bind without that option is the only reliable test.
 """
 
 from __future__ import annotations
@@ -14,6 +14,10 @@ from swarm.errors import PortInUseError
 def ensure_free(host: str, port: int, kind: str, what: str) -> None:
     sock_type = socket.SOCK_DGRAM if kind == "udp" else socket.SOCK_STREAM
     with socket.socket(socket.AF_INET, sock_type) as sock:
+        if kind == "tcp":
+            # Zenoh listens with SO_REUSEADDR, so a port held only by TIME_WAIT leftovers is usable; an active
+            # listener still makes this bind fail.
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
             sock.bind((host, port))
         except OSError:

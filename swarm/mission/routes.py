@@ -22,7 +22,7 @@ from swarm.sim.worlds import World
 
 PLAN_RESOLUTION_M = 0.2
 SAFETY_MARGIN_M = 0.15
-ALTITUDES_M = (1.25, 0.8, 1.7)  # above each drone's home floor; 0.45 m apart > two drone radii
+ALTITUDES_M = (1.2, 0.75, 1.65)  # above each drone's home floor; 0.45 m apart > two drone radii
 MAX_TOUR_M = 45.0  # per drone, out and back: keeps the scripted mission to about a minute of flight
 CANDIDATES_TRIED = 12
 
@@ -39,9 +39,7 @@ def scripted_routes(
     world: World, spawns: list[Vec3], lo: np.ndarray, hi: np.ndarray, drone_radius_m: float
 ) -> list[ScriptedRoute]:
     """One route per spawn (drone ids 1..N in spawn order), each ending above the drone's home."""
-    occupied_origin, occupied = world.occupancy(PLAN_RESOLUTION_M, lo, hi)
-    grid = OccupancyGrid(np.asarray(occupied_origin, float), PLAN_RESOLUTION_M, occupied)
-    free = grid.inflate(drone_radius_m + SAFETY_MARGIN_M)
+    free = clearance_grid(world, lo, hi, PLAN_RESOLUTION_M, drone_radius_m + SAFETY_MARGIN_M)
     axis = 0 if hi[0] - lo[0] >= hi[1] - lo[1] else 1
     order = sorted(range(len(spawns)), key=lambda i: spawns[i][axis])
     edges = np.linspace(lo[axis], hi[axis], len(spawns) + 1)
@@ -57,10 +55,23 @@ def scripted_routes(
     return sorted(routes, key=lambda r: r.drone_id)
 
 
+def clearance_grid(world: World, lo: np.ndarray, hi: np.ndarray, resolution: float, clearance: float) -> OccupancyGrid:
+    """Cells whose centre is inside a solid or nearer than `clearance` to a surface are blocked.
+
+    Built from the exact distance to the mesh rather than by inflating a voxelised occupancy, which would
+    count the half-diagonal of a cell twice and close doorways a drone fits through.
+    """
+    shape = np.maximum(1, np.floor((np.asarray(hi) - lo) / resolution).astype(int))
+    axes = [lo[i] + (np.arange(shape[i]) + 0.5) * resolution for i in range(3)]
+    centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    blocked = (world.distance(centres) < clearance) | world.is_inside_solid(centres)
+    return OccupancyGrid(np.asarray(lo, float), resolution, blocked.reshape(tuple(shape)))
+
+
 def _sector_tour(free: OccupancyGrid, airborne: Vec3, axis: int, sector: tuple[float, float]) -> list[Vec3]:
     """Out to the farthest reachable point of the sector (within MAX_TOUR_M there and back), then home."""
     z = airborne[2]
-    z_limits = (z - PLAN_RESOLUTION_M / 2, z + PLAN_RESOLUTION_M / 2)
+    z_limits = (z, z)  # exactly the one layer of cells that contains the flight altitude
     layer = free.index_of((airborne[0], airborne[1], z))
     if layer is None:
         return [airborne]
@@ -82,7 +93,8 @@ def _sector_tour(free: OccupancyGrid, airborne: Vec3, axis: int, sector: tuple[f
             back = plan_path(free, goal, airborne, z_limits=z_limits)
         except NoPathError:
             continue
-        tour = out + back[1:]
+        # Planning is in one layer of cells; fly it at the drone's own altitude, not at the cells' centres.
+        tour = [(x, y, z) for x, y, _ in out + back[1:]]
         if path_length(tour) <= MAX_TOUR_M:
             return tour
         if best is None or path_length(tour) < path_length(best):

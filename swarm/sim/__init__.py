@@ -1,0 +1,8 @@
+"""The simulator: worlds (meshes and their geometry), and PX4-compatible MAVLink vehicles.
+
+- `worlds`: `load_world`, `BUILTIN_WORLDS`, `spawn_points`, `World` (distance, inside-solid, occupancy, save).
+- `server`: `run_simulator` / `SimServer` host every vehicle in one process; `sim_command` is `swarm sim`.
+- `vehicle` (MAVLink) over `autopilot` (flight logic) over `kinematics` (point-mass motion); `collisions`.
+
+The simulator knows nothing of agents: it is a MAVLink autopilot and a world, nothing more.
+"""

@@ -178,13 +178,20 @@ def load_world(spec: str) -> World:
     if spec in BUILTIN_WORLDS:
         return BUILTIN_WORLDS[spec]()
     path = Path(spec)
+    names = ", ".join(BUILTIN_WORLDS)
     if not path.exists():
-        names = ", ".join(BUILTIN_WORLDS)
+        if path.suffix.lower() in MESH_EXTENSIONS or os.sep in spec:
+            raise WorldError(f"world file {path} does not exist (built-in worlds: {names})")
         raise WorldError(f"world '{spec}' is neither a built-in world ({names}) nor an existing mesh file")
     if path.suffix.lower() not in MESH_EXTENSIONS:
         raise WorldError(f"world file {path} has unsupported extension '{path.suffix}' (use .ply, .obj or .stl)")
-    if not path.is_file() or not os.access(path, os.R_OK):
-        raise WorldError(f"world file {path} cannot be read")
+    try:
+        with path.open("rb") as f:
+            head = f.read(3)
+    except OSError as exc:
+        raise WorldError(f"world file {path} cannot be read: {exc.strerror or exc}") from None
+    if path.suffix.lower() == ".ply" and head != b"ply":
+        raise WorldError(f"world file {path} is not a PLY file")  # checked here: the PLY reader prints to stderr
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
         mesh = o3d.io.read_triangle_mesh(str(path))
     mesh.remove_duplicated_vertices()  # STL stores three vertices per triangle
@@ -232,7 +239,7 @@ def find_default_start(world: World, clearance: float = 0.5, column_height: floa
     if not ok.any():
         raise WorldError(f"world '{world.name}' has no free floor point with {clearance} m clearance")
     x, y, z = feet[np.argmax(ok)]
-    return float(x), float(y), float(z)
+    return float(x), float(y), _mm(z)
 
 
 # --- spawn points ----------------------------------------------------------------------------------------------
@@ -310,7 +317,12 @@ def spawn_points(
             f"only {len(chosen)} of {n} take-off points with {spacing:g} m spacing and {clearance:g} m clearance "
             f"fit around {label}"
         )
-    return [(float(x), float(y), float(z)) for x, y, z in chosen]
+    return [(float(x), float(y), _mm(z)) for x, y, z in chosen]
+
+
+def _mm(z: float) -> float:
+    """Round a ray-cast height (float32) to 0.1 mm, so a floor at 0 reads 0.0."""
+    return float(np.round(z, 4)) + 0.0
 
 
 def _fmt(v: np.ndarray) -> str:

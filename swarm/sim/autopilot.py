@@ -1,0 +1,295 @@
+"""The flight logic of one simulated PX4 vehicle: arming, modes, setpoints, failsafes and the landed state.
+
+No MAVLink here (see vehicle.py): every command is a method that returns a MAV_RESULT. Positions are in the world
+frame (x east, y north, z up); the vehicle never goes below its home height (its floor).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import Enum
+
+import numpy as np
+from pymavlink.dialects.v20 import common as mavlink
+
+from swarm.config import Vec3
+from swarm.sim import kinematics
+from swarm.sim.kinematics import Body, Limits
+from swarm.sim.px4 import FlightMode, LandedState, Params
+
+ACCEPTED = mavlink.MAV_RESULT_ACCEPTED
+DENIED = mavlink.MAV_RESULT_DENIED
+REJECTED = mavlink.MAV_RESULT_TEMPORARILY_REJECTED  # what PX4 answers to a mode it cannot enter now
+
+GROUND_EPS_M = 0.02  # this close to the home height counts as touching the ground
+OFFBOARD_ENTRY_S = 1.0  # PX4 enters OFFBOARD only with a setpoint this fresh
+ARRIVED_M = 0.1
+_HOLD_MODES = (FlightMode.HOLD, FlightMode.POSCTL, FlightMode.MANUAL)
+
+
+@dataclass
+class Setpoint:
+    """An offboard setpoint in the world frame; NaN axes are not controlled."""
+
+    position: np.ndarray
+    velocity: np.ndarray
+    yaw: float | None = None  # NED rad
+    yaw_rate: float | None = None  # rad/s
+
+
+class RtlPhase(Enum):
+    CLIMB = 1
+    RETURN = 2
+    DESCEND = 3
+
+
+class Autopilot:
+    def __init__(self, home: Vec3, params: Params, position_gain: float) -> None:
+        self.home = np.array(home, dtype=np.float64)
+        self.params = params
+        self.position_gain = position_gain
+        self.body = Body(self.home.copy())
+        self.armed = False
+        self.mode = FlightMode.HOLD
+        self.landed_state = LandedState.ON_GROUND
+        self.distance_m = 0.0
+        self._hold_point = self.home.copy()
+        self._hold_yaw: float | None = None
+        self._auto_speed: float | None = None  # DO_CHANGE_SPEED / DO_REPOSITION override of MPC_XY_CRUISE
+        self._takeoff_target = self.home.copy()
+        self._land_xy = self.home[:2].copy()
+        self._rtl_phase = RtlPhase.CLIMB
+        self._rtl_z = self.home[2]
+        self._setpoint: Setpoint | None = None
+        self._setpoint_time = -math.inf
+        self._ground_since: float | None = None
+        self._flown_since_arm = False
+        self._commanding_up = False
+        self._limits_key: tuple | None = None
+        self._limits = self._make_limits(False)
+
+    # --- state -------------------------------------------------------------------------------------------------
+
+    @property
+    def position(self) -> np.ndarray:
+        return self.body.position
+
+    @property
+    def velocity(self) -> np.ndarray:
+        return self.body.velocity
+
+    @property
+    def height(self) -> float:
+        """Height above home (m)."""
+        return float(self.body.position[2] - self.home[2])
+
+    @property
+    def at_ground(self) -> bool:
+        return self.height <= GROUND_EPS_M
+
+    @property
+    def airborne(self) -> bool:
+        return self.landed_state != LandedState.ON_GROUND
+
+    def limits(self, offboard: bool = False) -> Limits:
+        key = (offboard, self._auto_speed, self.params.version)
+        if self._limits_key != key:
+            self._limits, self._limits_key = self._make_limits(offboard), key
+        return self._limits
+
+    def _make_limits(self, offboard: bool) -> Limits:
+        p = self.params
+        max_xy = p["MPC_XY_VEL_MAX"]
+        if not offboard:
+            max_xy = min(max_xy, self._auto_speed or p["MPC_XY_CRUISE"])
+        return Limits(
+            max_xy=max_xy,
+            max_up=p["MPC_Z_VEL_MAX_UP"],
+            max_down=p["MPC_Z_VEL_MAX_DN"],
+            max_accel=p["MPC_ACC_HOR"],
+            gain=self.position_gain,
+            max_yaw_rate=math.radians(p["MPC_YAWRAUTO_MAX"]),
+        )
+
+    # --- commands (each returns a MAV_RESULT) ------------------------------------------------------------------
+
+    def arm(self, now: float, force: bool = False) -> int:
+        if self.armed:
+            return ACCEPTED
+        if not self.at_ground and not force:
+            return DENIED
+        self.armed = True
+        self._ground_since = now
+        self._flown_since_arm = False
+        self._hold_point = self.body.position.copy()
+        self._update_landed_state()
+        return ACCEPTED
+
+    def disarm(self, force: bool = False) -> int:
+        if not self.armed:
+            return ACCEPTED
+        if self.landed_state != LandedState.ON_GROUND and not force:
+            return DENIED
+        self._disarm()
+        return ACCEPTED
+
+    def takeoff(self, height: float | None = None) -> int:
+        """Climb to `height` above home (MIS_TAKEOFF_ALT when None) over the current point, then hold."""
+        if not self.armed:
+            return DENIED
+        height = self.params["MIS_TAKEOFF_ALT"] if height is None else height
+        if not math.isfinite(height) or height <= GROUND_EPS_M:
+            return DENIED
+        self._takeoff_target = np.array([*self.position[:2], max(self.home[2] + height, self.position[2])])
+        self._set_mode(FlightMode.TAKEOFF)
+        return ACCEPTED
+
+    def land(self) -> int:
+        self._land_xy = self.position[:2].copy()
+        self._set_mode(FlightMode.LAND)
+        return ACCEPTED
+
+    def return_to_launch(self) -> int:
+        self._rtl_z = max(self.position[2], self.home[2] + self.params["RTL_RETURN_ALT"])
+        self._rtl_phase = RtlPhase.DESCEND if self.at_ground else RtlPhase.CLIMB
+        self._set_mode(FlightMode.RTL)
+        return ACCEPTED
+
+    def set_mode(self, mode: FlightMode, now: float) -> int:
+        if mode == self.mode:
+            return ACCEPTED
+        if mode == FlightMode.OFFBOARD:
+            if now - self._setpoint_time > OFFBOARD_ENTRY_S:
+                return REJECTED
+            self._set_mode(mode)
+            return ACCEPTED
+        if mode == FlightMode.TAKEOFF:
+            return self.takeoff() if self.armed else REJECTED
+        if mode == FlightMode.LAND:
+            return self.land()
+        if mode == FlightMode.RTL:
+            return self.return_to_launch()
+        self._enter_hold(mode)
+        return ACCEPTED
+
+    def reposition(self, target: np.ndarray, yaw: float | None, speed: float | None) -> int:
+        """Fly to `target` (NaN axes: keep the current value) and hold there, in HOLD, as PX4's DO_REPOSITION."""
+        if not self.armed or not self.airborne:
+            return DENIED
+        self._enter_hold()
+        self._hold_point = np.where(np.isnan(target), self.position, target)
+        self._hold_yaw = yaw if yaw is not None and math.isfinite(yaw) else None
+        if speed is not None and speed > 0:
+            self._auto_speed = speed
+        return ACCEPTED
+
+    def change_speed(self, speed: float) -> int:
+        """Horizontal speed in the auto modes; <= 0 restores the default (MPC_XY_CRUISE)."""
+        self._auto_speed = speed if speed > 0 else None
+        return ACCEPTED
+
+    def set_setpoint(self, setpoint: Setpoint, now: float) -> None:
+        self._setpoint = setpoint
+        self._setpoint_time = now
+
+    # --- physics -----------------------------------------------------------------------------------------------
+
+    def step(self, dt: float, now: float) -> None:
+        before = self.body.position.copy()
+        if self.mode == FlightMode.OFFBOARD and now - self._setpoint_time > self.params["COM_OF_LOSS_T"]:
+            self._enter_hold()  # offboard loss failsafe, as PX4 without RC
+        if self.armed:
+            target_p, target_v, yaw, yaw_rate = self._guidance()
+            limits = self.limits(offboard=self.mode == FlightMode.OFFBOARD)
+            cmd = kinematics.velocity_command(self.body.position, target_p, target_v, limits)
+            self._commanding_up = cmd[2] > 0.05
+            kinematics.track(self.body, cmd, limits, dt, self.home[2])
+            kinematics.turn(self.body, yaw, yaw_rate, limits, dt)
+        else:
+            self._commanding_up = False
+            kinematics.fall(self.body, dt, self.home[2], self.params["MPC_ACC_HOR"])
+            self.body.yaw_rate = 0.0
+        self.distance_m += math.dist(self.body.position, before)
+        self._progress()
+        self._update_landed_state()
+        self._auto_disarm(now)
+
+    def _guidance(self) -> tuple[np.ndarray, np.ndarray, float | None, float | None]:
+        """Position target, velocity target (NaN axes free) and yaw target/rate of the current mode."""
+        zero = np.zeros(3)
+        if self.mode == FlightMode.OFFBOARD and self._setpoint is not None:
+            sp = self._setpoint
+            return sp.position, sp.velocity, sp.yaw, sp.yaw_rate
+        if self.mode == FlightMode.TAKEOFF:
+            return self._takeoff_target, zero, None, None
+        if self.mode == FlightMode.LAND or (self.mode == FlightMode.RTL and self._rtl_phase == RtlPhase.DESCEND):
+            xy = self._land_xy if self.mode == FlightMode.LAND else self.home[:2]
+            return (
+                np.array([xy[0], xy[1], np.nan]),
+                np.array([0.0, 0.0, -self.params["MPC_LAND_SPEED"]]),
+                None,
+                None,
+            )
+        if self.mode == FlightMode.RTL:
+            xy = self.position[:2] if self._rtl_phase == RtlPhase.CLIMB else self.home[:2]
+            return np.array([xy[0], xy[1], self._rtl_z]), zero, None, None
+        return self._hold_point, zero, self._hold_yaw, None
+
+    def _progress(self) -> None:
+        """Mode transitions that follow from where the vehicle got to."""
+        p, v = self.body.position, self.body.velocity
+        if self.mode == FlightMode.TAKEOFF:
+            if abs(p[2] - self._takeoff_target[2]) < ARRIVED_M and abs(v[2]) < 0.3:
+                self._enter_hold()
+                self._hold_point = self._takeoff_target.copy()
+        elif self.mode == FlightMode.RTL:
+            if self._rtl_phase == RtlPhase.CLIMB and abs(p[2] - self._rtl_z) < ARRIVED_M:
+                self._rtl_phase = RtlPhase.RETURN
+            elif self._rtl_phase == RtlPhase.RETURN and np.linalg.norm(p[:2] - self.home[:2]) < 0.2:
+                self._rtl_phase = RtlPhase.DESCEND
+
+    def _update_landed_state(self) -> None:
+        if self.armed and self.mode == FlightMode.TAKEOFF:
+            state = LandedState.TAKEOFF
+        elif self.at_ground and not self._commanding_up:
+            state = LandedState.ON_GROUND
+        elif self.mode == FlightMode.LAND or (self.mode == FlightMode.RTL and self._rtl_phase == RtlPhase.DESCEND):
+            state = LandedState.LANDING
+        else:
+            state = LandedState.IN_AIR
+        self.landed_state = state
+
+    def _auto_disarm(self, now: float) -> None:
+        """PX4's COM_DISARM_LAND after a landing and COM_DISARM_PRFLT when armed but never taking off."""
+        if not self.armed:
+            return
+        if self.landed_state != LandedState.ON_GROUND:
+            self._ground_since = None
+            self._flown_since_arm = True
+            return
+        if self._ground_since is None:
+            self._ground_since = now
+        delay = self.params["COM_DISARM_LAND" if self._flown_since_arm else "COM_DISARM_PRFLT"]
+        if delay > 0 and now - self._ground_since >= delay:
+            self._disarm()
+
+    # --- helpers -----------------------------------------------------------------------------------------------
+
+    def _set_mode(self, mode: FlightMode) -> None:
+        self.mode = mode
+        self._update_landed_state()
+
+    def _enter_hold(self, mode: FlightMode = FlightMode.HOLD) -> None:
+        self._hold_point = self.body.position.copy()
+        self._hold_yaw = None
+        self._auto_speed = None
+        self._set_mode(mode if mode in _HOLD_MODES else FlightMode.HOLD)
+
+    def _disarm(self) -> None:
+        self.armed = False
+        self._ground_since = None
+        self._commanding_up = False
+        if self.mode in (FlightMode.TAKEOFF, FlightMode.LAND, FlightMode.RTL):
+            self.mode = FlightMode.HOLD
+        self._update_landed_state()

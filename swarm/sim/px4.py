@@ -1,0 +1,129 @@
+"""What makes the simulated autopilot look like PX4 on the wire: flight modes, landed states and parameters."""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+from enum import Enum, IntEnum
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from swarm.config import SimSettings
+
+# PX4 main modes (px4_custom_mode.h) and the AUTO sub modes
+MAIN_MANUAL, MAIN_POSCTL, MAIN_AUTO, MAIN_OFFBOARD = 1, 3, 4, 6
+SUB_TAKEOFF, SUB_LOITER, SUB_MISSION, SUB_RTL, SUB_LAND = 2, 3, 4, 5, 6
+
+
+class FlightMode(Enum):
+    """The PX4 modes the simulator flies; value = (main mode, sub mode)."""
+
+    MANUAL = (MAIN_MANUAL, 0)
+    POSCTL = (MAIN_POSCTL, 0)
+    HOLD = (MAIN_AUTO, SUB_LOITER)
+    TAKEOFF = (MAIN_AUTO, SUB_TAKEOFF)
+    LAND = (MAIN_AUTO, SUB_LAND)
+    RTL = (MAIN_AUTO, SUB_RTL)
+    OFFBOARD = (MAIN_OFFBOARD, 0)
+
+    @property
+    def custom_mode(self) -> int:
+        main, sub = self.value
+        return (main << 16) | (sub << 24)
+
+    @classmethod
+    def from_px4(cls, main: int, sub: int) -> FlightMode | None:
+        """The mode a DO_SET_MODE asks for, or None when the simulator does not fly it (e.g. MISSION)."""
+        if main != MAIN_AUTO:
+            sub = 0
+        for mode in cls:
+            if mode.value == (main, sub):
+                return mode
+        return None
+
+
+class LandedState(IntEnum):
+    """MAV_LANDED_STATE values."""
+
+    ON_GROUND = mavlink.MAV_LANDED_STATE_ON_GROUND
+    IN_AIR = mavlink.MAV_LANDED_STATE_IN_AIR
+    TAKEOFF = mavlink.MAV_LANDED_STATE_TAKEOFF
+    LANDING = mavlink.MAV_LANDED_STATE_LANDING
+
+    @property
+    def label(self) -> str:
+        return self.name.lower()
+
+
+REAL32 = mavlink.MAV_PARAM_TYPE_REAL32
+INT32 = mavlink.MAV_PARAM_TYPE_INT32
+
+
+@dataclass
+class Param:
+    value: float
+    type: int = REAL32
+
+
+class Params:
+    """The PX4 parameters the simulator honours (read live, so a PARAM_SET changes its behaviour)."""
+
+    def __init__(self, sim: SimSettings, sysid: int) -> None:
+        self._table: dict[str, Param] = {
+            "MIS_TAKEOFF_ALT": Param(sim.takeoff_alt_m),
+            "MPC_XY_VEL_MAX": Param(sim.max_speed_xy_m_s),
+            "MPC_XY_CRUISE": Param(sim.max_speed_xy_m_s),
+            "MPC_Z_VEL_MAX_UP": Param(sim.max_speed_up_m_s),
+            "MPC_Z_VEL_MAX_DN": Param(sim.max_speed_down_m_s),
+            "MPC_ACC_HOR": Param(sim.max_accel_m_s2),
+            "MPC_LAND_SPEED": Param(sim.land_speed_m_s),
+            "MPC_YAWRAUTO_MAX": Param(90.0),
+            "RTL_RETURN_ALT": Param(sim.takeoff_alt_m),
+            "COM_OF_LOSS_T": Param(sim.offboard_timeout_s),
+            "COM_DISARM_LAND": Param(1.0),
+            "COM_DISARM_PRFLT": Param(10.0),
+            "MAV_SYS_ID": Param(sysid, INT32),
+            "MAV_TYPE": Param(mavlink.MAV_TYPE_QUADROTOR, INT32),
+            "SYS_AUTOSTART": Param(4001, INT32),  # PX4's SITL quadrotor airframe
+        }
+        self._names = list(self._table)
+        self.version = 0  # bumped on every change, so readers can cache what they derive
+
+    def __getitem__(self, name: str) -> float:
+        return self._table[name].value
+
+    def __contains__(self, name: str) -> bool:
+        return name in self._table
+
+    def __len__(self) -> int:
+        return len(self._table)
+
+    def names(self) -> list[str]:
+        return list(self._names)
+
+    def index(self, name: str) -> int:
+        return self._names.index(name)
+
+    def get(self, name: str) -> Param:
+        return self._table[name]
+
+    def set_wire(self, name: str, wire_value: float) -> bool:
+        """Set from a PARAM_SET value (ints travel bytewise in the float, as PX4 does); False if unknown."""
+        param = self._table.get(name)
+        if param is None:
+            return False
+        param.value = _from_wire(wire_value) if param.type == INT32 else float(wire_value)
+        self.version += 1
+        return True
+
+    def wire_value(self, name: str) -> float:
+        param = self._table[name]
+        return _to_wire(int(param.value)) if param.type == INT32 else float(param.value)
+
+
+def _to_wire(value: int) -> float:
+    return struct.unpack("<f", struct.pack("<i", value))[0]
+
+
+def _from_wire(value: float) -> int:
+    return struct.unpack("<i", struct.pack("<f", value))[0]

@@ -1,0 +1,282 @@
+"""The simulator process: every vehicle of the swarm in one single-threaded selectors loop.
+
+Vehicle k (MAVLink sysid k) binds UDP sim.host:vehicle_port(k) and sends to sim.host:gcs_port(k), as PX4
+multi-vehicle SITL does; it answers whoever last sent it MAVLink, so `udpout://` clients work too. Physics and
+collision checks run at sim.physics_hz; telemetry streams at their own rates (at most once per physics step).
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import selectors
+import signal
+import socket
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from swarm.config import ConfigError, SwarmConfig, gcs_port, vehicle_port
+from swarm.errors import PortInUseError, SwarmError, WorldError
+from swarm.sim.collisions import CollisionMonitor
+from swarm.sim.vehicle import Downlink, SimVehicle
+from swarm.sim.worlds import World, load_world, spawn_points
+
+STATUS_PERIOD_S = 0.5
+MAX_CATCHUP_STEPS = 10  # after a longer stall (e.g. the machine was suspended) the simulation skips time
+
+
+class SimServer:
+    """Hosts the vehicles; `open()` binds every port, `run(stop)` loops until the event is set."""
+
+    def __init__(self, config: SwarmConfig, world: World, start_time: float | None = None) -> None:
+        """`start_time` (monotonic seconds, default now) is t = 0; tests that call step() pick their own clock."""
+        self.config = config
+        self.world = world
+        sim, mission = config.sim, config.mission
+        homes = list(sim.spawns) or spawn_points(world, mission.start, mission.drones, mission.spawn_spacing_m)
+        _check_homes(world, homes)
+        self.ids = list(range(1, len(homes) + 1))
+        self._start = time.monotonic() if start_time is None else start_time
+        self.vehicles = {
+            vid: SimVehicle(vid, home, config, Downlink(None, (sim.host, gcs_port(sim, vid))), self._start)
+            for vid, home in zip(self.ids, homes)
+        }
+        self.collisions = CollisionMonitor(world, self.ids, sim.drone_radius_m)
+        self._sockets: dict[int, socket.socket] = {}
+        self._lock = threading.Lock()
+        self._t = 0.0
+        self._ready = False
+        self._done = False
+
+    # --- life cycle --------------------------------------------------------------------------------------------
+
+    def open(self) -> None:
+        """Bind every vehicle port and check every GCS port is free; PortInUseError names the first taken one."""
+        sim = self.config.sim
+        vehicle_ports = {vid: vehicle_port(sim, vid) for vid in self.ids}
+        gcs_ports = {vid: gcs_port(sim, vid) for vid in self.ids}
+        shared = set(vehicle_ports.values()) & set(gcs_ports.values())
+        if shared:
+            raise ConfigError(f"UDP port {min(shared)} is both a vehicle port and a GCS port: separate the port ranges")
+        try:
+            for vid, port in vehicle_ports.items():
+                self._sockets[vid] = _bind_udp(sim.host, port, f"vehicle {vid}")
+            for vid, port in gcs_ports.items():
+                _bind_udp(sim.host, port, f"GCS of vehicle {vid}").close()
+        except BaseException:
+            self.close()
+            raise
+        for vid, sock in self._sockets.items():
+            self.vehicles[vid].downlink.sock = sock
+        self._ready = True
+
+    def close(self) -> None:
+        for vid, sock in self._sockets.items():
+            self.vehicles[vid].downlink.sock = None
+            sock.close()
+        self._sockets.clear()
+
+    def __enter__(self) -> SimServer:
+        self.open()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def endpoints(self) -> list[dict]:
+        host = self.config.sim.host
+        return [
+            {
+                "id": vid,
+                "sysid": vid,
+                "vehicle_port": vehicle_port(self.config.sim, vid),
+                "gcs_port": gcs_port(self.config.sim, vid),
+                "host": host,
+                "connect_url": f"udpin://0.0.0.0:{gcs_port(self.config.sim, vid)}",
+            }
+            for vid in self.ids
+        ]
+
+    def set_telemetry_enabled(self, drone_id: int, enabled: bool) -> None:
+        """Fault injection: silence (or restore) everything vehicle `drone_id` sends."""
+        if drone_id not in self.vehicles:
+            raise ValueError(f"no vehicle with id {drone_id}")
+        with self._lock:
+            self.vehicles[drone_id].telemetry_enabled = enabled
+
+    # --- the loop ----------------------------------------------------------------------------------------------
+
+    def run(self, stop: threading.Event, on_ready: Callable[[list[dict]], None] | None = None) -> dict:
+        """Simulate until `stop` is set; return the final status. Call open() first."""
+        if not self._ready:
+            raise RuntimeError("SimServer.open() must be called before run()")
+        if on_ready is not None:
+            on_ready(self.endpoints())
+        dt = 1.0 / self.config.sim.physics_hz
+        status_path = self.config.sim.status_path
+        with selectors.DefaultSelector() as selector:
+            for vid, sock in self._sockets.items():
+                selector.register(sock, selectors.EVENT_READ, self.vehicles[vid])
+            next_step = time.monotonic()
+            next_status = next_step
+            while not stop.is_set():
+                ready = selector.select(max(0.0, next_step - time.monotonic()))
+                now = time.monotonic()
+                with self._lock:
+                    for key, _ in ready:
+                        _drain(key.fileobj, key.data, now)
+                    if now >= next_step:
+                        lag = int((now - next_step) / dt)
+                        if lag > MAX_CATCHUP_STEPS:
+                            next_step += lag * dt
+                        while next_step <= now:
+                            self.step(dt, next_step)
+                            next_step += dt
+                        for vehicle in self.vehicles.values():
+                            vehicle.tick(now)
+                    for vehicle in self.vehicles.values():
+                        vehicle.downlink.flush()  # replies and telemetry of this iteration, in order
+                if status_path is not None and now >= next_status:
+                    self.write_status(status_path)
+                    next_status = max(next_status + STATUS_PERIOD_S, now)
+        self._done = True
+        if status_path is not None:
+            self.write_status(status_path)
+        return self.status()
+
+    def step(self, dt: float, now: float) -> None:
+        """One physics step of every vehicle at time `now` (monotonic seconds), then the collision check."""
+        for vehicle in self.vehicles.values():
+            vehicle.step(dt, now)
+        self._t = now - self._start
+        aps = [v.autopilot for v in self.vehicles.values()]
+        positions = np.array([ap.position for ap in aps])
+        airborne = np.array([ap.airborne for ap in aps])
+        self.collisions.update(self._t, positions, airborne)
+
+    # --- status ------------------------------------------------------------------------------------------------
+
+    def status(self) -> dict:
+        with self._lock:
+            vehicles = []
+            for vid, vehicle in self.vehicles.items():
+                v = vehicle.status()
+                vehicles.append({
+                    "id": vid,
+                    "vehicle_port": vehicle_port(self.config.sim, vid),
+                    "gcs_port": gcs_port(self.config.sim, vid),
+                    "home": v["home"],
+                    "position": v["position"],
+                    "velocity": v["velocity"],
+                    "armed": v["armed"],
+                    "mode": v["mode"],
+                    "landed_state": v["landed_state"],
+                    "distance_m": v["distance_m"],
+                    "collisions": self.collisions.counts[vid],
+                    "gcs_seen": v["gcs_seen"],
+                    "last_gcs_message_age_s": v["last_gcs_message_age_s"],
+                })
+            return {
+                "ready": self._ready,
+                "done": self._done,
+                "t": round(self._t, 3),
+                "world": self.world.name,
+                "collisions": self.collisions.total,
+                "collision_events": [e.to_json() for e in self.collisions.events],
+                "vehicles": vehicles,
+            }
+
+    def write_status(self, path: Path) -> None:
+        """Write the status JSON atomically (temp file + rename), so a reader never sees half a file."""
+        path = Path(path)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            tmp.write_text(json.dumps(self.status()))
+            os.replace(tmp, path)
+        except OSError as exc:
+            raise SwarmError(f"cannot write simulator status to {path}: {exc.strerror or exc}") from None
+
+
+def _check_homes(world: World, homes: list[tuple[float, float, float]]) -> None:
+    feet = np.array(homes, dtype=np.float64).reshape(-1, 3) + [0.0, 0.0, 0.1]
+    for k, inside in enumerate(world.is_inside_solid(feet), start=1):
+        if inside:
+            x, y, z = homes[k - 1]
+            raise WorldError(f"home of vehicle {k} ({x:g}, {y:g}, {z:g}) is inside a wall or another solid")
+
+
+def _bind_udp(host: str, port: int, role: str) -> socket.socket:
+    """A non-blocking UDP socket bound WITHOUT SO_REUSEADDR, so a port someone holds is refused."""
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        sock.bind((host, port))
+    except OSError as exc:
+        sock.close()
+        if exc.errno == errno.EADDRINUSE:
+            raise PortInUseError(f"UDP port {port} ({role}) is already in use") from None
+        raise SwarmError(f"cannot bind UDP {host}:{port} ({role}): {exc.strerror or exc}") from None
+    sock.setblocking(False)
+    return sock
+
+
+def _drain(sock: socket.socket, vehicle: SimVehicle, now: float) -> None:
+    while True:
+        try:
+            data, addr = sock.recvfrom(65535)
+        except ConnectionRefusedError:
+            continue  # an ICMP error queued on the socket: this call consumed it
+        except OSError:  # BlockingIOError: drained
+            return
+        vehicle.receive(data, addr, now)
+
+
+def run_simulator(
+    config: SwarmConfig,
+    world: World,
+    stop: threading.Event,
+    on_ready: Callable[[list[dict]], None] | None = None,
+) -> dict:
+    """Bind every vehicle (PortInUseError before anything runs), call on_ready(endpoints), simulate until `stop`
+    is set, and return the final status."""
+    server = SimServer(config, world)
+    with server:
+        return server.run(stop, on_ready)
+
+
+def sim_command(config: SwarmConfig) -> int:
+    """`swarm sim`: host the vehicles of config.mission.world until SIGINT/SIGTERM."""
+    world = load_world(config.mission.world)
+    stop = threading.Event()
+    handlers = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        status = run_simulator(config, world, stop, on_ready=_print_endpoints)
+    finally:
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
+    print(summary_line(status), flush=True)
+    return 0
+
+
+def _print_endpoints(endpoints: list[dict]) -> None:
+    for ep in endpoints:
+        print(
+            f"vehicle {ep['id']}: MAVLink udp {ep['host']}:{ep['vehicle_port']} -> {ep['host']}:{ep['gcs_port']}"
+            f"  (agent: swarm agent --id {ep['id']} --autopilot {ep['connect_url']})"
+        )
+    sys.stdout.flush()
+
+
+def summary_line(status: dict) -> str:
+    kinds = [e["kind"] for e in status["collision_events"]]
+    distances = ", ".join(f"{v['id']}: {v['distance_m']:.1f} m" for v in status["vehicles"])
+    return (
+        f"sim stopped after {status['t']:.1f} s: {status['collisions']} collisions "
+        f"({kinds.count('world')} world, {kinds.count('drone')} drone); distance flown: {distances}"
+    )

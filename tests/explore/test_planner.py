@@ -1,0 +1,169 @@
+import numpy as np
+import pytest
+
+from swarm.config import Vec3
+from swarm.explore.grid import OccupancyGrid
+from swarm.explore.planner import NoPathError, path_is_free, path_length, plan_path
+from tests.explore.synthetic import clearance, densify, empty_grid, fill, office_grid, room_with_wall
+
+DRONE_RADIUS = 0.3
+WALL_X = (4.0, 4.2)  # room_with_wall's wall cell spans x 4.0..4.2
+DOOR_Y = (2.4, 3.6)
+
+
+def _assert_collision_free(path: list[Vec3], inflated: OccupancyGrid, raw: OccupancyGrid | None = None) -> None:
+    """Every segment is free on the inflated grid and, when `raw` is given, keeps DRONE_RADIUS from it."""
+    assert all(inflated.segment_is_free(a, b) for a, b in zip(path[:-1], path[1:]))
+    if raw is not None:
+        assert clearance(raw, densify(path, 0.02)).min() >= DRONE_RADIUS - 1e-9
+
+
+def test_straight_corridor_gives_two_waypoints() -> None:
+    grid = empty_grid((10.0, 3.0, 3.0))
+    fill(grid, (0, 0, 0), (10, 0.9, 3))
+    fill(grid, (0, 2.1, 0), (10, 3, 3))
+    inflated = grid.inflate(DRONE_RADIUS)
+    start, goal = (0.5, 1.5, 1.5), (9.5, 1.5, 1.5)
+    path = plan_path(inflated, start, goal)
+    assert path == [start, goal]
+    assert path_length(path) == pytest.approx(9.0)
+
+
+def test_path_goes_through_the_door_and_keeps_clear_of_the_wall() -> None:
+    raw = room_with_wall(door_open=True)
+    inflated = raw.inflate(DRONE_RADIUS)
+    start, goal = (1.0, 0.6, 1.0), (7.0, 5.4, 1.0)
+    path = plan_path(inflated, start, goal)
+
+    assert path[0] == start and path[-1] == goal
+    assert 3 <= len(path) <= 6
+    _assert_collision_free(path, inflated, raw)
+    points = densify(path, 0.02)
+    in_wall = points[(points[:, 0] >= WALL_X[0]) & (points[:, 0] <= WALL_X[1])]
+    assert len(in_wall) > 0
+    assert np.all((in_wall[:, 1] > DOOR_Y[0]) & (in_wall[:, 1] < DOOR_Y[1]) & (in_wall[:, 2] < 2.0))
+    assert path_length(path) < 1.1 * (np.hypot(3.0, 3.0 - 0.6) + np.hypot(3.0, 5.4 - 3.0))
+
+
+def test_closed_door_means_no_path() -> None:
+    inflated = room_with_wall(door_open=False).inflate(DRONE_RADIUS)
+    with pytest.raises(NoPathError, match="unreachable"):
+        plan_path(inflated, (1.0, 0.6, 1.0), (7.0, 5.4, 1.0))
+
+
+def test_a_door_narrower_than_the_drone_is_closed() -> None:
+    raw = room_with_wall(door_open=False)
+    fill(raw, (4.0, 2.8, 0.0), (4.19, 3.2, 2.0), value=False)  # 0.4 m wide, for a drone 0.6 m across
+    with pytest.raises(NoPathError):
+        plan_path(raw.inflate(DRONE_RADIUS), (1.0, 0.6, 1.0), (7.0, 5.4, 1.0))
+
+
+def test_start_in_an_inflated_cell_is_snapped_to_free_space() -> None:
+    raw = room_with_wall()
+    inflated = raw.inflate(DRONE_RADIUS)
+    start = (3.75, 1.0, 1.0)  # 0.25 m from the wall: inside the inflated margin, within snapping reach
+    assert not inflated.is_free(start)
+    path = plan_path(inflated, start, (7.0, 5.4, 1.0))
+    assert path[0] != start
+    assert inflated.is_free(path[0])
+    assert np.linalg.norm(np.subtract(path[0], start)) <= 2 * inflated.resolution
+    _assert_collision_free(path, inflated)
+
+
+def test_start_deep_inside_an_obstacle_is_rejected() -> None:
+    raw = fill(room_with_wall(), (0.0, 0.0, 0.0), (2.0, 2.0, 3.0))
+    with pytest.raises(NoPathError, match="start .* blocked"):
+        plan_path(raw.inflate(DRONE_RADIUS), (1.0, 1.0, 1.0), (7.0, 5.4, 1.0))
+
+
+def test_goal_blocked_or_outside_the_grid_is_rejected() -> None:
+    inflated = room_with_wall().inflate(DRONE_RADIUS)
+    with pytest.raises(NoPathError, match="goal .* blocked"):
+        plan_path(inflated, (1.0, 1.0, 1.0), (4.1, 1.0, 2.5))
+    with pytest.raises(NoPathError, match="goal .* outside the grid"):
+        plan_path(inflated, (1.0, 1.0, 1.0), (9.0, 1.0, 1.0))
+    with pytest.raises(NoPathError, match="start .* outside the grid"):
+        plan_path(inflated, (1.0, 1.0, -0.5), (7.0, 1.0, 1.0))
+
+
+def _wall_with_high_gap_and_low_door() -> tuple[OccupancyGrid, OccupancyGrid]:
+    """Wall at x = 4 m from floor to 2 m with open space above it, and a door at y 4.4..5.6 m below 1.2 m."""
+    raw = fill(empty_grid((8.0, 6.0, 3.0)), (4.0, 0.0, 0.0), (4.19, 6.0, 2.0))
+    fill(raw, (4.0, 4.4, 0.0), (4.19, 5.6, 1.2), value=False)
+    return raw, raw.inflate(DRONE_RADIUS)
+
+
+def test_without_z_limits_the_path_flies_over_the_wall() -> None:
+    raw, inflated = _wall_with_high_gap_and_low_door()
+    path = plan_path(inflated, (1.0, 0.6, 0.7), (7.0, 0.6, 0.7))
+    assert max(p[2] for p in path) > 2.0
+    _assert_collision_free(path, inflated, raw)
+
+
+def test_z_limits_keep_the_path_in_the_altitude_band() -> None:
+    raw, inflated = _wall_with_high_gap_and_low_door()
+    path = plan_path(inflated, (1.0, 0.6, 0.7), (7.0, 0.6, 0.7), z_limits=(0.5, 0.9))
+    points = densify(path, 0.02)
+    assert points[:, 2].min() >= 0.5 - 1e-9 and points[:, 2].max() <= 0.9 + 1e-9
+    assert np.any((points[:, 1] > 4.4) & (points[:, 1] < 5.6) & (np.abs(points[:, 0] - 4.1) < 0.1))
+    _assert_collision_free(path, inflated, raw)
+
+
+def test_single_layer_z_limits_plan_in_that_layer() -> None:
+    raw, inflated = _wall_with_high_gap_and_low_door()
+    # 0.75 is no cell centre (they are at 0.1 + 0.2 k): the layer containing it, centred at 0.7, is used.
+    path = plan_path(inflated, (1.0, 0.6, 0.7), (7.0, 0.6, 0.7), z_limits=(0.75, 0.75))
+    assert [p[2] for p in path] == pytest.approx([0.7] * len(path))
+    _assert_collision_free(path, inflated, raw)
+    # A band one cell wide whose ends are both layer centres (0.5 and 0.7) is still a single layer.
+    path = plan_path(inflated, (1.0, 0.6, 0.6), (7.0, 0.6, 0.6), z_limits=(0.5, 0.7))
+    altitudes = {round(p[2], 6) for p in path[1:-1]}
+    assert len(altitudes) == 1 and altitudes <= {0.5, 0.7}
+    with pytest.raises(NoPathError, match="z_limits"):
+        plan_path(inflated, (1.0, 0.6, 0.7), (7.0, 0.6, 0.7), z_limits=(2.5, 2.5))  # start is 9 layers below
+
+
+def test_unknown_cells_are_obstacles_only_when_asked() -> None:
+    raw = room_with_wall(door_open=True)
+    raw.unknown = np.zeros(raw.shape, dtype=bool)
+    raw.unknown[20:21, 12:18, :10] = True  # the doorway has not been observed
+    start, goal = (1.0, 0.6, 1.0), (7.0, 5.4, 1.0)
+    path = plan_path(raw.inflate(DRONE_RADIUS, unknown_is_occupied=False), start, goal)
+    _assert_collision_free(path, raw.inflate(DRONE_RADIUS), raw)
+    with pytest.raises(NoPathError, match="unreachable"):
+        plan_path(raw.inflate(DRONE_RADIUS, unknown_is_occupied=True), start, goal)
+
+
+def test_path_is_free_detects_a_map_change_for_replanning() -> None:
+    start, goal = (1.0, 0.6, 1.0), (7.0, 5.4, 1.0)
+    inflated = room_with_wall().inflate(DRONE_RADIUS)
+    path = plan_path(inflated, start, goal)
+    assert path_is_free(inflated, path)
+
+    updated_raw = fill(room_with_wall(), (6.0, 4.0, 0.0), (6.6, 6.0, 3.0))  # a new obstacle on the last leg
+    updated = updated_raw.inflate(DRONE_RADIUS)
+    assert not path_is_free(updated, path)
+    replanned = plan_path(updated, start, goal)
+    _assert_collision_free(replanned, updated, updated_raw)
+
+
+def test_search_budget_and_trivial_paths() -> None:
+    inflated = room_with_wall().inflate(DRONE_RADIUS)
+    with pytest.raises(NoPathError, match="gave up after 10 expansions"):
+        plan_path(inflated, (1.0, 0.6, 1.0), (7.0, 5.4, 1.0), max_expansions=10)
+    assert plan_path(inflated, (1.0, 1.0, 1.0), (1.0, 1.0, 1.0)) == [(1.0, 1.0, 1.0), (1.0, 1.0, 1.0)]
+    assert plan_path(inflated, (1.0, 1.0, 1.0), (1.05, 1.02, 1.0)) == [(1.0, 1.0, 1.0), (1.05, 1.02, 1.0)]
+
+
+def test_path_length() -> None:
+    assert path_length([(0.0, 0.0, 0.0), (3.0, 4.0, 0.0), (3.0, 4.0, 2.0)]) == pytest.approx(7.0)
+    assert path_length([(1.0, 2.0, 3.0)]) == 0.0
+
+
+def test_office_far_corner_through_two_doors() -> None:
+    raw = office_grid()
+    inflated = raw.inflate(0.25)
+    path = plan_path(inflated, (1.0, 1.0, 1.5), (29.0, 19.0, 1.5))
+    assert path[0] == (1.0, 1.0, 1.5) and path[-1] == (29.0, 19.0, 1.5)
+    _assert_collision_free(path, inflated)
+    assert path_length(path) < 45.0

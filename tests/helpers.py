@@ -1,0 +1,61 @@
+"""Test helpers: free port ranges (tests run beside other swarms on the same machine) and process hygiene."""
+
+from __future__ import annotations
+
+import random
+import subprocess
+import sys
+from dataclasses import dataclass
+
+import psutil
+from swarm.mission.ports import find_free_base
+
+
+@dataclass(frozen=True)
+class SwarmPorts:
+    vehicle_base: int
+    gcs_base: int
+    bus_base: int
+
+    def overrides(self) -> list[str]:
+        return [
+            "--set", f"sim.vehicle_base_port={self.vehicle_base}",
+            "--set", f"sim.gcs_base_port={self.gcs_base}",
+            "--set", f"bus.base_port={self.bus_base}",
+        ]
+
+
+def free_swarm_ports() -> SwarmPorts:
+    start = random.randrange(20000, 50000, 100)
+    vehicle = find_free_base("127.0.0.1", 16, "udp", start)
+    gcs = find_free_base("127.0.0.1", 16, "udp", vehicle + 20)
+    bus = find_free_base("127.0.0.1", 17, "tcp", gcs + 20)
+    return SwarmPorts(vehicle, gcs, bus)
+
+
+def swarm_cmd(*args: str) -> list[str]:
+    return [sys.executable, "-m", "swarm", *args]
+
+
+def processes_mentioning(needle: str) -> list[psutil.Process]:
+    """Live processes whose command line contains `needle` (a unique temp path), other than pytest itself."""
+    found = []
+    for proc in psutil.process_iter(["cmdline", "status"]):
+        try:
+            cmdline = " ".join(proc.info["cmdline"] or [])
+        except psutil.Error:
+            continue
+        if needle in cmdline and proc.info["status"] != psutil.STATUS_ZOMBIE:
+            found.append(proc)
+    return found
+
+
+def kill_all(procs: list[subprocess.Popen]) -> None:
+    for p in procs:
+        if p.poll() is None:
+            p.kill()
+    for p in procs:
+        try:
+            p.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            pass

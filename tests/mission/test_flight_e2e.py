@@ -1,0 +1,117 @@
+"""End to end: real `swarm sim`, `swarm agent` and `swarm observe` processes, real Zenoh on loopback, real MAVSDK
+talking MAVLink over UDP to the simulated vehicles. Small world, short flights."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.helpers import SwarmPorts, kill_all, processes_mentioning, swarm_cmd
+
+pytestmark = pytest.mark.timeout(240)
+
+
+def run_swarm(out: Path, ports: SwarmPorts, *args: str, timeout: float = 200) -> subprocess.CompletedProcess[str]:
+    cmd = swarm_cmd("run", "--no-live", "--out", str(out), *ports.overrides(), *args)
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+
+
+def test_two_agents_fly_see_each_other_and_land(tmp_path: Path, swarm_ports: SwarmPorts) -> None:
+    out = tmp_path / "run"
+    result = run_swarm(out, swarm_ports, "--drones", "2", "--world", "box", "--max-time", "150")
+    assert result.returncode == 0, result.stdout + result.stderr
+    report = json.loads((out / "report.json").read_text())
+    assert report["status"] == "complete"
+    assert report["collisions"] == 0
+    assert report["drones"] == 2 and report["world"] == "box"
+    assert [a["id"] for a in report["agents"]] == [1, 2]
+    for agent in report["agents"]:
+        other = 3 - agent["id"]
+        assert agent["landed"], agent
+        assert agent["peers_seen"] == [other], agent
+        assert agent["distance_m"] > 2.0, agent  # truth from the simulator: the drone really flew
+        assert agent["bytes_sent"] > 0 and agent["bytes_received"] > 0
+    assert not processes_mentioning(str(out)), "swarm run left processes behind"
+
+
+def test_mesh_file_world_with_start(tmp_path: Path, swarm_ports: SwarmPorts) -> None:
+    from swarm.sim.worlds import load_world
+
+    mesh = tmp_path / "room.ply"
+    world = load_world("box")
+    world.save(mesh)
+    start = ",".join(f"{c:.2f}" for c in world.default_start)
+    out = tmp_path / "run"
+    result = run_swarm(out, swarm_ports, "--drones", "1", "--world", str(mesh), "--start", start, "--max-time", "120")
+    assert result.returncode == 0, result.stdout + result.stderr
+    report = json.loads((out / "report.json").read_text())
+    assert report["status"] == "complete" and report["collisions"] == 0
+    assert report["agents"][0]["landed"]
+
+
+def _events(log: Path) -> list[dict[str, Any]]:
+    events = []
+    for line in log.read_text(errors="replace").splitlines():
+        if line.startswith("{"):
+            try:
+                events.append(json.loads(line))
+            except ValueError:
+                continue
+    return events
+
+
+def _wait_for(log: Path, predicate, timeout: float) -> dict[str, Any]:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        for event in _events(log):
+            if predicate(event):
+                return event
+        time.sleep(0.05)
+    raise AssertionError(f"no matching event in {log} within {timeout} s:\n{log.read_text()[-3000:]}")
+
+
+def test_killed_agent_is_seen_leaving_within_3_s_and_sigterm_lands(tmp_path: Path, swarm_ports: SwarmPorts) -> None:
+    """Two agents started by hand next to `swarm sim`, as on real drones."""
+    p = swarm_ports
+    ports = ["--set", f"sim.vehicle_base_port={p.vehicle_base}", "--set", f"sim.gcs_base_port={p.gcs_base}"]
+    procs: list[subprocess.Popen] = []
+    logs = {name: tmp_path / f"{name}.log" for name in ("sim", "agent-1", "agent-2")}
+    try:
+        procs.append(subprocess.Popen(
+            swarm_cmd("sim", "--world", "box", "--vehicles", "2", *ports),
+            stdout=logs["sim"].open("w"), stderr=subprocess.STDOUT,
+        ))
+        for k in (1, 2):
+            bus = [
+                "--set", f'bus.listen=["tcp/127.0.0.1:{p.bus_base + k}"]',
+                "--set", f'bus.connect=["tcp/127.0.0.1:{p.bus_base + 1}"]' if k == 2 else "bus.connect=[]",
+            ]
+            procs.append(subprocess.Popen(
+                swarm_cmd("agent", "--id", str(k), "--autopilot", f"udpin://127.0.0.1:{p.gcs_base + k - 1}",
+                          "--set", "agent.hover_s=120", *bus),
+                stdout=logs[f"agent-{k}"].open("w"), stderr=subprocess.STDOUT,
+            ))
+        sim, agent1, agent2 = procs
+        _wait_for(logs["agent-1"], lambda e: e["event"] == "peer_joined" and e["peer"] == 2, 60)
+        _wait_for(logs["agent-2"], lambda e: e["event"] == "peer_joined" and e["peer"] == 1, 60)
+        _wait_for(logs["agent-1"], lambda e: e["event"] == "phase" and e["phase"] == "hovering", 60)
+        assert agent2.poll() is None
+
+        killed_at = time.time()
+        agent2.send_signal(signal.SIGKILL)
+        left = _wait_for(logs["agent-1"], lambda e: e["event"] == "peer_left" and e["peer"] == 2, 10)
+        assert left["t"] - killed_at < 3.0, f"agent 1 saw agent 2 leave after {left['t'] - killed_at:.2f} s"
+
+        agent1.send_signal(signal.SIGTERM)
+        assert agent1.wait(timeout=60) == 0
+        events = _events(logs["agent-1"])
+        phases = [e["phase"] for e in events if e["event"] == "phase"]
+        assert phases[-2:] == ["landing", "landed"], phases
+    finally:
+        kill_all(procs)

@@ -1,0 +1,205 @@
+"""Flight logic and kinematics of one simulated vehicle, stepped with a fake clock (no sockets)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from swarm.config import SimSettings
+from swarm.sim.autopilot import ACCEPTED, REJECTED, Autopilot, Setpoint
+from swarm.sim.px4 import FlightMode, LandedState, Params
+
+DT = 0.02
+HOME = (2.0, 3.0, 0.5)  # a raised floor: the ground clamp is at the home height, not at z = 0
+
+
+class Clock:
+    def __init__(self, ap: Autopilot) -> None:
+        self.ap = ap
+        self.now = 100.0
+
+    def run(self, seconds: float, each=None) -> None:
+        for _ in range(round(seconds / DT)):
+            self.now += DT
+            self.ap.step(DT, self.now)
+            if each is not None:
+                each()
+
+    def run_until(self, condition, timeout: float) -> float:
+        started = self.now
+        while not condition():
+            assert self.now - started < timeout, "condition not reached in simulated time"
+            self.now += DT
+            self.ap.step(DT, self.now)
+        return self.now - started
+
+
+@pytest.fixture
+def sim() -> SimSettings:
+    return SimSettings()
+
+
+@pytest.fixture
+def ap(sim: SimSettings) -> Autopilot:
+    return Autopilot(HOME, Params(sim, 1), sim.position_gain)
+
+
+def offboard_to(ap: Autopilot, clock: Clock, target: tuple[float, float, float]) -> None:
+    ap.set_setpoint(Setpoint(np.array(target, dtype=float), np.full(3, np.nan)), clock.now)
+    assert ap.set_mode(FlightMode.OFFBOARD, clock.now) == ACCEPTED
+
+
+def keep_streaming(ap: Autopilot, clock: Clock, target) -> callable:
+    return lambda: ap.set_setpoint(Setpoint(np.array(target, dtype=float), np.full(3, np.nan)), clock.now)
+
+
+def test_takeoff_climbs_to_the_takeoff_altitude_then_holds(ap: Autopilot, sim: SimSettings) -> None:
+    clock = Clock(ap)
+    assert ap.takeoff() != ACCEPTED  # disarmed
+    assert ap.arm(clock.now) == ACCEPTED and ap.armed
+    assert ap.takeoff() == ACCEPTED
+    assert ap.mode == FlightMode.TAKEOFF and ap.landed_state == LandedState.TAKEOFF
+    clock.run_until(lambda: ap.mode == FlightMode.HOLD, timeout=10)
+    assert ap.landed_state == LandedState.IN_AIR
+    clock.run(2.0)
+    assert ap.height == pytest.approx(sim.takeoff_alt_m, abs=0.05)
+    assert np.allclose(ap.position[:2], HOME[:2])
+
+
+def test_speed_and_acceleration_limits(ap: Autopilot, sim: SimSettings) -> None:
+    clock = Clock(ap)
+    ap.arm(clock.now)
+    far = (HOME[0] + 30.0, HOME[1] - 20.0, HOME[2] + 8.0)
+    offboard_to(ap, clock, far)
+    previous = ap.velocity.copy()
+    worst = {"xy": 0.0, "up": 0.0, "down": 0.0, "accel": 0.0}
+
+    def record() -> None:
+        nonlocal previous
+        v = ap.velocity
+        worst["xy"] = max(worst["xy"], math.hypot(v[0], v[1]))
+        worst["up"] = max(worst["up"], v[2])
+        worst["down"] = max(worst["down"], -v[2])
+        worst["accel"] = max(worst["accel"], float(np.linalg.norm(v - previous)) / DT)
+        previous = v.copy()
+
+    stream = keep_streaming(ap, clock, far)
+    clock.run(8.0, each=lambda: (stream(), record()))
+    down = (far[0], far[1], HOME[2] + 0.3)
+    stream = keep_streaming(ap, clock, down)
+    clock.run(8.0, each=lambda: (stream(), record()))
+    assert worst["xy"] == pytest.approx(sim.max_speed_xy_m_s, abs=1e-6)  # reached, never exceeded
+    assert worst["up"] == pytest.approx(sim.max_speed_up_m_s, abs=1e-6)
+    assert worst["down"] == pytest.approx(sim.max_speed_down_m_s, abs=1e-6)
+    assert worst["accel"] <= sim.max_accel_m_s2 + 1e-6
+
+
+def test_reaches_an_offboard_target(ap: Autopilot) -> None:
+    clock = Clock(ap)
+    ap.arm(clock.now)
+    target = (HOME[0] + 4.0, HOME[1] + 2.0, HOME[2] + 1.5)
+    offboard_to(ap, clock, target)
+    stream = keep_streaming(ap, clock, target)
+    clock.run(10.0, each=stream)
+    assert np.linalg.norm(ap.position - target) < 0.05
+    assert np.linalg.norm(ap.velocity) < 0.05
+    assert ap.distance_m == pytest.approx(np.linalg.norm(np.subtract(target, HOME)), rel=0.1)
+
+
+def test_never_below_the_home_floor(ap: Autopilot) -> None:
+    clock = Clock(ap)
+    ap.arm(clock.now)
+    below = (HOME[0] + 1.0, HOME[1], HOME[2] - 5.0)
+    offboard_to(ap, clock, below)
+    stream = keep_streaming(ap, clock, below)
+    lowest = []
+    clock.run(3.0, each=lambda: (stream(), lowest.append(ap.position[2])))
+    assert min(lowest) >= HOME[2]
+
+
+def test_disarmed_in_air_falls_to_the_floor(ap: Autopilot) -> None:
+    clock = Clock(ap)
+    ap.arm(clock.now)
+    ap.takeoff()
+    clock.run_until(lambda: ap.mode == FlightMode.HOLD, timeout=10)
+    assert ap.disarm() != ACCEPTED  # in the air without force
+    assert ap.disarm(force=True) == ACCEPTED
+    clock.run(2.0)
+    assert ap.position[2] == HOME[2] and ap.landed_state == LandedState.ON_GROUND
+
+
+def test_landing_disarms_about_a_second_after_touchdown(ap: Autopilot, sim: SimSettings) -> None:
+    clock = Clock(ap)
+    ap.arm(clock.now)
+    ap.takeoff()
+    clock.run_until(lambda: ap.mode == FlightMode.HOLD, timeout=10)
+    assert ap.land() == ACCEPTED and ap.landed_state == LandedState.LANDING
+    descent = []
+    while ap.landed_state != LandedState.ON_GROUND:
+        assert len(descent) < 10 / DT
+        clock.now += DT
+        ap.step(DT, clock.now)
+        descent.append(-ap.velocity[2])
+    assert max(descent) == pytest.approx(sim.land_speed_m_s, abs=1e-6)
+    assert ap.armed
+    waited = clock.run_until(lambda: not ap.armed, timeout=5)
+    assert waited == pytest.approx(1.0, abs=2 * DT)
+    assert ap.mode == FlightMode.HOLD and ap.position[2] == HOME[2]
+
+
+def test_armed_without_taking_off_disarms_after_the_preflight_delay(ap: Autopilot) -> None:
+    clock = Clock(ap)
+    ap.arm(clock.now)
+    waited = clock.run_until(lambda: not ap.armed, timeout=15)
+    assert waited == pytest.approx(10.0, abs=2 * DT)
+
+
+def test_offboard_needs_a_fresh_setpoint(ap: Autopilot) -> None:
+    clock = Clock(ap)
+    assert ap.set_mode(FlightMode.OFFBOARD, clock.now) == REJECTED
+    ap.set_setpoint(Setpoint(np.array(HOME), np.full(3, np.nan)), clock.now)
+    clock.run(1.5)
+    assert ap.set_mode(FlightMode.OFFBOARD, clock.now) == REJECTED  # too old
+    ap.set_setpoint(Setpoint(np.array(HOME), np.full(3, np.nan)), clock.now)
+    assert ap.set_mode(FlightMode.OFFBOARD, clock.now) == ACCEPTED
+
+
+def test_offboard_loss_holds_position(ap: Autopilot, sim: SimSettings) -> None:
+    clock = Clock(ap)
+    ap.arm(clock.now)
+    target = (HOME[0] + 10.0, HOME[1], HOME[2] + 1.5)
+    offboard_to(ap, clock, target)
+    stream = keep_streaming(ap, clock, target)
+    clock.run(2.0, each=stream)
+    last_setpoint = clock.now
+    waited = clock.run_until(lambda: ap.mode != FlightMode.OFFBOARD, timeout=5)
+    assert ap.mode == FlightMode.HOLD
+    assert waited == pytest.approx(sim.offboard_timeout_s, abs=2 * DT)
+    where = ap.position.copy()
+    clock.run(5.0)
+    assert ap.position[0] < target[0] - 2.0  # stopped short of the old target
+    assert np.linalg.norm(ap.position - where) < 1.5  # braked near where the link was lost
+    assert clock.now - last_setpoint > 5
+
+
+def test_velocity_setpoint_and_yaw(ap: Autopilot) -> None:
+    clock = Clock(ap)
+    ap.arm(clock.now)
+    velocity = np.array([0.0, 1.0, 0.5])  # north and up
+    sp = lambda: ap.set_setpoint(Setpoint(np.full(3, np.nan), velocity, yaw=math.radians(90)), clock.now)
+    sp()
+    ap.set_mode(FlightMode.OFFBOARD, clock.now)
+    clock.run(3.0, each=sp)
+    assert np.allclose(ap.velocity, velocity, atol=1e-6)
+    assert ap.body.yaw == pytest.approx(math.radians(90))
+
+
+def test_return_to_launch_lands_at_home(ap: Autopilot) -> None:
+    clock = Clock(ap)
+    ap.arm(clock.now)
+    target = (HOME[0] + 5.0, HOME[1] + 5.0, HOME[2] + 1.0)
+    offboard_to(ap, clock, target)
+    clock.run(6.0, each=keep_streaming(ap, clock, target))
+    assert ap.return_to_launch() == ACCEPTED
+    clock.run_until(lambda: not ap.armed, timeout=40)
+    assert np.linalg.norm(ap.position - HOME) < 0.25

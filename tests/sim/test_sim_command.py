@@ -1,0 +1,73 @@
+"""`sim_command` (the body of `swarm sim`) in its own process: endpoints printed, runs until SIGINT, summary."""
+
+import queue
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+
+from swarm.config import load_config
+from swarm.errors import WorldError
+from swarm.sim.server import sim_command
+
+SCRIPT = """
+import sys
+from swarm.config import load_config
+from swarm.sim.server import sim_command
+sys.exit(sim_command(load_config(overrides={{
+    "mission.world": "box", "mission.drones": 2,
+    "sim.vehicle_base_port": {vbase}, "sim.gcs_base_port": {gbase},
+}})))
+"""
+
+
+class LineReader:
+    """Reads a process's stdout in a helper thread, so that a silent process cannot hang the test."""
+
+    def __init__(self, proc: subprocess.Popen) -> None:
+        self._lines: queue.Queue[str] = queue.Queue()
+        threading.Thread(target=lambda: [self._lines.put(line) for line in proc.stdout], daemon=True).start()
+
+    def take(self, count: int, timeout: float) -> list[str]:
+        got: list[str] = []
+        deadline = time.monotonic() + timeout
+        while len(got) < count:
+            try:
+                got.append(self._lines.get(timeout=max(0.0, deadline - time.monotonic())).rstrip("\n"))
+            except queue.Empty:
+                raise AssertionError(f"only got {got}") from None
+        return got
+
+
+def test_sim_command_prints_endpoints_and_stops_on_sigint(port_base: int) -> None:
+    gbase = port_base + 20
+    script = SCRIPT.format(vbase=port_base, gbase=gbase)
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    reader = LineReader(proc)
+    try:
+        lines = reader.take(2, timeout=30)
+        assert lines[0] == (
+            f"vehicle 1: MAVLink udp 127.0.0.1:{port_base} -> 127.0.0.1:{gbase}"
+            f"  (agent: swarm agent --id 1 --autopilot udpin://0.0.0.0:{gbase})"
+        )
+        assert lines[1].startswith(f"vehicle 2: MAVLink udp 127.0.0.1:{port_base + 1} -> 127.0.0.1:{gbase + 1}")
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=10)
+        err = proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 0, err
+    summary = reader.take(1, timeout=5)
+    assert summary[0].startswith("sim stopped after ")
+    assert "0 collisions" in summary[0] and "1: 0.0 m" in summary[0]
+
+
+def test_sim_command_unknown_world_is_a_world_error() -> None:
+    with pytest.raises(WorldError, match="atlantis"):
+        sim_command(load_config(overrides={"mission.world": "atlantis"}))
