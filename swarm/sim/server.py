@@ -56,8 +56,10 @@ class SimServer:
 
     # --- life cycle --------------------------------------------------------------------------------------------
 
-    def open(self) -> None:
-        """Bind every vehicle port and check every GCS port is free; PortInUseError names the first taken one."""
+    def open(self, check_gcs_ports: bool = True) -> None:
+        """Bind every vehicle port and (unless told not to) check every GCS port is free; PortInUseError names the
+        first taken one. A GCS port is taken legitimately when that drone's agent started first: callers that
+        allow this start order pass check_gcs_ports=False (see taken_gcs_ports)."""
         sim = self.config.sim
         vehicle_ports = {vid: vehicle_port(sim, vid) for vid in self.ids}
         gcs_ports = {vid: gcs_port(sim, vid) for vid in self.ids}
@@ -67,14 +69,26 @@ class SimServer:
         try:
             for vid, port in vehicle_ports.items():
                 self._sockets[vid] = _bind_udp(sim.host, port, f"vehicle {vid}")
-            for vid, port in gcs_ports.items():
-                _bind_udp(sim.host, port, f"GCS of vehicle {vid}").close()
+            if check_gcs_ports:
+                for vid, port in gcs_ports.items():
+                    _bind_udp(sim.host, port, f"GCS of vehicle {vid}").close()
         except BaseException:
             self.close()
             raise
         for vid, sock in self._sockets.items():
             self.vehicles[vid].downlink.sock = sock
         self._ready = True
+
+    def taken_gcs_ports(self) -> list[tuple[int, int]]:
+        """(vehicle id, port) of every GCS port something already holds."""
+        taken = []
+        for vid in self.ids:
+            port = gcs_port(self.config.sim, vid)
+            try:
+                _bind_udp(self.config.sim.host, port, "probe").close()
+            except PortInUseError:
+                taken.append((vid, port))
+        return taken
 
     def close(self) -> None:
         for vid, sock in self._sockets.items():
@@ -242,22 +256,36 @@ def run_simulator(
     world: World,
     stop: threading.Event,
     on_ready: Callable[[list[dict]], None] | None = None,
+    check_gcs_ports: bool = True,
 ) -> dict:
     """Bind every vehicle (PortInUseError before anything runs), call on_ready(endpoints), simulate until `stop`
     is set, and return the final status."""
     server = SimServer(config, world)
-    with server:
+    server.open(check_gcs_ports)
+    try:
         return server.run(stop, on_ready)
+    finally:
+        server.close()
 
 
 def sim_command(config: SwarmConfig) -> int:
-    """`swarm sim`: host the vehicles of config.mission.world until SIGINT/SIGTERM."""
+    """`swarm sim`: host the vehicles of config.mission.world until SIGINT/SIGTERM.
+
+    Agents may be started before the simulator (they wait for its heartbeat), so a GCS port that is already
+    bound is reported as a warning on stderr rather than refused: it is most likely that drone's agent.
+    """
     world = load_world(config.mission.world)
+    server = SimServer(config, world)
+    server.open(check_gcs_ports=False)
     stop = threading.Event()
     handlers = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
-        status = run_simulator(config, world, stop, on_ready=_print_endpoints)
+        for vid, port in server.taken_gcs_ports():
+            print(f"swarm sim: warning: UDP port {port} (GCS of vehicle {vid}) is already bound; fine if it is "
+                  f"agent {vid}, but a second listener there would split its traffic", file=sys.stderr)
+        status = server.run(stop, on_ready=_print_endpoints)
     finally:
+        server.close()
         for sig, handler in handlers.items():
             signal.signal(sig, handler)
     print(summary_line(status), flush=True)

@@ -174,11 +174,11 @@ class SimVehicle:
 
     @property
     def telemetry_enabled(self) -> bool:
+        """Fault injection: False drops every outgoing packet (a dead downlink); commands are still obeyed."""
         return self.downlink.enabled
 
     @telemetry_enabled.setter
     def telemetry_enabled(self, enabled: bool) -> None:
-        """Fault injection: False drops every outgoing packet (a dead downlink); commands are still obeyed."""
         self.downlink.enabled = enabled
 
     def receive(self, data: bytes, addr: tuple[str, int], now: float) -> None:

@@ -1,6 +1,7 @@
 """Flight logic and kinematics of one simulated vehicle, stepped with a fake clock (no sockets)."""
 
 import math
+from typing import Callable
 
 import numpy as np
 import pytest
@@ -49,7 +50,7 @@ def offboard_to(ap: Autopilot, clock: Clock, target: tuple[float, float, float])
     assert ap.set_mode(FlightMode.OFFBOARD, clock.now) == ACCEPTED
 
 
-def keep_streaming(ap: Autopilot, clock: Clock, target) -> callable:
+def keep_streaming(ap: Autopilot, clock: Clock, target) -> Callable[[], None]:
     return lambda: ap.set_setpoint(Setpoint(np.array(target, dtype=float), np.full(3, np.nan)), clock.now)
 
 

@@ -153,7 +153,8 @@ def test_offboard_setpoints_and_offboard_loss(port_base: int, box_world: World) 
 
 
 def test_reposition_with_command_int(port_base: int, box_world: World) -> None:
-    fast = {"sim.takeoff_alt_m": 1.0, "sim.max_speed_down_m_s": 2.0, "sim.land_speed_m_s": 1.5, "sim.position_gain": 3.0}
+    fast = {"sim.takeoff_alt_m": 1.0, "sim.max_speed_down_m_s": 2.0, "sim.land_speed_m_s": 1.5,
+            "sim.position_gain": 3.0}
     config = sim_config(port_base, **fast)
     with running_sim(config, box_world) as server, gcs(gcs_port(config.sim, 1)) as gs:
         gs.heartbeat()

@@ -2,6 +2,7 @@
 
 import queue
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -66,6 +67,31 @@ def test_sim_command_prints_endpoints_and_stops_on_sigint(port_base: int) -> Non
     summary = reader.take(1, timeout=5)
     assert summary[0].startswith("sim stopped after ")
     assert "0 collisions" in summary[0] and "1: 0.0 m" in summary[0]
+
+
+def test_an_agent_listening_before_the_sim_starts_gets_a_warning_not_an_error(port_base: int) -> None:
+    gbase = port_base + 20
+    agent = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    agent.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as MAVSDK's udpin binds
+    agent.bind(("0.0.0.0", gbase))
+    agent.settimeout(10)
+    script = SCRIPT.format(vbase=port_base, gbase=gbase)
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        data, addr = agent.recvfrom(2048)  # the vehicle's telemetry reaches the early listener
+        assert addr[1] == port_base and data[0] == 0xFD  # MAVLink 2 from vehicle 1's port
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=10)
+    finally:
+        agent.close()
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait()
+    err = proc.stderr.read()
+    assert proc.returncode == 0, err
+    assert f"warning: UDP port {gbase} (GCS of vehicle 1) is already bound" in err
+    assert str(gbase + 1) not in err
 
 
 def test_sim_command_unknown_world_is_a_world_error() -> None:
