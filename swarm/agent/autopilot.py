@@ -149,18 +149,18 @@ class Autopilot:
             await self._call("offboard start", self._offboard.start)
             self.offboard_active = True
 
-    async def hold(self) -> None:
+    async def hold(self, timeout_s: float | None = None) -> None:
         assert self._action is not None and self._offboard is not None
         if self.offboard_active:
             self.offboard_active = False
-            await self._call("offboard stop", self._offboard.stop)
+            await self._call("offboard stop", self._offboard.stop, timeout_s)
         else:
-            await self._call("hold", self._action.hold)
+            await self._call("hold", self._action.hold, timeout_s)
 
-    async def land(self) -> None:
+    async def land(self, timeout_s: float | None = None) -> None:
         assert self._action is not None
         self.offboard_active = False
-        await self._call("land", self._action.land)
+        await self._call("land", self._action.land, timeout_s)
 
     async def wait_until(self, condition: Callable[[TelemetryCache], bool], timeout_s: float, what: str) -> None:
         deadline = time.monotonic() + timeout_s

@@ -25,6 +25,7 @@ from swarm.config import AgentSettings, Vec3
 LOOKAHEAD_M = 1.0
 SETPOINT_PERIOD_S = 0.1
 LAND_TIMEOUT_S = 60.0
+FAILSAFE_COMMAND_TIMEOUT_S = 0.6
 
 
 class Phase(StrEnum):
@@ -152,11 +153,15 @@ class Flight:
         return self.phase
 
     async def _fail_safe(self) -> None:
-        """Hold, then land; with no telemetry we cannot confirm either, so we report FAILSAFE."""
+        """Hold, then land; with no telemetry we cannot confirm either, so we report FAILSAFE.
+
+        Short timeouts: both commands must leave before MAVSDK declares the link lost (3 s without a heartbeat)
+        and stops sending; the vehicle may still hear us even though we no longer hear it.
+        """
         self._set_phase(Phase.FAILSAFE)
         for step in (self.ap.hold, self.ap.land):
             try:
-                await step()
+                await step(timeout_s=FAILSAFE_COMMAND_TIMEOUT_S)
                 self.log("failsafe_command", command=step.__name__, accepted=True)
             except FlightError as exc:
                 self.log("failsafe_command", command=step.__name__, accepted=False, reason=str(exc))
