@@ -101,6 +101,7 @@ class AgentSettings(_Section):
     waypoint_tolerance_m: PositiveFloat = 0.3
     waypoints: list[Vec3] = Field(default_factory=list, description="scripted route, world frame")
     hover_s: float = Field(0.0, ge=0.0, description="hold at the end of the route before landing")
+    start_delay_s: float = Field(0.0, ge=0.0, description="wait on the ground this long once healthy before arming")
     out_dir: Path | None = Field(None, description="where the agent writes its summary and logs")
     mavsdk_threads: int = Field(8, ge=2, le=64)
 

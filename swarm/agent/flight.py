@@ -71,6 +71,8 @@ class Flight:
             await self.ap.connect(s.connect_timeout_s)
             await self.ap.wait_healthy(s.health_timeout_s)
             self._set_phase(Phase.READY)
+            if s.start_delay_s > 0:
+                await self._wait(s.start_delay_s, stop)
             self._check(stop)
             await self._take_off(stop)
             self._set_phase(Phase.FLYING)
@@ -78,7 +80,7 @@ class Flight:
                 await self._fly_segment_to(waypoint, stop)
             if s.hover_s > 0:
                 self._set_phase(Phase.HOVERING)
-                await self._hover(s.hover_s, stop)
+                await self._wait(s.hover_s, stop)
         except StopRequested:
             self.log("stop_requested", airborne=self.airborne)
         except TelemetryLost as exc:
@@ -125,10 +127,11 @@ class Flight:
                 return
             await self._tick(stop, deadline, f"waypoint {tuple(round(c, 2) for c in goal)}")
 
-    async def _hover(self, seconds: float, stop: asyncio.Event) -> None:
+    async def _wait(self, seconds: float, stop: asyncio.Event) -> None:
+        """Wait on the ground or in the air, still watching for a stop request and for lost telemetry."""
         end = time.monotonic() + seconds
         while time.monotonic() < end:
-            await self._tick(stop, end + 1.0, "hover")
+            await self._tick(stop, end + 1.0, "the end of a wait")
 
     async def _land(self) -> Phase:
         if not self.airborne:

@@ -66,6 +66,8 @@ class Sampler:
 
 def bench_flight(config: SwarmConfig, sizes: list[int], out: Path | None) -> int:
     console = Console()
+    if not console.is_terminal:
+        console = Console(width=160)  # logs and pipes: never truncate the figures
     root = out or Path(tempfile.mkdtemp(prefix="swarm-bench-"))
     results: list[dict[str, Any]] = []
     for n in sizes:

@@ -24,7 +24,7 @@ def build_report(
     routes = {r.drone_id: r for r in plan.routes}
     agents = []
     for k in sorted(state.agents):
-        summary = _read(plan.out / "agents" / f"agent-{k}.json") or {}
+        summary = read_json(plan.out / "agents" / f"agent-{k}.json") or {}
         truth = vehicles.get(k, {})
         agents.append(
             {
@@ -73,7 +73,8 @@ def write_report(out: Path, report: dict[str, Any]) -> Path:
     return path
 
 
-def _read(path: Path) -> dict[str, Any] | None:
+def read_json(path: Path) -> dict[str, Any] | None:
+    """A JSON status file, or None while it is missing or being replaced."""
     try:
         return json.loads(path.read_text())
     except (OSError, ValueError):

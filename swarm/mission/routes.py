@@ -6,7 +6,9 @@ the drone radius plus a margin, so a scripted flight never touches a wall.
 
 Sectors are strips across the longer horizontal axis of the mission volume, handed to drones in the order of
 their spawn points along that axis so outbound legs do not cross; drones fly at staggered altitudes so that
-legs that do cross are vertically separated.
+legs that do cross are vertically separated. An indoor floor has room for only a few such layers, so a drone
+that shares its layer with an earlier one waits on the ground until that one is expected to have landed
+(real deconfliction between drones comes with autonomous exploration).
 """
 
 from __future__ import annotations
@@ -25,6 +27,8 @@ SAFETY_MARGIN_M = 0.15
 ALTITUDES_M = (1.2, 0.75, 1.65)  # above each drone's home floor; 0.45 m apart > two drone radii
 MAX_TOUR_M = 45.0  # per drone, out and back: keeps the scripted mission to about a minute of flight
 CANDIDATES_TRIED = 12
+TAKEOFF_AND_LANDING_S = 12.0  # generous: climb, settle, descend and disarm
+SLACK_FACTOR = 1.4  # carrot following and corners make a route slower than length / cruise speed
 
 
 @dataclass
@@ -33,10 +37,11 @@ class ScriptedRoute:
     altitude_m: float
     waypoints: list[Vec3]
     length_m: float
+    start_delay_s: float = 0.0
 
 
 def scripted_routes(
-    world: World, spawns: list[Vec3], lo: np.ndarray, hi: np.ndarray, drone_radius_m: float
+    world: World, spawns: list[Vec3], lo: np.ndarray, hi: np.ndarray, drone_radius_m: float, cruise_speed_m_s: float
 ) -> list[ScriptedRoute]:
     """One route per spawn (drone ids 1..N in spawn order), each ending above the drone's home."""
     free = clearance_grid(world, lo, hi, PLAN_RESOLUTION_M, drone_radius_m + SAFETY_MARGIN_M)
@@ -52,7 +57,17 @@ def scripted_routes(
         tour = _sector_tour(free, airborne, axis, sector)
         waypoints = tour[1:]  # the first point is where take-off leaves the drone
         routes.append(ScriptedRoute(index + 1, altitude, waypoints, path_length(tour)))
-    return sorted(routes, key=lambda r: r.drone_id)
+    routes.sort(key=lambda r: r.drone_id)
+    _stagger_shared_layers(routes, cruise_speed_m_s)
+    return routes
+
+
+def _stagger_shared_layers(routes: list[ScriptedRoute], cruise_speed_m_s: float) -> None:
+    layer_free_at: dict[float, float] = {}
+    for route in routes:
+        route.start_delay_s = layer_free_at.get(route.altitude_m, 0.0)
+        flight_s = TAKEOFF_AND_LANDING_S + SLACK_FACTOR * route.length_m / cruise_speed_m_s
+        layer_free_at[route.altitude_m] = route.start_delay_s + flight_s
 
 
 def clearance_grid(world: World, lo: np.ndarray, hi: np.ndarray, resolution: float, clearance: float) -> OccupancyGrid:

@@ -13,7 +13,6 @@ report.json.
 from __future__ import annotations
 
 import datetime as dt
-import json
 import signal
 import time
 from collections.abc import Callable
@@ -29,7 +28,7 @@ from swarm.errors import SwarmError
 from swarm.mission.ports import ensure_free
 from swarm.mission.processes import Child, start_child, stop_all, swarm_command
 from swarm.mission.progress import ProgressView
-from swarm.mission.report import build_report, write_report
+from swarm.mission.report import build_report, read_json, write_report
 from swarm.mission.routes import ScriptedRoute, scripted_routes
 from swarm.sim.worlds import World, load_world, spawn_points
 
@@ -78,7 +77,7 @@ def prepare(config: SwarmConfig) -> RunPlan:
         ensure_free(host, gcs_port(config.sim, k), "udp", f"autopilot link of agent {k}")
     for k in range(0, m.drones + 1):
         ensure_free("127.0.0.1", bus_port(config.bus, k), "tcp", "observer bus" if k == 0 else f"bus of agent {k}")
-    routes = scripted_routes(world, spawns, lo, hi, config.sim.drone_radius_m)
+    routes = scripted_routes(world, spawns, lo, hi, config.sim.drone_radius_m, config.agent.cruise_speed_m_s)
     out = m.out or Path("runs") / f"{dt.datetime.now():%Y%m%d-%H%M%S}-{world.name}"
     if out.exists() and any(out.iterdir()):
         raise SwarmError(f"output directory {out} is not empty")
@@ -97,13 +96,6 @@ def _write_config(path: Path, config: SwarmConfig) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(tomli_w.dumps(dump_config(config)))
     return path
-
-
-def _read_json(path: Path) -> dict[str, Any] | None:
-    try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError):
-        return None
 
 
 def run_mission(
@@ -133,7 +125,7 @@ def run_mission(
             state.exit_codes.setdefault(k, codes.get(child.name, -1))
         if not state.finished:
             state.finished = time.monotonic()
-    report = build_report(plan, state, _read_json(out / "sim.json"), _read_json(out / "observer.json"))
+    report = build_report(plan, state, read_json(out / "sim.json"), read_json(out / "observer.json"))
     write_report(out, report)
     return report
 
@@ -146,7 +138,7 @@ def _start_simulator(plan: RunPlan, state: RunState) -> None:
     state.sim = start_child("sim", swarm_command("sim", "--config", str(path)), plan.out / "logs" / "sim.log")
     deadline = time.monotonic() + SIM_READY_TIMEOUT_S
     while True:
-        status = _read_json(plan.out / "sim.json")
+        status = read_json(plan.out / "sim.json")
         if status and status.get("ready"):
             return
         if state.sim.poll() is not None:
@@ -174,6 +166,7 @@ def _start_swarm(plan: RunPlan, state: RunState) -> None:
                 "autopilot": f"udpin://{config.sim.host}:{gcs_port(config.sim, k)}",
                 "altitude_m": route.altitude_m,
                 "waypoints": route.waypoints,
+                "start_delay_s": route.start_delay_s,
                 "out_dir": plan.out / "agents",
             }
         )
@@ -194,7 +187,7 @@ def _supervise(plan: RunPlan, state: RunState, view: ProgressView, on_tick: Call
             if code is not None and k not in state.exit_codes:
                 state.exit_codes[k] = code
         elapsed = time.monotonic() - state.started
-        view.update(elapsed, _read_json(plan.out / "sim.json"), _read_json(plan.out / "observer.json"), state.exit_codes)
+        view.update(elapsed, read_json(plan.out / "sim.json"), read_json(plan.out / "observer.json"), state.exit_codes)
         if on_tick is not None:
             on_tick(state)
         if len(state.exit_codes) == len(state.agents):

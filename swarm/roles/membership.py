@@ -42,24 +42,24 @@ class PeerTable:
         """A heartbeat arrived from `peer_id`."""
         if peer_id == self.own_id:
             return
-        now = self.clock()
-        peer = self.peers.get(peer_id)
-        if peer is None:
-            peer = self.peers[peer_id] = Peer(peer_id, first_seen=now, last_heard=now)
-            self._emit("joined", peer_id, "heartbeat")
-        peer.last_heard = now
+        peer = self._known(peer_id, "heartbeat")
+        peer.last_heard = self.clock()
         peer.position, peer.phase, peer.epoch = position, phase, epoch
         peer.heartbeats += 1
 
     def token_appeared(self, peer_id: int) -> None:
         if peer_id == self.own_id:
             return
-        now = self.clock()
+        self._known(peer_id, "token").token_alive = True
+
+    def _known(self, peer_id: int, cause: str) -> Peer:
+        """The peer's entry, created (and announced as joined) on first contact."""
         peer = self.peers.get(peer_id)
         if peer is None:
+            now = self.clock()
             peer = self.peers[peer_id] = Peer(peer_id, first_seen=now, last_heard=now)
-            self._emit("joined", peer_id, "token")
-        peer.token_alive = True
+            self._emit("joined", peer_id, cause)
+        return peer
 
     def token_vanished(self, peer_id: int) -> None:
         if self.peers.pop(peer_id, None) is not None:
