@@ -1,6 +1,6 @@
 """Every setting of the swarm, in one place.
 
-The whole configuration is one `SwarmConfig` made of four sections (mission, agent, sim, bus). It loads from
+The whole configuration is one `SwarmConfig` made of six sections (mission, agent, sim, bus, camera, mapping). It loads from
 a TOML file whose tables have the same names, and any field can be overridden on the command line with a
 dotted key (`--set agent.altitude_m=2.0`). A value that does not validate is reported as one line naming the
 field; the CLI turns `ConfigError` into exit code 2.
@@ -149,11 +149,46 @@ class BusSettings(_Section):
     base_port: int = Field(DEFAULT_BUS_BASE_PORT, ge=1024, le=65000, description="loopback ports for swarm run")
 
 
+class CameraSettings(_Section):
+    """The depth camera (simulated by ray casting the world mesh, or a real one behind the same interface)."""
+
+    width: int = Field(160, ge=8, le=1280)
+    height: int = Field(120, ge=6, le=960)
+    hfov_deg: float = Field(90.0, gt=10.0, lt=170.0)
+    min_range_m: PositiveFloat = 0.3
+    max_range_m: PositiveFloat = 8.0
+    rate_hz: float = Field(10.0, gt=0.0, le=60.0)
+    noise: Literal["off", "stereo"] = "off"
+    stereo_sigma_coeff: PositiveFloat = Field(0.002418, description="sigma(z) = coeff * z^2, metres")
+    pitch_deg: float = Field(0.0, ge=-90.0, le=90.0, description="camera pitch, positive looks down")
+
+    @model_validator(mode="after")
+    def _ranges(self) -> CameraSettings:
+        if self.min_range_m >= self.max_range_m:
+            raise ValueError(f"min_range_m {self.min_range_m} must be below max_range_m {self.max_range_m}")
+        return self
+
+
+class MappingSettings(_Section):
+    """The shared TSDF lattice (mission constants: every patch carries them) and patch sealing."""
+
+    voxel_size_m: float = Field(0.1, ge=0.02, le=1.0)
+    block_resolution: int = Field(8, ge=4, le=32, description="voxels per block edge")
+    truncation_voxels: float = Field(4.0, ge=1.0, le=16.0)
+    weight_law: Literal["constant", "inverse_square"] = "constant"
+    patch_frames: int = Field(15, ge=1, le=255, description="seal the open patch every K frames")
+    patch_distance_m: PositiveFloat = Field(2.0, description="... or after the drone moved this far")
+    planning_resolution_m: PositiveFloat = Field(0.2, description="occupancy grid exported for planning")
+    max_patch_bytes: int = Field(4 << 20, ge=1024, description="larger patches are rejected on receipt")
+
+
 class SwarmConfig(_Section):
     mission: MissionSettings = MissionSettings()
     agent: AgentSettings = AgentSettings()
     sim: SimSettings = SimSettings()
     bus: BusSettings = BusSettings()
+    camera: CameraSettings = CameraSettings()
+    mapping: MappingSettings = MappingSettings()
 
 
 def _format_error(err: ValidationError) -> str:
