@@ -1,0 +1,61 @@
+"""The agent's depth sensor interface: one `capture` call per frame, so a real camera can replace the simulated one.
+
+The agent calls `DepthSource.capture` from a worker thread at camera.rate_hz with the drone's latest telemetry
+pose; the call blocks until a frame is ready. A real camera driver implements `capture` by grabbing its latest
+frame and attaching the pose (plus its fixed mounting transform), with depth converted to the conventions of
+`swarm.sim.camera`: float32 z-depth in metres, 0 = invalid, pixel (u, v) centred at (u + 0.5, v + 0.5).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from swarm.config import CameraSettings, SwarmConfig, Vec3
+from swarm.sim.camera import DepthCamera
+from swarm.sim.worlds import World, load_world
+
+
+@dataclass(frozen=True)
+class DepthFrame:
+    index: int  # frame counter of the agent
+    t: float  # capture time, seconds (the agent's clock)
+    depth: np.ndarray  # (H, W) float32 z-depth, metres; 0 = invalid
+    K: np.ndarray  # 3x3 pinhole intrinsics
+    T_world_cam: np.ndarray  # 4x4 camera-to-world; camera x right, y down, z forward
+
+    def world_points(self) -> np.ndarray:
+        """(N, 3) world points of the valid pixels (back-projected through the pixel centres)."""
+        v, u = np.nonzero(self.depth > 0)
+        z = self.depth[v, u].astype(np.float64)
+        (fx, _, cx), (_, fy, cy) = self.K[0], self.K[1]
+        cam = np.stack([(u + 0.5 - cx) / fx * z, (v + 0.5 - cy) / fy * z, z], axis=1)
+        return cam @ self.T_world_cam[:3, :3].T + self.T_world_cam[:3, 3]
+
+
+class DepthSource(Protocol):
+    def capture(self, index: int, t: float, position: Vec3, yaw_enu_deg: float) -> DepthFrame:
+        """A depth frame taken at the given drone pose (world frame, ENU yaw in degrees); blocking."""
+        ...
+
+
+class SimulatedDepthSource:
+    """Renders the world mesh with a `DepthCamera` at the pose it is given."""
+
+    def __init__(self, world: World, settings: CameraSettings, seed: int = 0) -> None:
+        self.camera = DepthCamera(world, settings, seed)
+
+    def capture(self, index: int, t: float, position: Vec3, yaw_enu_deg: float) -> DepthFrame:
+        T = self.camera.pose(position, yaw_enu_deg)
+        return DepthFrame(index, t, self.camera.render(T), self.camera.intrinsics.copy(), T)
+
+
+def make_depth_source(config: SwarmConfig) -> DepthSource:
+    """The agent's depth source: for now always the simulated camera in config.mission.world.
+
+    Each drone's noise stream is seeded from (mission.seed, agent.id), so runs repeat and drones differ.
+    """
+    seed = int(np.random.SeedSequence([config.mission.seed % 2**32, config.agent.id]).generate_state(1)[0])
+    return SimulatedDepthSource(load_world(config.mission.world), config.camera, seed)
