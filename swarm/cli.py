@@ -81,6 +81,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     observe = sub.add_parser("observe", help="follow a swarm on the bus and write its status")
     observe.add_argument("--status", type=Path, required=True, help="status JSON to (re)write")
+    observe.add_argument("--patches", type=Path, help="directory of sealed patches to fuse into the swarm's map")
+    observe.add_argument("--map", type=Path, help="where to write the swarm's fused mesh (.ply) at the end")
     _add_config_flags(observe)
 
     bench = sub.add_parser("bench", help="benchmarks that print their figures")
@@ -140,7 +142,7 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "observe":
         from swarm.mission.observer import observe_command
 
-        return observe_command(_config_from(args, {}), args.status)
+        return observe_command(_config_from(args, {}), args.status, args.patches, args.map)
     if args.command == "bench" and args.bench == "flight":
         from swarm.mission.bench import bench_flight
 
@@ -153,9 +155,12 @@ def _print_summary(report: dict[str, Any]) -> None:
     landed = sum(1 for a in agents if a["landed"])
     print(
         f"{report['status']}: {report['drones']} drones in '{report['world']}' for {report['duration_s']:.1f} s, "
-        f"collisions {report['collisions']}, landed {landed}/{len(agents)} — {report['reason']}"
+        f"collisions {report['collisions']}, landed {landed}/{len(agents)}, "
+        f"explored {100 * report['explored_fraction']:.1f} % — {report['reason']}"
     )
     for a in agents:
-        print(f"  drone {a['id']}: flew {a['distance_m']:.1f} m, sent {a['bytes_sent']} B, "
-              f"received {a['bytes_received']} B, {a['phase']}")
+        print(f"  drone {a['id']}: flew {a['distance_m']:.1f} m, {a['patches_sealed']} patches, "
+              f"sent {a['bytes_sent']} B, received {a['bytes_received']} B, {a['phase']}")
+    if report.get("map"):
+        print(f"map: {Path(report['run_dir']) / report['map']}")
     print(f"report: {Path(report['run_dir']) / 'report.json'}")

@@ -152,6 +152,7 @@ class BusSettings(_Section):
 class CameraSettings(_Section):
     """The depth camera (simulated by ray casting the world mesh, or a real one behind the same interface)."""
 
+    source: Literal["sim", "none"] = Field("sim", description="sim: ray-cast the mission world; none: no mapping")
     width: int = Field(160, ge=8, le=1280)
     height: int = Field(120, ge=6, le=960)
     hfov_deg: float = Field(90.0, gt=10.0, lt=170.0)

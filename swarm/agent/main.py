@@ -19,6 +19,8 @@ from typing import Any
 from swarm.agent.autopilot import Autopilot
 from swarm.agent.events import EventLog
 from swarm.agent.flight import Flight, Phase
+from swarm.agent.mapping import MappingTask
+from swarm.agent.sensing import make_depth_source
 from swarm.bus.bridge import AsyncBus
 from swarm.bus.messages import AgentState
 from swarm.config import SwarmConfig
@@ -58,19 +60,39 @@ class Agent:
         bus.subscribe(keys.all_states, AgentState, self._on_state)
         bus.watch_liveliness(keys.all_alive, self._on_token_join, self._on_token_leave)
         background = [asyncio.create_task(self._heartbeat(bus)), asyncio.create_task(self._upkeep())]
+        mapping, mapping_stop = self._start_mapping(autopilot, background)
         final = Phase.FAILED
         try:
             final = await self.flight.run(list(self.config.agent.waypoints), self.stop)
         finally:
             self._publish_state(bus)  # the last phase goes out before we leave
+            mapping_stop.set()
             for task in background:
                 task.cancel()
             await asyncio.gather(*background, return_exceptions=True)
+            if mapping is not None:
+                await mapping.finish()
             released = await autopilot.close()
-            self._write_summary(bus, final, released)
+            self._write_summary(bus, final, released, mapping)
             await bus.close()
         self.log("exit", phase=final.value)
         return {Phase.LANDED: EXIT_OK, Phase.FAILSAFE: EXIT_FAILSAFE}.get(final, EXIT_FLIGHT_FAILED)
+
+    def _start_mapping(
+        self, autopilot: Autopilot, background: list[asyncio.Task[None]]
+    ) -> tuple[MappingTask | None, asyncio.Event]:
+        stop = asyncio.Event()
+        if self.config.camera.source == "none":
+            return None, stop
+        mapping = MappingTask(
+            self.config, self.epoch, make_depth_source(self.config), self.log, self.config.agent.out_dir
+        )
+
+        def home_z() -> float | None:
+            return autopilot.home_world[2] if autopilot.home_world is not None else None
+
+        background.append(asyncio.create_task(mapping.run(autopilot.telemetry, home_z, stop)))
+        return mapping, stop
 
     # -- presence ----------------------------------------------------------------------------------------
 
@@ -137,7 +159,7 @@ class Agent:
         for signum in (signal.SIGINT, signal.SIGTERM):
             loop.add_signal_handler(signum, on_signal, signum)
 
-    def _write_summary(self, bus: AsyncBus, final: Phase, released: bool) -> None:
+    def _write_summary(self, bus: AsyncBus, final: Phase, released: bool, mapping: MappingTask | None) -> None:
         out_dir = self.config.agent.out_dir
         if out_dir is None:
             return
@@ -154,6 +176,7 @@ class Agent:
             "peers_seen": sorted(self.peers.ever_seen),
             "peer_events": self.peer_events,
             "mavsdk_released": released,
+            **(mapping.summary() if mapping is not None else {"patches_sealed": 0}),
         }
         path = Path(out_dir) / f"agent-{self.id}.json"
         path.parent.mkdir(parents=True, exist_ok=True)

@@ -3,6 +3,11 @@
 It holds no token and publishes nothing, so the agents never count it as a drone. It follows every agent's
 heartbeat and liveliness token, keeps a timeline of joins and leaves, and writes a status snapshot (JSON,
 atomically) twice a second for `swarm run`'s live view and report.
+
+With a patch directory it also builds the swarm's map: every sealed patch the agents wrote there is decoded
+(validated like any received patch) and fused, and `explored_fraction` (see `swarm.sim.coverage`) is measured
+against the world mesh every few seconds; at the end the fused mesh is written. Until patches travel over the
+bus, the files are how the observer sees them.
 """
 
 from __future__ import annotations
@@ -18,14 +23,20 @@ from typing import Any
 from swarm.bus.bridge import AsyncBus
 from swarm.bus.messages import AgentState
 from swarm.config import SwarmConfig
+from swarm.mission.coverage import SwarmCoverage
 
 SNAPSHOT_PERIOD_S = 0.5
+COVERAGE_PERIOD_S = 2.0
 
 
 class Observer:
-    def __init__(self, config: SwarmConfig, status_path: Path) -> None:
+    def __init__(
+        self, config: SwarmConfig, status_path: Path, patches_dir: Path | None = None, map_path: Path | None = None
+    ) -> None:
         self.config = config
         self.status_path = status_path
+        self.coverage = SwarmCoverage(config, patches_dir) if patches_dir is not None else None
+        self.map_path = map_path
         self.started = time.time()
         self.agents: dict[int, dict[str, Any]] = {}
         self.timeline: list[dict[str, Any]] = []
@@ -39,6 +50,7 @@ class Observer:
         self.keys = bus.keys
         bus.subscribe(bus.keys.all_states, AgentState, self._on_state)
         bus.watch_liveliness(bus.keys.all_alive, self._on_join, self._on_leave)
+        coverage_task = asyncio.create_task(self._follow_coverage()) if self.coverage is not None else None
         try:
             while not self.stop.is_set():
                 self._write(bus, done=False)
@@ -47,9 +59,26 @@ class Observer:
                 except TimeoutError:
                     pass
         finally:
+            if coverage_task is not None:
+                coverage_task.cancel()
+                await asyncio.gather(coverage_task, return_exceptions=True)
+                await asyncio.get_running_loop().run_in_executor(None, self._final_map)
             self._write(bus, done=True)
             await bus.close()
         return 0
+
+    async def _follow_coverage(self) -> None:
+        assert self.coverage is not None
+        loop = asyncio.get_running_loop()
+        while True:
+            await loop.run_in_executor(None, self.coverage.update, time.time() - self.started)
+            await asyncio.sleep(COVERAGE_PERIOD_S)
+
+    def _final_map(self) -> None:
+        assert self.coverage is not None
+        self.coverage.update(time.time() - self.started)
+        if self.map_path is not None:
+            self.coverage.write_mesh(self.map_path)
 
     def _on_state(self, key: str, state: AgentState) -> None:
         entry = self.agents.setdefault(state.id, {"heartbeats": 0, "alive": True})
@@ -80,11 +109,14 @@ class Observer:
             "agents": {str(k): v for k, v in sorted(self.agents.items())},
             "timeline": self.timeline,
             "traffic": bus.counters.snapshot(),
+            **(self.coverage.snapshot() if self.coverage is not None else {}),
         }
         tmp = self.status_path.with_suffix(".tmp")
         tmp.write_text(json.dumps(snapshot))
         os.replace(tmp, self.status_path)
 
 
-def observe_command(config: SwarmConfig, status_path: Path) -> int:
-    return asyncio.run(Observer(config, status_path).run())
+def observe_command(
+    config: SwarmConfig, status_path: Path, patches_dir: Path | None = None, map_path: Path | None = None
+) -> int:
+    return asyncio.run(Observer(config, status_path, patches_dir, map_path).run())

@@ -41,18 +41,21 @@ class ProgressView:
     ) -> None:
         rows = _rows(sim, observer, exit_codes)
         collisions = (sim or {}).get("collisions", 0)
+        explored = 100.0 * (observer or {}).get("explored_fraction", 0.0)
         if self._live is not None:
-            self._live.update(self._render(elapsed, rows, collisions))
+            self._live.update(self._render(elapsed, rows, collisions, explored))
         elif elapsed - self._last_plain >= PLAIN_PERIOD_S:
             self._last_plain = elapsed
             phases = " ".join(f"{r['id']}:{r['phase']}" for r in rows)
-            self.console.print(f"[{elapsed:6.1f} s] collisions {collisions}  {phases}", highlight=False)
+            self.console.print(
+                f"[{elapsed:6.1f} s] explored {explored:5.1f} %  collisions {collisions}  {phases}", highlight=False
+            )
 
-    def _render(self, elapsed: float, rows: list[dict[str, Any]], collisions: int) -> Group:
+    def _render(self, elapsed: float, rows: list[dict[str, Any]], collisions: int, explored: float) -> Group:
         m = self.plan.config.mission
         title = Text(
             f"swarm run · {self.plan.world.name} · {m.drones} drones · {elapsed:5.1f} / {m.max_time_s:.0f} s · "
-            f"collisions {collisions}",
+            f"explored {explored:.1f} % · collisions {collisions}",
             style="bold",
         )
         table = Table(expand=False)

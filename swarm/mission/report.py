@@ -37,6 +37,9 @@ def build_report(
                 "exit_code": state.exit_codes.get(k),
                 "route_length_m": round(routes[k].length_m, 2) if k in routes else None,
                 "peers_seen": summary.get("peers_seen", []),
+                "patches_sealed": int(summary.get("patches_sealed", 0)),
+                "frames": int(summary.get("frames", 0)),
+                "mapping_ms_per_frame": summary.get("mapping_ms_per_frame"),
             }
         )
     status = state.status
@@ -51,6 +54,9 @@ def build_report(
         "drones": plan.config.mission.drones,
         "duration_s": round(max(0.0, state.finished - state.started), 2) if state.started else 0.0,
         "collisions": int((sim or {}).get("collisions", 0)),
+        "explored_fraction": float((observer or {}).get("explored_fraction", 0.0)),
+        "explored_timeline": (observer or {}).get("explored_timeline", []),
+        "map": "map.ply" if (plan.out / "map.ply").exists() else None,
         "collision_events": (sim or {}).get("collision_events", []),
         "agents": agents,
         "presence_timeline": (observer or {}).get("timeline", []),

@@ -6,7 +6,8 @@ It is assembled from the same processes a real deployment uses: one `swarm sim` 
 every exit path.
 
 Run directory layout: config/ (the exact config each process ran with), logs/ (one log per process),
-sim.json and observer.json (live status, final at the end), agents/agent-K.json (each agent's summary), and
+sim.json and observer.json (live status, final at the end), agents/agent-K.json and agent-K.ply (each agent's
+summary and map), agents/patches/ (every sealed patch, wire format), map.ply (the swarm's fused map) and
 report.json.
 """
 
@@ -152,9 +153,13 @@ def _start_swarm(plan: RunPlan, state: RunState) -> None:
     config = plan.config
     observer_config = config.model_copy(update={"bus": config.bus.model_copy(update=_bus_for(config, 0))})
     path = _write_config(plan.out / "config" / "observer.toml", observer_config)
+    (plan.out / "agents" / "patches").mkdir(parents=True, exist_ok=True)
     state.observer = start_child(
         "observer",
-        swarm_command("observe", "--config", str(path), "--status", str(plan.out / "observer.json")),
+        swarm_command(
+            "observe", "--config", str(path), "--status", str(plan.out / "observer.json"),
+            "--patches", str(plan.out / "agents" / "patches"), "--map", str(plan.out / "map.ply"),
+        ),
         plan.out / "logs" / "observer.log",
     )
     state.started = time.monotonic()

@@ -37,6 +37,15 @@ def test_two_agents_fly_see_each_other_and_land(tmp_path: Path, swarm_ports: Swa
         assert agent["peers_seen"] == [other], agent
         assert agent["distance_m"] > 2.0, agent  # truth from the simulator: the drone really flew
         assert agent["bytes_sent"] > 0 and agent["bytes_received"] > 0
+        assert agent["patches_sealed"] > 0 and agent["frames"] > 0
+        assert (out / "agents" / f"agent-{agent['id']}.ply").stat().st_size > 0
+    # the swarm's map: every sealed patch fused by the observer, checked against the world mesh
+    assert report["map"] == "map.ply" and (out / "map.ply").stat().st_size > 0
+    assert 0.3 < report["explored_fraction"] <= 1.0
+    sealed = sum(a["patches_sealed"] for a in report["agents"])
+    assert len(list((out / "agents" / "patches").glob("*.patch"))) == sealed
+    observer = json.loads((out / "observer.json").read_text())
+    assert observer["patches_fused"] == sealed and observer["patches_rejected"] == {}
     assert not processes_mentioning(str(out)), "swarm run left processes behind"
 
 

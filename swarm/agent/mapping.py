@@ -1,0 +1,124 @@
+"""The agent's mapping task: depth frames at the camera rate, integrated into the open patch, sealed into patches.
+
+Capture and integration run in one dedicated worker thread (the TSDF is never touched from two threads, and the
+event loop stays free for flight and heartbeats). Frames are taken only while the drone is airborne. A tick that
+is late is skipped rather than bunched, so a loaded machine lowers the frame rate instead of building a queue.
+
+Every sealed patch goes to the private store and to the agent's fused map, and, when the agent has an output
+directory, to `<out_dir>/patches/<id>.patch` in the wire format (until patch sharing over the bus exists, the
+mission observer builds the swarm's map from these files). At the end the open patch is sealed too, so nothing
+seen is lost, and the agent writes its own fused mesh.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+from swarm.agent.autopilot import TelemetryCache
+from swarm.agent.sensing import DepthSource
+from swarm.config import SwarmConfig
+from swarm.patches.mapper import Mapper
+from swarm.patches.patch import Patch
+from swarm.patches.wire import encode_patch
+from swarm.sim.worlds import load_world
+
+MIN_HEIGHT_M = 0.3  # below this the camera mostly sees the floor it stands on
+
+
+class MappingTask:
+    def __init__(
+        self,
+        config: SwarmConfig,
+        epoch: int,
+        source: DepthSource,
+        log: Callable[..., None],
+        out_dir: Path | None,
+    ) -> None:
+        self.config = config
+        self.source = source
+        self.log = log
+        self.mapper = Mapper(config.mapping, config.agent.id, epoch, mission_bounds(config))
+        self.patches_dir = out_dir / "patches" if out_dir is not None else None
+        if self.patches_dir is not None:
+            self.patches_dir.mkdir(parents=True, exist_ok=True)
+        self.out_dir = out_dir
+        self.frames = 0
+        self.frames_skipped = 0
+        self.patches_sealed = 0
+        self.busy_s = 0.0
+        self._worker = ThreadPoolExecutor(1, thread_name_prefix="mapping")
+
+    async def run(self, telemetry: TelemetryCache, home_z: Callable[[], float | None], stop: asyncio.Event) -> None:
+        loop = asyncio.get_running_loop()
+        period = 1.0 / self.config.camera.rate_hz
+        next_tick = time.monotonic()
+        while not stop.is_set():
+            base = home_z()
+            airborne = base is not None and telemetry.samples > 0 and telemetry.position[2] - base > MIN_HEIGHT_M
+            if airborne:
+                position, yaw = telemetry.position, telemetry.yaw_deg
+                await loop.run_in_executor(self._worker, self._step, position, yaw)
+            next_tick += period
+            delay = next_tick - time.monotonic()
+            if delay < 0:  # late: skip the missed ticks instead of bunching frames
+                missed = int(-delay // period) + 1
+                self.frames_skipped += missed if airborne else 0
+                next_tick += missed * period
+                delay = next_tick - time.monotonic()
+            try:
+                await asyncio.wait_for(stop.wait(), max(0.0, delay))
+            except TimeoutError:
+                pass
+
+    def _step(self, position: tuple[float, float, float], yaw_deg: float) -> None:
+        started = time.perf_counter()
+        frame = self.source.capture(self.frames, time.time(), position, yaw_deg)
+        self.frames += 1
+        sealed = self.mapper.integrate(frame.depth, frame.K, frame.T_world_cam, frame.t, self.config.camera.max_range_m)
+        if sealed is not None:
+            self._keep(sealed)
+        self.busy_s += time.perf_counter() - started
+
+    def _keep(self, patch: Patch) -> None:
+        self.patches_sealed += 1
+        self.log("patch_sealed", patch=str(patch.id), blocks=patch.block_count, frames=patch.span.frames)
+        if self.patches_dir is not None:
+            path = self.patches_dir / f"{patch.id}.patch"
+            tmp = path.with_suffix(".tmp")
+            tmp.write_bytes(encode_patch(patch))
+            os.replace(tmp, path)
+
+    async def finish(self) -> None:
+        """Seal what is open and write this agent's own fused mesh; runs after the flight."""
+        loop = asyncio.get_running_loop()
+        await loop.run_in_executor(self._worker, self._finish)
+        self._worker.shutdown(wait=True)
+
+    def _finish(self) -> None:
+        last = self.mapper.seal()
+        if last is not None:
+            self._keep(last)
+        if self.out_dir is not None and self.mapper.fused.voxel_count > 0:
+            self.mapper.fused.write_mesh(self.out_dir / f"agent-{self.config.agent.id}.ply")
+
+    def summary(self) -> dict[str, float | int]:
+        return {
+            "patches_sealed": self.patches_sealed,
+            "frames": self.frames,
+            "frames_skipped": self.frames_skipped,
+            "mapping_ms_per_frame": round(1000 * self.busy_s / self.frames, 2) if self.frames else 0.0,
+            "known_voxels": int(self.mapper.fused.voxel_count),
+        }
+
+
+def mission_bounds(config: SwarmConfig) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """The volume the map covers: the configured mission volume, else the simulated world's bounds."""
+    if config.mission.volume is not None:
+        return config.mission.volume.min, config.mission.volume.max
+    lo, hi = load_world(config.mission.world).bounds
+    return tuple(lo), tuple(hi)

@@ -1,0 +1,287 @@
+"""The fused map: every held patch summed into one TSDF over the bounded mission volume.
+
+Per voxel it keeps W = sum of the patches' quantised weights (int32, in weight units) and S = sum of
+weight * quantised tsdf (int32, promoted to int64 once a voxel could reach 2^31 / 127 units); the fused tsdf is S / (127 W). Integer sums make fusion exactly commutative
+and associative: agents that hold the same patch ids hold bit-identical arrays, whatever the arrival order, and a
+temporary contribution (the open patch) is removed exactly. With uncapped sums this equals one TSDF
+integrated from all the frames, up to the int8 quantisation of each patch's tsdf.
+
+Storage is a block pool (rows of R^3 voxels) with a dense block-index grid over the mission volume; blocks of
+a patch outside that volume are ignored.
+
+Classification (Hardouin 2022, section 1.2): known = W >= known threshold; occupied = known and tsdf <= 0;
+free = known and tsdf > 0; unknown otherwise.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator, Sequence
+
+import numpy as np
+
+from swarm.patches.lattice import Lattice
+from swarm.patches.patch import TSDF_SCALE, Patch, PatchId, TsdfArrays, VoxelBlocks
+
+UNKNOWN, FREE, OCCUPIED = 0, 1, 2
+_EPS = 1e-9
+_INT32_SAFE_WEIGHT = (2**31 - 1) // 127  # while every W stays below this, S = sum(w * q) fits int32
+
+Bounds = tuple[Sequence[float], Sequence[float]]
+
+
+class FusedMap:
+    def __init__(self, lattice: Lattice, bounds: Bounds, known_weight: float = 1.0, initial_blocks: int = 1024) -> None:
+        lo, hi = np.asarray(bounds[0], dtype=np.float64), np.asarray(bounds[1], dtype=np.float64)
+        if lo.shape != (3,) or hi.shape != (3,) or not np.all(np.isfinite(lo) & np.isfinite(hi)) or np.any(lo >= hi):
+            raise ValueError(f"bounds must be two finite 3-vectors with lo < hi, got {lo}, {hi}")
+        self.lattice = lattice
+        self.bounds = (lo, hi)
+        self.known_units = lattice.weight_units(known_weight)
+        r, v, o = lattice.block_resolution, lattice.voxel_size, lattice.origin_array
+        # voxels whose sample point lies in [lo, hi]
+        self._vlo = np.ceil((lo - o) / v - _EPS).astype(np.int64)
+        self._vhi = np.floor((hi - o) / v + _EPS).astype(np.int64)
+        self._kmin = np.floor_divide(self._vlo, r)
+        shape = np.floor_divide(self._vhi, r) - self._kmin + 1
+        self._grid = np.full(tuple(int(s) for s in shape), -1, dtype=np.int32)
+        cap = max(1, min(initial_blocks, self._grid.size))
+        self._keys = np.zeros((cap, 3), dtype=np.int32)
+        self._weight = np.zeros((cap, lattice.voxels_per_block), dtype=np.int32)
+        self._sum = np.zeros((cap, lattice.voxels_per_block), dtype=np.int32)
+        self._weight_bound = 0  # an upper bound of every voxel's W
+        self._count = 0
+        self._ids: set[PatchId] = set()
+
+    # --- fusion ----------------------------------------------------------------------------------------------
+
+    def add(self, patch: Patch) -> bool:
+        """Fuse a patch once; False (and no change) if its id was already fused. Raises ValueError on a lattice
+        mismatch (decode_patch rejects those before they get here)."""
+        if patch.id in self._ids:
+            return False
+        if patch.lattice != self.lattice:
+            raise ValueError(f"patch {patch.id} is on another lattice ({patch.lattice.describe()})")
+        self._accumulate(patch.blocks, 1)
+        self._ids.add(patch.id)
+        return True
+
+    @contextmanager
+    def including(self, blocks: VoxelBlocks | None) -> Iterator[FusedMap]:
+        """This map with `blocks` (e.g. the open patch) added for the duration of the block, then removed exactly."""
+        if blocks is None or blocks.block_count == 0:
+            yield self
+            return
+        self._accumulate(blocks, 1)
+        try:
+            yield self
+        finally:
+            self._accumulate(blocks, -1)
+
+    def __contains__(self, pid: object) -> bool:
+        return pid in self._ids
+
+    @property
+    def ids(self) -> frozenset[PatchId]:
+        return frozenset(self._ids)
+
+    def _accumulate(self, blocks: VoxelBlocks, sign: int) -> None:
+        inside, slots = self._slots(blocks.keys, allocate=True)
+        if not len(slots):
+            return
+        weight = blocks.weight if inside.all() else blocks.weight[inside]
+        tsdf = blocks.tsdf if inside.all() else blocks.tsdf[inside]
+        if sign > 0:
+            self._widen_sums(int(weight.max(initial=0)))
+        weighted = np.multiply(weight, tsdf, dtype=self._sum.dtype)
+        if sign > 0:
+            self._weight[slots] += weight
+            self._sum[slots] += weighted
+        else:
+            self._weight[slots] -= weight
+            self._sum[slots] -= weighted
+
+    def _widen_sums(self, added_weight: int) -> None:
+        self._weight_bound += added_weight
+        if self._sum.dtype == np.int64 or self._weight_bound < _INT32_SAFE_WEIGHT:
+            return
+        self._weight_bound = int(self._weight[: self._count].max(initial=0)) + added_weight
+        if self._weight_bound >= _INT32_SAFE_WEIGHT:
+            self._sum = self._sum.astype(np.int64)
+
+    def _slots(self, keys: np.ndarray, allocate: bool) -> tuple[np.ndarray, np.ndarray]:
+        """(mask of keys inside the grid, their pool rows); unallocated blocks get -1 or a new row."""
+        rel = np.asarray(keys, dtype=np.int64) - self._kmin
+        inside = np.all((rel >= 0) & (rel < self._grid.shape), axis=1)
+        rel = rel[inside]
+        slots = self._grid[rel[:, 0], rel[:, 1], rel[:, 2]].astype(np.int64)
+        if allocate:
+            new = slots < 0
+            n_new = int(np.count_nonzero(new))
+            if n_new:
+                self._reserve(self._count + n_new)
+                fresh = np.arange(self._count, self._count + n_new)
+                slots[new] = fresh
+                self._grid[rel[new, 0], rel[new, 1], rel[new, 2]] = fresh
+                self._keys[fresh] = np.asarray(keys, dtype=np.int32)[inside][new]
+                self._count += n_new
+        return inside, slots
+
+    def _reserve(self, needed: int) -> None:
+        cap = len(self._keys)
+        if needed <= cap:
+            return
+        cap = max(needed, 2 * cap)
+        grown = []
+        for array in (self._keys, self._weight, self._sum):
+            bigger = np.zeros((cap, array.shape[1]), dtype=array.dtype)
+            bigger[: self._count] = array[: self._count]
+            grown.append(bigger)
+        self._keys, self._weight, self._sum = grown
+
+    # --- queries ---------------------------------------------------------------------------------------------
+
+    @property
+    def block_count(self) -> int:
+        return self._count
+
+    @property
+    def voxel_count(self) -> int:
+        """Observed voxels (W > 0)."""
+        return int(np.count_nonzero(self._weight[: self._count]))
+
+    @property
+    def known_count(self) -> int:
+        return int(np.count_nonzero(self._weight[: self._count] >= self.known_units))
+
+    @property
+    def known_fraction(self) -> float:
+        """Known voxels / all lattice voxels of the mission volume."""
+        keys = self._keys[: self._count].astype(np.int64)
+        r = self.lattice.block_resolution
+        steps = np.arange(r)
+        ok = [
+            ((keys[:, a : a + 1] * r + steps) >= self._vlo[a]) & ((keys[:, a : a + 1] * r + steps) <= self._vhi[a])
+            for a in range(3)
+        ]
+        inside = (ok[2][:, :, None, None] & ok[1][:, None, :, None] & ok[0][:, None, None, :]).reshape(len(keys), -1)
+        known = self._weight[: self._count] >= self.known_units
+        total = int(np.prod(self._vhi - self._vlo + 1))
+        return int(np.count_nonzero(known & inside)) / total
+
+    def state_at(self, points: np.ndarray) -> np.ndarray:
+        """(N,) uint8 state (UNKNOWN, FREE, OCCUPIED) of the voxels nearest to (N,3) world points."""
+        keys, flat = self.lattice.voxel_to_block(self.lattice.point_to_voxel(points))
+        inside, slots = self._slots(keys, allocate=False)
+        weight = np.zeros(len(keys), dtype=np.int64)
+        total = np.zeros(len(keys), dtype=np.int64)
+        held = np.flatnonzero(inside)[slots >= 0]
+        rows, cols = slots[slots >= 0], flat[held]
+        weight[held] = self._weight[rows, cols]
+        total[held] = self._sum[rows, cols]
+        return _classify(weight, total, self.known_units)
+
+    def arrays(self) -> TsdfArrays:
+        """The fused TSDF as float arrays (blocks with an observed voxel, keys sorted): tsdf = S / (127 W),
+        weight = W in the lattice's weight (W units * unit)."""
+        keys, weight, total = self._observed_blocks()
+        with np.errstate(invalid="ignore", divide="ignore"):
+            tsdf = np.where(weight > 0, total / (TSDF_SCALE * weight.astype(np.float64)), 0.0)
+        return TsdfArrays(keys, tsdf.astype(np.float32), (weight * self.lattice.weight_unit).astype(np.float32))
+
+    def _observed_blocks(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        n = self._count
+        keep = np.flatnonzero(self._weight[:n].any(axis=1))
+        keys = self._keys[keep]
+        order = np.lexsort((keys[:, 2], keys[:, 1], keys[:, 0]))
+        rows = keep[order]
+        return self._keys[rows], self._weight[rows], self._sum[rows]
+
+    def digest(self) -> str:
+        """A hash of the lattice and the fused arrays; equal maps have equal digests."""
+        keys, weight, total = self._observed_blocks()
+        h = hashlib.blake2b(digest_size=16)
+        h.update(self.lattice.describe().encode())
+        for array in (keys, weight, total):
+            h.update(np.ascontiguousarray(array).astype(array.dtype.newbyteorder("<"), copy=False).tobytes())
+        return h.hexdigest()
+
+    def occupancy_grid(
+        self, resolution: float, lo: Sequence[float] | None = None, hi: Sequence[float] | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(corner of cell (0,0,0), uint8 (nx,ny,nz) states) of a coarse grid over [lo, hi) (default: the bounds).
+
+        A fine voxel belongs to the cell holding its sample point. A cell is OCCUPIED if any of its voxels is
+        occupied, FREE if all of its voxels are known and none is occupied, UNKNOWN otherwise (a cell is only
+        declared free when it was entirely seen, which keeps planned paths out of partly seen space).
+        """
+        if not resolution > 0:
+            raise ValueError("resolution must be positive")
+        lo_ = self.bounds[0] if lo is None else np.asarray(lo, dtype=np.float64)
+        hi_ = self.bounds[1] if hi is None else np.asarray(hi, dtype=np.float64)
+        shape = np.maximum(np.ceil((hi_ - lo_) / resolution - _EPS).astype(np.int64), 0)
+        n_cells = int(np.prod(shape))
+        states = np.zeros(n_cells, dtype=np.uint8)
+        if n_cells == 0:
+            return lo_, states.reshape(tuple(shape))
+        v, o, r = self.lattice.voxel_size, self.lattice.origin_array, self.lattice.block_resolution
+
+        def cell_of(index: np.ndarray, axis: int) -> np.ndarray:
+            return np.floor((o[axis] + index * v - lo_[axis]) / resolution + _EPS).astype(np.int64)
+
+        # voxels per cell along each axis
+        totals = []
+        for axis in range(3):
+            first = int(np.ceil((lo_[axis] - o[axis]) / v - _EPS)) - 1
+            last = int(np.floor((lo_[axis] + shape[axis] * resolution - o[axis]) / v + _EPS)) + 1
+            cells = cell_of(np.arange(first, last + 1), axis)
+            cells = cells[(cells >= 0) & (cells < shape[axis])]
+            totals.append(np.bincount(cells, minlength=int(shape[axis])))
+        total = (totals[0][:, None, None] * totals[1][None, :, None] * totals[2][None, None, :]).ravel()
+
+        keys = self._keys[: self._count].astype(np.int64)
+        steps = np.arange(r)
+        per_axis_cell, per_axis_ok = [], []
+        for axis in range(3):
+            c = cell_of(keys[:, axis : axis + 1] * r + steps, axis)
+            per_axis_ok.append((c >= 0) & (c < shape[axis]))
+            per_axis_cell.append(c)
+        touching = per_axis_ok[0].any(axis=1) & per_axis_ok[1].any(axis=1) & per_axis_ok[2].any(axis=1)
+        rows = np.flatnonzero(touching)
+        cx, cy, cz = (c[rows] for c in per_axis_cell)
+        ox, oy, oz = (ok[rows] for ok in per_axis_ok)
+        ny, nz = int(shape[1]), int(shape[2])
+        # storage order inside a block is [z, y, x]
+        flat = ((cx[:, None, None, :] * ny + cy[:, None, :, None]) * nz + cz[:, :, None, None]).reshape(len(rows), -1)
+        ok = (oz[:, :, None, None] & oy[:, None, :, None] & ox[:, None, None, :]).reshape(len(rows), -1)
+        weight, total_sum = self._weight[rows], self._sum[rows]
+        known = ok & (weight >= self.known_units)
+        occupied = known & (total_sum <= 0)
+        known_per_cell = np.bincount(flat[known], minlength=n_cells)
+        occupied_cells = np.zeros(n_cells, dtype=bool)
+        occupied_cells[flat[occupied]] = True
+        states[(known_per_cell == total) & (total > 0)] = FREE
+        states[occupied_cells] = OCCUPIED
+        return lo_.copy(), states.reshape(tuple(int(s) for s in shape))
+
+    def mesh(self) -> tuple[np.ndarray, np.ndarray]:
+        """Marching-cubes surface of the known voxels: (V,3) float64 world vertices, (F,3) int32 triangles."""
+        from swarm.patches.meshing import extract_mesh
+
+        # Open3D's threshold is strict (w > threshold): half a unit below the known threshold
+        return extract_mesh(self.lattice, self.arrays(), (self.known_units - 0.5) * self.lattice.weight_unit)
+
+    def write_mesh(self, path: str | Path) -> tuple[int, int]:
+        """Write the mesh as .ply; returns (vertices, triangles)."""
+        from swarm.patches.meshing import write_ply
+
+        vertices, triangles = self.mesh()
+        write_ply(path, vertices, triangles)
+        return len(vertices), len(triangles)
+
+
+def _classify(weight: np.ndarray, total: np.ndarray, known_units: int) -> np.ndarray:
+    known = weight >= known_units
+    return np.where(known & (total <= 0), np.uint8(OCCUPIED), np.where(known, np.uint8(FREE), np.uint8(UNKNOWN)))

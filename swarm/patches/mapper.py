@@ -1,0 +1,84 @@
+"""One agent's map: its own frames sealed into patches, the private and public stores, and the fused map.
+
+`integrate` feeds a depth frame to the open patch and returns the patch it sealed, if any (the caller pushes it
+to peers); own sealed patches go to the private store and the fused map at once. `receive` stores and fuses a
+peer's patch once. `current_map` is the fused map with the open patch included, for queries and export.
+"""
+
+from __future__ import annotations
+
+from contextlib import contextmanager
+from typing import Iterator
+
+import numpy as np
+
+from swarm.config import MappingSettings
+from swarm.patches.backend import TsdfBackend, VoxelBlockGridBackend
+from swarm.patches.fused import Bounds, FusedMap
+from swarm.patches.lattice import Lattice
+from swarm.patches.patch import Patch, PatchId, PatchStore
+from swarm.patches.sealer import PatchSealer
+
+
+class Mapper:
+    def __init__(
+        self,
+        settings: MappingSettings,
+        producer: int,
+        epoch: int,
+        bounds: Bounds,
+        origin: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        known_weight: float = 1.0,
+        backend: TsdfBackend | None = None,
+    ) -> None:
+        self.lattice = Lattice.from_settings(settings, origin)
+        backend = backend or VoxelBlockGridBackend(self.lattice)
+        if backend.lattice != self.lattice:
+            raise ValueError("the backend's lattice differs from the mission's")
+        self.producer = producer
+        self.epoch = epoch
+        self.sealer = PatchSealer(backend, producer, epoch, settings.patch_frames, settings.patch_distance_m)
+        self.private = PatchStore()
+        self.public = PatchStore()
+        self.fused = FusedMap(self.lattice, bounds, known_weight)
+
+    def integrate(
+        self, depth: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray, t: float, max_range: float
+    ) -> Patch | None:
+        """Integrate one frame; the patch it sealed (already stored and fused), or None."""
+        return self._keep(self.sealer.add_frame(depth, K, T_world_cam, t, max_range))
+
+    def seal(self) -> Patch | None:
+        """Seal the open patch now (e.g. before landing)."""
+        return self._keep(self.sealer.seal())
+
+    def _keep(self, patch: Patch | None) -> Patch | None:
+        if patch is not None:
+            self.private.add(patch)
+            self.fused.add(patch)
+        return patch
+
+    def receive(self, patch: Patch) -> bool:
+        """Store and fuse a received patch; False (no change) if already held. Lattice: see `decode_patch`."""
+        if self.holds(patch.id):
+            return False
+        if patch.lattice != self.lattice:
+            raise ValueError(f"patch {patch.id} is on another lattice")
+        self.public.add(patch)
+        self.fused.add(patch)
+        return True
+
+    def holds(self, pid: PatchId) -> bool:
+        return pid in self.private or pid in self.public
+
+    def get(self, pid: PatchId) -> Patch | None:
+        return self.private.get(pid) or self.public.get(pid)
+
+    def held_ids(self) -> list[PatchId]:
+        return sorted(self.private.ids() + self.public.ids())
+
+    @contextmanager
+    def current_map(self) -> Iterator[FusedMap]:
+        """The fused map including the open patch, for the duration of the `with` block."""
+        with self.fused.including(self.sealer.open_blocks()) as fused:
+            yield fused

@@ -1,0 +1,52 @@
+"""Marching cubes through Open3D: a `VoxelBlockGrid` rebuilt from fused arrays, then `extract_triangle_mesh`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import open3d as o3d
+
+from swarm.patches.lattice import Lattice
+from swarm.patches.patch import TsdfArrays
+
+o3c = o3d.core
+
+
+def extract_mesh(lattice: Lattice, arrays: TsdfArrays, weight_threshold: float) -> tuple[np.ndarray, np.ndarray]:
+    """(V,3) float64 world vertices and (F,3) int32 triangles of the zero level set, over voxels whose weight
+    exceeds `weight_threshold` (strictly, as Open3D does)."""
+    empty = np.zeros((0, 3), dtype=np.float64), np.zeros((0, 3), dtype=np.int32)
+    if len(arrays.keys) == 0:
+        return empty
+    vbg = o3d.t.geometry.VoxelBlockGrid(
+        ("tsdf", "weight"),
+        (o3c.float32, o3c.float32),
+        ((1), (1)),
+        lattice.voxel_size,
+        lattice.block_resolution,
+        len(arrays.keys),
+        o3c.Device("CPU:0"),
+    )
+    hashmap = vbg.hashmap()
+    keys = o3c.Tensor(np.ascontiguousarray(arrays.keys, dtype=np.int32))
+    hashmap.activate(keys)
+    buf, _ = hashmap.find(keys)
+    rows = buf.numpy().astype(np.int64)
+    cap = hashmap.capacity()  # read after activate: a rehash reallocates the attribute buffers
+    vbg.attribute("tsdf").numpy().reshape(cap, -1)[rows] = arrays.tsdf
+    vbg.attribute("weight").numpy().reshape(cap, -1)[rows] = arrays.weight
+    try:
+        mesh = vbg.extract_triangle_mesh(weight_threshold=float(weight_threshold))
+    except RuntimeError:  # Open3D raises instead of returning an empty mesh when no voxel passes
+        return empty
+    if "positions" not in mesh.vertex or "indices" not in mesh.triangle:
+        return empty
+    vertices = mesh.vertex.positions.numpy().astype(np.float64) + lattice.origin_array
+    return vertices, mesh.triangle.indices.numpy().astype(np.int32)
+
+
+def write_ply(path: str | Path, vertices: np.ndarray, triangles: np.ndarray) -> None:
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(vertices), o3d.utility.Vector3iVector(triangles))
+    if not o3d.io.write_triangle_mesh(str(path), mesh, write_ascii=False):
+        raise OSError(f"cannot write mesh to {path}")

@@ -1,0 +1,267 @@
+"""The wire form of a sealed patch, and its hostile-input decoder.
+
+Bytes: the bus envelope of `swarm.bus.codec` (``{"v", "k": "patch", "d"}``, msgpack) around a `PatchMessage`:
+header fields (format version, patch id, lattice, frame span, anchor pose, bounding box, voxel and block counts,
+CRC-32) and `payload`, one zstd frame (level 3) holding three little-endian arrays back to back:
+keys int16 (M,3), tsdf int8 (M,R^3), weight (M,R^3) in the lattice's weight dtype (uint8 or uint16).
+
+The CRC-32 covers the header fields and the compressed payload, so any corruption is caught before
+decompression. `decode_patch` validates, in this order, and raises `PatchDecodeError(reason)` only:
+"too_large" (input over max_bytes, or a declared/decompressed size over the bound), "not_msgpack",
+"version" (envelope or patch format), "invalid" (envelope, fields, pose, span, array contents), "lattice",
+"bounds" (bounding box or keys outside it), "checksum", "decompress" (zstd error), "shape" (a frame whose declared or actual size does not match
+the block count; a frame that decompresses beyond it without declaring its size is "too_large"). Decompression never produces more than the size the header declares (plus one
+byte to detect excess), itself bounded by MAX_EXPANSION * max_bytes.
+"""
+
+from __future__ import annotations
+
+import zlib
+from typing import Annotated, Any, Literal
+
+import msgpack
+import numpy as np
+import zstandard
+from pydantic import Field, ValidationError
+
+from swarm.bus import codec
+from swarm.bus.codec import WireMessage
+from swarm.bus.messages import AgentId, Counter, Vec3
+from swarm.patches.lattice import Lattice
+from swarm.patches.patch import TSDF_SCALE, FrameSpan, Patch, PatchId, VoxelBlocks, is_rigid
+
+PATCH_FORMAT = 1
+KIND = "patch"
+ZSTD_LEVEL = 3
+MAX_EXPANSION = 16  # decompressed payload <= this many times max_bytes
+MAX_EXTENT_M = 4000.0  # a bounding box larger than this is not a patch
+_KEY_LIMIT = np.iinfo(np.int16).max
+_MAX_CONTAINER_LEN = 64  # the largest array in the header is the 16-number pose
+
+
+class PatchDecodeError(Exception):
+    """A received patch that must not be used; `reason` is short and machine-usable (see the module doc)."""
+
+    def __init__(self, reason: str, detail: str = "") -> None:
+        super().__init__(f"{reason}: {detail}" if detail else reason)
+        self.reason = reason
+        self.detail = detail
+
+
+Pose16 = Annotated[tuple[float, ...], Field(min_length=16, max_length=16)]
+
+
+class PatchMessage(WireMessage):
+    KIND = KIND
+
+    patch_format: int
+    producer: AgentId
+    epoch: Counter
+    seq: Counter
+    voxel_size: float = Field(gt=0.0)
+    block_resolution: int = Field(ge=2, le=64)
+    truncation_voxels: float = Field(gt=0.0)
+    origin: Vec3
+    weight_law: Literal["constant", "inverse_square"]
+    first_frame: Counter
+    last_frame: Counter
+    t_first: float
+    t_last: float
+    anchor_pose: Pose16 = Field(description="4x4 camera-to-world of the first frame, row-major")
+    bbox_min: Vec3
+    bbox_max: Vec3
+    voxel_count: Counter
+    block_count: Counter
+    checksum: int = Field(ge=0, le=0xFFFFFFFF, description="CRC-32 of the header fields and the payload")
+    payload: bytes = Field(description="zstd frame: keys int16 (M,3), tsdf int8 (M,R^3), weight (M,R^3)")
+
+
+_HEADER_FIELDS = tuple(name for name in PatchMessage.model_fields if name not in ("checksum", "payload"))
+
+
+def _checksum(fields: dict[str, Any], payload: bytes) -> int:
+    header = msgpack.packb([fields[name] for name in _HEADER_FIELDS], use_bin_type=True)
+    return zlib.crc32(payload, zlib.crc32(header))
+
+
+def _raw_size(lattice: Lattice, blocks: int) -> int:
+    return blocks * (3 * 2 + lattice.voxels_per_block * (1 + lattice.weight_dtype.itemsize))
+
+
+def encode_patch(patch: Patch, level: int = ZSTD_LEVEL) -> bytes:
+    """The wire bytes of a sealed patch."""
+    blocks, lattice = patch.blocks, patch.lattice
+    if blocks.block_count and int(np.abs(blocks.keys).max()) > _KEY_LIMIT:
+        raise ValueError("block keys beyond the int16 range cannot be encoded")
+    raw = b"".join(
+        (
+            blocks.keys.astype("<i2").tobytes(),
+            blocks.tsdf.tobytes(),
+            blocks.weight.astype(lattice.weight_dtype.newbyteorder("<"), copy=False).tobytes(),
+        )
+    )
+    payload = zstandard.ZstdCompressor(level=level).compress(raw)
+    fields: dict[str, Any] = {
+        "patch_format": PATCH_FORMAT,
+        "producer": patch.id.producer,
+        "epoch": patch.id.epoch,
+        "seq": patch.id.seq,
+        "voxel_size": lattice.voxel_size,
+        "block_resolution": lattice.block_resolution,
+        "truncation_voxels": lattice.truncation_voxels,
+        "origin": lattice.origin,
+        "weight_law": lattice.weight_law,
+        "first_frame": patch.span.first,
+        "last_frame": patch.span.last,
+        "t_first": patch.span.t_first,
+        "t_last": patch.span.t_last,
+        "anchor_pose": tuple(float(x) for x in patch.anchor_pose.ravel()),
+        "bbox_min": tuple(float(x) for x in patch.bounds[0]),
+        "bbox_max": tuple(float(x) for x in patch.bounds[1]),
+        "voxel_count": blocks.voxel_count,
+        "block_count": blocks.block_count,
+    }
+    draft = PatchMessage(**fields, checksum=0, payload=payload)
+    checksum = _checksum(draft.model_dump(include=set(_HEADER_FIELDS)), payload)  # of the validated values
+    return codec.encode(draft.model_copy(update={"checksum": checksum}))
+
+
+def decode_patch(data: bytes, lattice: Lattice, max_bytes: int) -> Patch:
+    """A validated patch on `lattice` from wire bytes; raise PatchDecodeError (only) otherwise."""
+    try:
+        return _decode(data, lattice, max_bytes)
+    except PatchDecodeError:
+        raise
+    except Exception as exc:  # a gap in the checks below must still not crash the receiver
+        raise PatchDecodeError("invalid", f"{type(exc).__name__}: {exc}"[:200]) from None
+
+
+def _reject_ext(code: int, data: bytes) -> Any:
+    raise ValueError(f"msgpack extension type {code} is not allowed")
+
+
+def _decode(data: bytes, lattice: Lattice, max_bytes: int) -> Patch:
+    if not isinstance(data, (bytes, bytearray, memoryview)):
+        raise PatchDecodeError("not_msgpack", f"expected bytes, got {type(data).__name__}")
+    size = memoryview(data).nbytes
+    if size > max_bytes:
+        raise PatchDecodeError("too_large", f"{size} bytes > {max_bytes}")
+    try:
+        envelope = msgpack.unpackb(
+            data,
+            raw=False,
+            strict_map_key=True,
+            timestamp=0,
+            ext_hook=_reject_ext,
+            max_str_len=4096,
+            max_bin_len=max_bytes,
+            max_array_len=_MAX_CONTAINER_LEN,
+            max_map_len=_MAX_CONTAINER_LEN,
+            max_ext_len=0,
+        )
+    except Exception as exc:
+        raise PatchDecodeError("not_msgpack", str(exc)[:200]) from None
+    if not isinstance(envelope, dict) or envelope.keys() != {"v", "k", "d"} or not isinstance(envelope["d"], dict):
+        raise PatchDecodeError("invalid", "expected the envelope {v, k, d}")
+    if envelope["v"] != codec.SCHEMA_VERSION or envelope["d"].get("patch_format") != PATCH_FORMAT:
+        raise PatchDecodeError("version", f"envelope {envelope['v']!r}, patch format {envelope['d'].get('patch_format')!r}")
+    if envelope["k"] != KIND:
+        raise PatchDecodeError("invalid", f"kind {str(envelope['k'])[:40]!r} is not {KIND!r}")
+    try:
+        msg = PatchMessage.model_validate(envelope["d"])
+    except ValidationError as exc:
+        first = exc.errors(include_url=False, include_input=False)[0]
+        raise PatchDecodeError("invalid", f"{'.'.join(map(str, first['loc']))}: {first['msg']}"[:200]) from None
+
+    try:
+        theirs = Lattice(msg.voxel_size, msg.block_resolution, msg.truncation_voxels, msg.origin, msg.weight_law)
+    except ValueError as exc:
+        raise PatchDecodeError("lattice", str(exc)) from None
+    if theirs != lattice:
+        raise PatchDecodeError("lattice", f"patch lattice ({theirs.describe()}) is not ours ({lattice.describe()})")
+
+    lo, hi = np.array(msg.bbox_min), np.array(msg.bbox_max)
+    if np.any(lo > hi) or np.any(hi - lo > MAX_EXTENT_M):
+        raise PatchDecodeError("bounds", f"bounding box {lo} - {hi}")
+    expected = _raw_size(lattice, msg.block_count)
+    if expected > MAX_EXPANSION * max_bytes:
+        raise PatchDecodeError("too_large", f"{msg.block_count} blocks need {expected} bytes")
+    if _checksum(msg.model_dump(include=set(_HEADER_FIELDS)), msg.payload) != msg.checksum:
+        raise PatchDecodeError("checksum", f"CRC-32 mismatch for patch {msg.producer}.{msg.epoch}.{msg.seq}")
+    raw = _decompress(msg.payload, expected)
+
+    m, n = msg.block_count, lattice.voxels_per_block
+    keys = np.frombuffer(raw, dtype="<i2", count=3 * m).reshape(m, 3).astype(np.int32)
+    tsdf = np.frombuffer(raw, dtype=np.int8, count=m * n, offset=6 * m).reshape(m, n)
+    weight = np.frombuffer(raw, dtype=lattice.weight_dtype.newbyteorder("<"), count=m * n, offset=6 * m + m * n)
+    weight = weight.reshape(m, n).astype(lattice.weight_dtype, copy=False)
+    _check_arrays(msg, lattice, keys, tsdf, weight, lo, hi)
+
+    pose = np.array(msg.anchor_pose, dtype=np.float64).reshape(4, 4)
+    if not is_rigid(pose):
+        raise PatchDecodeError("invalid", "anchor pose is not a rigid transform")
+    if msg.first_frame > msg.last_frame or msg.t_first > msg.t_last:
+        raise PatchDecodeError("invalid", "frame span is not ordered")
+    return Patch(
+        PatchId(msg.producer, msg.epoch, msg.seq),
+        lattice,
+        FrameSpan(msg.first_frame, msg.last_frame, msg.t_first, msg.t_last),
+        pose,
+        (lo, hi),
+        VoxelBlocks(keys, tsdf, weight),
+    )
+
+
+def _decompress(payload: bytes, expected: int) -> bytearray:
+    """Exactly `expected` bytes out of one zstd frame, never allocating more than expected + 1."""
+    try:
+        declared = zstandard.frame_content_size(payload)
+    except zstandard.ZstdError as exc:
+        raise PatchDecodeError("decompress", str(exc)[:200]) from None
+    if declared >= 0 and declared != expected:
+        raise PatchDecodeError("shape", f"frame holds {declared} bytes, the block count needs {expected}")
+    out = bytearray(expected + 1)
+    view = memoryview(out)
+    filled = 0
+    try:
+        with zstandard.ZstdDecompressor().stream_reader(payload, read_across_frames=False) as reader:
+            while filled <= expected:
+                got = reader.readinto(view[filled:])
+                if not got:
+                    break
+                filled += got
+    except zstandard.ZstdError as exc:
+        raise PatchDecodeError("decompress", str(exc)[:200]) from None
+    if filled > expected:
+        raise PatchDecodeError("too_large", f"payload decompresses beyond the declared {expected} bytes")
+    if filled < expected:
+        raise PatchDecodeError("shape", f"payload holds {filled} bytes, header says {expected}")
+    del view
+    del out[expected:]
+    return out
+
+
+def _check_arrays(
+    msg: PatchMessage,
+    lattice: Lattice,
+    keys: np.ndarray,
+    tsdf: np.ndarray,
+    weight: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+) -> None:
+    if len(keys):
+        klo, khi = lattice.block_bounds(keys)
+        slack = 1e-6 * max(1.0, float(np.max(np.abs(np.concatenate([lo, hi])))))
+        if np.any(klo < lo - slack) or np.any(khi > hi + slack):
+            raise PatchDecodeError("bounds", f"blocks span {klo} - {khi}, outside the declared box {lo} - {hi}")
+        codes = (keys[:, 0].astype(np.int64) << 32) + (keys[:, 1].astype(np.int64) << 16) + keys[:, 2]
+        if len(np.unique(codes)) != len(codes):
+            raise PatchDecodeError("invalid", "duplicate block keys")
+    if tsdf.size and int(tsdf.min()) < -TSDF_SCALE:
+        raise PatchDecodeError("invalid", "tsdf value -128 is outside [-127, 127]")
+    observed = weight > 0
+    if int(np.count_nonzero(observed)) != msg.voxel_count:
+        raise PatchDecodeError("invalid", f"{np.count_nonzero(observed)} observed voxels, header says {msg.voxel_count}")
+    if np.any(tsdf[~observed]):
+        raise PatchDecodeError("invalid", "unobserved voxels must have tsdf 0")

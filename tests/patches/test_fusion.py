@@ -1,0 +1,125 @@
+"""Fusion: patches fused equal one TSDF integrated from the same frames; order, duplicates and the open patch
+do not change the result."""
+
+import random
+
+import numpy as np
+import pytest
+
+from swarm.config import MappingSettings
+from swarm.patches.backend import VoxelBlockGridBackend
+from swarm.patches.fused import FusedMap
+from swarm.patches.lattice import Lattice
+from swarm.patches.mapper import Mapper
+from swarm.patches.patch import TSDF_SCALE, Patch
+from tests.patches.scene import CENTRE, MAX_RANGE, ROOM_HI, ROOM_LO, intrinsics, pose, render_room, rotate_in_place
+
+BOUNDS = (ROOM_LO - 2.0, ROOM_HI + 2.0)
+
+
+def flight():
+    """Rotate in place, then a short translation (patches then overlap in varied ways)."""
+    frames = rotate_in_place()
+    K = intrinsics()
+    for i in range(8):
+        T = pose(CENTRE + [-1.5 + 0.4 * i, -0.5, 0.0], 20.0 * i, 10.0)
+        frames.append(type(frames[0])(render_room(K, T), K, T, 10.0 + 0.1 * i))
+    return frames
+
+
+def mapped(law: str) -> tuple[Mapper, list[Patch], VoxelBlockGridBackend]:
+    settings = MappingSettings(weight_law=law, patch_frames=5, patch_distance_m=50.0)
+    mapper = Mapper(settings, producer=2, epoch=7, bounds=BOUNDS)
+    single = VoxelBlockGridBackend(mapper.lattice, block_capacity=8192)
+    patches = []
+    for f in flight():
+        single.integrate(f.depth, f.K, f.T, MAX_RANGE)
+        sealed = mapper.integrate(f.depth, f.K, f.T, f.t, MAX_RANGE)
+        if sealed:
+            patches.append(sealed)
+    last = mapper.seal()
+    assert last is not None
+    return mapper, patches + [last], single
+
+
+@pytest.fixture(scope="module", params=["constant", "inverse_square"])
+def flown(request):
+    return request.param, *mapped(request.param)
+
+
+def test_fused_patches_equal_one_tsdf_of_all_frames(flown) -> None:
+    law, mapper, patches, single = flown
+    assert len(patches) == 9  # 44 frames, 5 per patch
+    fused = mapper.fused.arrays()
+    whole = single.extract()
+    observed = whole.weight.any(axis=1)
+    assert np.array_equal(fused.keys, whole.keys[observed])
+    w_single, t_single = whole.weight[observed], whole.tsdf[observed]
+    seen = w_single > 0
+    assert np.array_equal(fused.weight > 0, seen)
+    if law == "constant":
+        assert np.array_equal(fused.weight, w_single)  # integer counts, exact below 255 frames per patch
+        tolerance = 0.5 / TSDF_SCALE + 1e-5
+    else:
+        unit = mapper.lattice.weight_unit
+        assert np.abs(fused.weight - w_single).max() <= len(patches) * unit / 2 + 1e-4
+        # weight rounding moves the weighted average by at most sum|dw| * max|t_p - t| / W
+        tolerance = 0.5 / TSDF_SCALE + 1e-5 + (len(patches) * unit / 2) * 2.0 / np.maximum(fused.weight, unit)
+    assert np.all(np.abs(fused.tsdf - t_single)[seen] <= np.broadcast_to(tolerance, seen.shape)[seen])
+
+
+def test_fusion_does_not_depend_on_patch_order(flown) -> None:
+    _, mapper, patches, _ = flown
+    reference = mapper.fused
+    for seed in range(3):
+        shuffled = patches[:]
+        random.Random(seed).shuffle(shuffled)
+        other = FusedMap(mapper.lattice, BOUNDS, initial_blocks=16)  # also exercises pool growth
+        for p in shuffled:
+            assert other.add(p)
+        assert other.digest() == reference.digest()  # integer sums: bit-identical, not just close
+        a, b = other.arrays(), reference.arrays()
+        assert all(np.array_equal(x, y) for x, y in zip(a, b))
+
+
+def test_adding_a_patch_twice_changes_nothing(flown) -> None:
+    _, mapper, patches, _ = flown
+    before = mapper.fused.digest()
+    assert not mapper.fused.add(patches[3])
+    assert not mapper.receive(patches[3])
+    assert mapper.fused.digest() == before
+    assert mapper.fused.ids == frozenset(p.id for p in patches)
+
+
+def test_open_patch_is_included_temporarily_and_removed_exactly() -> None:
+    settings = MappingSettings(patch_frames=5)
+    mapper = Mapper(settings, producer=1, epoch=1, bounds=BOUNDS)
+    frames = rotate_in_place()[:7]
+    for f in frames:
+        mapper.integrate(f.depth, f.K, f.T, f.t, MAX_RANGE)
+    assert len(mapper.private) == 1 and mapper.sealer.open_frames == 2
+    before, voxels = mapper.fused.digest(), mapper.fused.voxel_count
+    with mapper.current_map() as view:
+        assert view.voxel_count > voxels
+        with_open = view.digest()
+    assert mapper.fused.digest() == before and mapper.fused.voxel_count == voxels
+    with mapper.current_map() as view:
+        assert view.digest() == with_open
+
+
+def test_blocks_outside_the_mission_volume_are_ignored() -> None:
+    mapper, patches, _ = mapped("constant")
+    small = FusedMap(mapper.lattice, (CENTRE - 1.0, CENTRE + 1.0))
+    for p in patches:
+        small.add(p)
+    keys = small.arrays().keys
+    lo, hi = small.lattice.block_bounds(keys)
+    assert np.all(lo >= CENTRE - 1.0 - small.lattice.block_size) and np.all(hi <= CENTRE + 1.0 + small.lattice.block_size)
+    assert 0.0 < small.known_fraction <= 1.0
+
+
+def test_lattice_mismatch_is_refused(flown) -> None:
+    _, _, patches, _ = flown
+    other = FusedMap(Lattice(0.2, 8, 4.0), BOUNDS)
+    with pytest.raises(ValueError):
+        other.add(patches[0])

@@ -1,0 +1,111 @@
+"""Integration and the fused map on the analytic box room: free-space carving, classification, mesh accuracy,
+the coarse occupancy grid."""
+
+import numpy as np
+import pytest
+
+from swarm.patches.backend import VoxelBlockGridBackend
+from swarm.patches.carving import frame_blocks
+from swarm.patches.fused import FREE, OCCUPIED, UNKNOWN, FusedMap
+from swarm.patches.lattice import Lattice
+from swarm.patches.patch import FrameSpan, Patch, PatchId, quantise
+from tests.patches.scene import CENTRE, MAX_RANGE, ROOM_HI, ROOM_LO, distance_to_walls, intrinsics, pose, render_room, rotate_in_place
+
+BOUNDS = (ROOM_LO - 1.0, ROOM_HI + 1.0)
+
+
+def map_of(frames, lattice: Lattice) -> FusedMap:
+    backend = VoxelBlockGridBackend(lattice)
+    for f in frames:
+        backend.integrate(f.depth, f.K, f.T, MAX_RANGE)
+    fused = FusedMap(lattice, BOUNDS)
+    blocks = quantise(backend.extract(), lattice)
+    fused.add(Patch.seal(PatchId(1, 0, 0), lattice, FrameSpan(0, len(frames) - 1, 0.0, 1.0), frames[0].T, blocks))
+    return fused
+
+
+@pytest.fixture(scope="module")
+def room_map() -> FusedMap:
+    return map_of(rotate_in_place(), Lattice(0.1, 8, 4.0))
+
+
+def test_frame_blocks_hold_the_surface_band_and_the_rays() -> None:
+    lattice = Lattice(0.1, 8, 4.0)
+    K, T = intrinsics(), pose(CENTRE, 0.0)
+    depth = render_room(K, T)
+    keys = {tuple(k) for k in frame_blocks(depth, K, T, lattice, MAX_RANGE)}
+    wall_x = ROOM_HI[0]  # looking along +x at the wall x = 6
+    for d in np.arange(0.0, wall_x - CENTRE[0] + lattice.truncation_m, 0.05):
+        assert tuple(lattice.point_to_block(CENTRE + [d, 0.0, 0.0])[0]) in keys
+    for dy in (-0.4, 0.0, 0.4):  # on the wall and +- truncation around it
+        for dx in (-0.4, 0.0, 0.39):
+            assert tuple(lattice.point_to_block([wall_x + dx, 2.5 + dy, 1.5])[0]) in keys
+    assert tuple(lattice.point_to_block([wall_x + 1.5, 2.5, 1.5])[0]) not in keys  # beyond the band
+    assert len(frame_blocks(np.zeros_like(depth), K, T, lattice, MAX_RANGE)) == 0
+
+
+def test_free_space_is_carved_and_behind_the_wall_stays_unknown(room_map: FusedMap) -> None:
+    rng = np.random.default_rng(0)
+    air = rng.uniform(ROOM_LO + 0.5, ROOM_HI - 0.5, size=(2000, 3))
+    seen_air = air[np.abs(air[:, 0] - CENTRE[0]) + np.abs(air[:, 1] - CENTRE[1]) > 0.8]  # not straight below/above
+    assert np.mean(room_map.state_at(seen_air) == FREE) > 0.99
+    behind = np.array([[ROOM_HI[0] + 0.8, 2.5, 1.5], [ROOM_LO[0] - 0.8, 2.5, 1.5], [3.0, ROOM_HI[1] + 0.8, 1.5]])
+    assert np.all(room_map.state_at(behind) == UNKNOWN)
+    in_wall = np.array([[ROOM_HI[0] + 0.15, 2.5, 1.5], [3.0, ROOM_LO[1] - 0.15, 1.5], [2.0, 2.0, ROOM_LO[2] - 0.15]])
+    assert np.all(room_map.state_at(in_wall) == OCCUPIED)
+    assert 0.0 < room_map.known_fraction < 1.0
+    assert room_map.known_count <= room_map.voxel_count
+
+
+def test_mesh_vertices_lie_within_a_voxel_of_the_walls(room_map: FusedMap, tmp_path) -> None:
+    vertices, triangles = room_map.mesh()
+    assert len(vertices) > 1000 and len(triangles) > 1000
+    assert distance_to_walls(vertices).max() <= room_map.lattice.voxel_size
+    n_v, n_t = room_map.write_mesh(tmp_path / "room.ply")
+    assert (n_v, n_t) == (len(vertices), len(triangles))
+    assert (tmp_path / "room.ply").read_bytes().startswith(b"ply")
+
+
+def test_occupancy_grid_marks_walls_occupied_and_the_room_free(room_map: FusedMap) -> None:
+    origin, states = room_map.occupancy_grid(0.2, ROOM_LO - 1.0, ROOM_HI + 1.0)
+    assert states.dtype == np.uint8 and states.shape == (40, 35, 25)
+    centres = origin + (np.indices(states.shape).reshape(3, -1).T + 0.5) * 0.2
+    s = states.ravel()
+    below_camera = np.hypot(centres[:, 0] - CENTRE[0], centres[:, 1] - CENTRE[1]) < 0.6
+    for axis in range(3):
+        others = [a for a in range(3) if a != axis]
+        away_from_edges = np.all(
+            (centres[:, others] > ROOM_LO[others] + 0.2) & (centres[:, others] < ROOM_HI[others] - 0.2), axis=1
+        )
+        for plane, outward in ((ROOM_LO[axis], -1.0), (ROOM_HI[axis], 1.0)):
+            # the cells just behind the surface (the grid's cell edges lie on the walls)
+            on_plane = (np.abs(centres[:, axis] - (plane + 0.1 * outward)) < 0.05) & away_from_edges & ~below_camera
+            assert on_plane.sum() > 50
+            assert np.all(s[on_plane] == OCCUPIED), (axis, plane)
+    interior = np.all((centres > ROOM_LO + 0.5) & (centres < ROOM_HI - 0.5), axis=1)
+    interior &= np.abs(centres[:, 0] - CENTRE[0]) + np.abs(centres[:, 1] - CENTRE[1]) > 0.8
+    assert np.mean(s[interior] == FREE) > 0.97
+    assert not np.any(s[interior] == OCCUPIED)
+    # projective sdf: the band reaches truncation / cos(pixel angle) <= 0.4 / cos(51 deg) = 0.64 m behind walls
+    beyond_truncation = np.any((centres < ROOM_LO - 0.75) | (centres > ROOM_HI + 0.75), axis=1)
+    assert np.all(s[beyond_truncation] == UNKNOWN)
+
+
+def test_inverse_square_weights_fall_with_distance() -> None:
+    lattice = Lattice(0.1, 8, 4.0, weight_law="inverse_square")
+    backend = VoxelBlockGridBackend(lattice)
+    K, T = intrinsics(), pose(CENTRE, 0.0)
+    backend.integrate(render_room(K, T), K, T, MAX_RANGE)
+    backend.integrate(render_room(K, T), K, T, MAX_RANGE)  # two frames: the running average is exercised
+    fused = FusedMap(lattice, BOUNDS)
+    fused.add(Patch.seal(PatchId(1, 0, 0), lattice, FrameSpan(0, 1, 0.0, 0.1), T, quantise(backend.extract(), lattice)))
+    arrays = fused.arrays()
+    points = lattice.voxel_to_point(lattice.block_voxel_indices(arrays.keys).reshape(-1, 3))
+    weight, tsdf = arrays.weight.ravel(), arrays.tsdf.ravel()
+    on_axis = (np.abs(points[:, 1] - 2.5) < 0.01) & (np.abs(points[:, 2] - 1.5) < 0.01) & (weight > 0)
+    d = np.linalg.norm(points[on_axis] - CENTRE, axis=1)
+    expected = 2.0 / np.maximum(d, 0.3) ** 2
+    assert np.allclose(weight[on_axis], expected, rtol=0.01, atol=2 / 256)
+    free_part = on_axis.copy()
+    free_part[on_axis] = d < 2.5
+    assert np.allclose(tsdf[free_part], 1.0, atol=1 / 127)

@@ -1,0 +1,81 @@
+"""Sealing triggers, patch ids, the stores."""
+
+import numpy as np
+import pytest
+
+from swarm.config import MappingSettings
+from swarm.patches.mapper import Mapper
+from swarm.patches.patch import PatchId
+from tests.patches.scene import CENTRE, MAX_RANGE, ROOM_HI, ROOM_LO, intrinsics, pose, render_room, rotate_in_place
+
+BOUNDS = (ROOM_LO - 1.0, ROOM_HI + 1.0)
+
+
+def test_patch_id_order_text_and_hash() -> None:
+    ids = [PatchId(3, 1795340000000, 12), PatchId(1, 5, 0), PatchId(3, 1795340000000, 2), PatchId(3, 2, 40)]
+    assert sorted(ids) == [PatchId(1, 5, 0), PatchId(3, 2, 40), PatchId(3, 1795340000000, 2), PatchId(3, 1795340000000, 12)]
+    assert str(ids[0]) == "3.1795340000000.12"
+    assert PatchId.parse("3.1795340000000.12") == ids[0]
+    assert len({PatchId(1, 2, 3), PatchId(1, 2, 3)}) == 1
+    for bad in ("1.2", "a.b.c", "1.2.-3"):
+        with pytest.raises(ValueError):
+            PatchId.parse(bad)
+    with pytest.raises(ValueError):
+        PatchId(-1, 0, 0)
+
+
+def test_k_frames_seal_a_patch_and_the_open_patch_stays_private() -> None:
+    mapper = Mapper(MappingSettings(patch_frames=5, patch_distance_m=100.0), producer=4, epoch=9, bounds=BOUNDS)
+    frames = rotate_in_place()[:12]
+    sealed = []
+    for i, f in enumerate(frames):
+        patch = mapper.integrate(f.depth, f.K, f.T, f.t, MAX_RANGE)
+        assert (patch is not None) == (i in (4, 9))
+        if patch:
+            sealed.append(patch)
+    assert [p.id for p in sealed] == [PatchId(4, 9, 0), PatchId(4, 9, 1)]
+    first, second = sealed
+    assert (first.span.first, first.span.last, first.span.frames) == (0, 4, 5)
+    assert (second.span.first, second.span.last) == (5, 9)
+    assert first.span.t_first == frames[0].t and first.span.t_last == frames[4].t
+    assert np.array_equal(first.anchor_pose, frames[0].T) and np.array_equal(second.anchor_pose, frames[5].T)
+    assert first.voxel_count > 0 and first.block_count > 0
+    lo, hi = first.bounds
+    assert np.all(lo <= CENTRE) and np.all(hi >= CENTRE)
+    # two frames are open: they are in no store and in no fused patch id
+    assert mapper.sealer.open_frames == 2
+    assert mapper.held_ids() == [PatchId(4, 9, 0), PatchId(4, 9, 1)]
+    assert mapper.private.ids() == mapper.held_ids() and len(mapper.public) == 0
+    assert mapper.fused.ids == frozenset(mapper.held_ids())
+    last = mapper.seal()
+    assert last.id == PatchId(4, 9, 2) and last.span.frames == 2
+    assert mapper.seal() is None  # nothing open
+
+
+def test_distance_travelled_seals_a_patch() -> None:
+    mapper = Mapper(MappingSettings(patch_frames=50, patch_distance_m=1.0), producer=1, epoch=0, bounds=BOUNDS)
+    K = intrinsics()
+    sealed_at = []
+    for i in range(8):
+        T = pose(CENTRE + [-1.4 + 0.4 * i, 0.0, 0.0], 90.0)
+        if mapper.integrate(render_room(K, T), K, T, float(i), MAX_RANGE):
+            sealed_at.append(i)
+    # 0.4 m per frame: 1.2 m travelled at the 4th frame of each patch
+    assert sealed_at == [3, 7]
+
+
+def test_received_patches_are_stored_once_and_own_ones_are_not_stored_again() -> None:
+    settings = MappingSettings(patch_frames=3)
+    a = Mapper(settings, producer=1, epoch=1, bounds=BOUNDS)
+    b = Mapper(settings, producer=2, epoch=1, bounds=BOUNDS)
+    patches = [p for f in rotate_in_place()[:9] if (p := a.integrate(f.depth, f.K, f.T, f.t, MAX_RANGE))]
+    assert len(patches) == 3
+    for p in patches:
+        assert b.receive(p)
+    digest = b.fused.digest()
+    assert not b.receive(patches[1])
+    assert b.fused.digest() == digest == a.fused.digest()
+    assert b.public.ids() == [p.id for p in patches] and len(b.private) == 0
+    assert not a.receive(patches[0])  # its own
+    assert len(a.public) == 0
+    assert b.get(patches[2].id) is patches[2] and b.holds(patches[0].id)
