@@ -92,6 +92,11 @@ def build_parser() -> argparse.ArgumentParser:
     flight.add_argument("--world", default="office")
     flight.add_argument("--out", type=Path, help="where to keep the runs (default a temp dir)")
     _add_config_flags(flight)
+    mapping = bench_sub.add_parser("mapping", help="mapping costs on one core, and frame rates of N agents at once")
+    mapping.add_argument("--drones", type=_positive_int, default=5, help="agents mapping at once (default 5)")
+    mapping.add_argument("--world", default="office")
+    mapping.add_argument("--out", type=Path, help="where to keep the figures (default a temp dir)")
+    _add_config_flags(mapping)
     return parser
 
 
@@ -147,6 +152,13 @@ def _dispatch(args: argparse.Namespace) -> int:
         from swarm.mission.bench import bench_flight
 
         return bench_flight(_config_from(args, {"mission.world": args.world}), args.drones, args.out)
+    if args.command == "bench" and args.bench == "mapping":
+        from swarm.mission.bench import bench_mapping_swarm
+        from swarm.patches.bench import bench_mapping
+
+        config = _config_from(args, {"mission.world": args.world})
+        single = bench_mapping(config, args.out)
+        return bench_mapping_swarm(config, args.drones, args.out) or single
     raise SwarmError(f"unknown command {args.command}")
 
 

@@ -112,6 +112,9 @@ class MappingTask:
             "frames": self.frames,
             "frames_skipped": self.frames_skipped,
             "mapping_ms_per_frame": round(1000 * self.busy_s / self.frames, 2) if self.frames else 0.0,
+            # every tick while airborne either took a frame or was skipped for being late
+            "frame_rate_hz": round(self.config.camera.rate_hz * self.frames / (self.frames + self.frames_skipped), 2)
+            if self.frames else 0.0,
             "known_voxels": int(self.mapper.fused.voxel_count),
         }
 

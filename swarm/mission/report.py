@@ -40,6 +40,7 @@ def build_report(
                 "patches_sealed": int(summary.get("patches_sealed", 0)),
                 "frames": int(summary.get("frames", 0)),
                 "mapping_ms_per_frame": summary.get("mapping_ms_per_frame"),
+                "frame_rate_hz": summary.get("frame_rate_hz"),
             }
         )
     status = state.status

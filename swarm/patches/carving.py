@@ -101,20 +101,22 @@ def frame_blocks(
                 sel = (nx >= jx) & (ny >= jy) & (nz >= jz)
                 mark[cell[sel] + (jx * sx + jy * sy + jz)] = True
 
-    # Free space: sub-sampled rays from the camera to depth + truncation, one sample every half block.
+    # Free space: sub-sampled rays from the camera to depth + truncation, one sample every half block or less.
     rows, cols = _ray_pixels(h, w, stride or ray_stride(K, lattice, max_range))
     sub = depth[np.ix_(rows, cols)]
-    rv, ru = np.nonzero(np.isfinite(sub) & (sub > 0) & (sub <= max_range))
+    rv, ru = np.nonzero((sub > 0) & (sub <= max_range))
     if len(rv):
         rx, ry = (cols[ru] + 0.5 - cx) / fx, (rows[rv] + 0.5 - cy) / fy
         dirs = [rot[a, 0] * rx + rot[a, 1] * ry + rot[a, 2] for a in range(3)]
         length = sub[rv, ru].astype(np.float64) + trunc  # in units of the camera-z == 1 direction
         norm = np.sqrt(dirs[0] ** 2 + dirs[1] ** 2 + dirs[2] ** 2)
-        samples = int(math.ceil(float(np.max(length * norm)) / (0.5 * block))) + 1
-        t = (length[:, None] * np.linspace(0.0, 1.0, samples)[None, :]).ravel()
+        samples = np.ceil(length * norm / (0.5 * block)).astype(np.int64) + 1  # per ray, both ends included
+        ray = np.repeat(np.arange(len(rv)), samples)
+        first = np.cumsum(samples) - samples
+        t = (np.arange(len(ray)) - first[ray]) * (length / (samples - 1))[ray]
         index = np.zeros(len(t), dtype=np.int64)
         for a, stride_a in enumerate((sx, sy, 1)):
-            k = np.floor((centre[a] + np.repeat(dirs[a], samples) * t) / block).astype(np.int64) - kmin[a]
+            k = ((centre[a] - kmin[a] * block + dirs[a][ray] * t) * (1.0 / block)).astype(np.int64)  # >= 0: floor
             index += k * stride_a
         mark[index] = True
 
