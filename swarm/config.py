@@ -177,6 +177,7 @@ class MappingSettings(_Section):
     block_resolution: int = Field(8, ge=4, le=32, description="voxels per block edge")
     truncation_voxels: float = Field(4.0, ge=1.0, le=16.0)
     weight_law: Literal["constant", "inverse_square"] = "constant"
+    known_weight: PositiveFloat = Field(1.0, description="a voxel is known once its summed weight reaches this")
     patch_frames: int = Field(15, ge=1, le=255, description="seal the open patch every K frames")
     patch_distance_m: PositiveFloat = Field(2.0, description="... or after the drone moved this far")
     planning_resolution_m: PositiveFloat = Field(0.2, description="occupancy grid exported for planning")

@@ -24,7 +24,6 @@ from swarm.agent.sensing import DepthSource
 from swarm.config import SwarmConfig
 from swarm.patches.mapper import Mapper
 from swarm.patches.patch import Patch
-from swarm.patches.wire import encode_patch
 from swarm.sim.worlds import load_world
 
 MIN_HEIGHT_M = 0.3  # below this the camera mostly sees the floor it stands on
@@ -42,7 +41,9 @@ class MappingTask:
         self.config = config
         self.source = source
         self.log = log
-        self.mapper = Mapper(config.mapping, config.agent.id, epoch, mission_bounds(config))
+        self.mapper = Mapper(
+            config.mapping, config.agent.id, epoch, mission_bounds(config), known_weight=config.mapping.known_weight
+        )
         self.patches_dir = out_dir / "patches" if out_dir is not None else None
         if self.patches_dir is not None:
             self.patches_dir.mkdir(parents=True, exist_ok=True)
@@ -90,7 +91,9 @@ class MappingTask:
         if self.patches_dir is not None:
             path = self.patches_dir / f"{patch.id}.patch"
             tmp = path.with_suffix(".tmp")
-            tmp.write_bytes(encode_patch(patch))
+            data = self.mapper.data(patch.id)
+            assert data is not None  # a sealed patch is in the private store
+            tmp.write_bytes(data)
             os.replace(tmp, path)
 
     async def finish(self) -> None:

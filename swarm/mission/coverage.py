@@ -29,7 +29,7 @@ class SwarmCoverage:
         if config.mission.volume is not None:
             lo, hi = config.mission.volume.min, config.mission.volume.max
         self.lattice = Lattice.from_settings(config.mapping)
-        self.fused = FusedMap(self.lattice, (lo, hi))
+        self.fused = FusedMap(self.lattice, (lo, hi), config.mapping.known_weight)
         self.seen: set[str] = set()
         self.rejected: dict[str, int] = {}
         self.timeline: list[tuple[float, float]] = []

@@ -49,7 +49,8 @@ def bench_mapping(config: SwarmConfig, out: Path | None) -> int:
     root = out or Path(tempfile.mkdtemp(prefix="swarm-bench-"))
     root.mkdir(parents=True, exist_ok=True)
     path = root / "bench-mapping.json"
-    path.write_text(json.dumps({"world": config.mission.world, "results": results, "targets": _verdicts(results)}, indent=2))
+    figures = {"world": config.mission.world, "results": results, "targets": _verdicts(results)}
+    path.write_text(json.dumps(figures, indent=2))
     console.print(f"figures: {path}")
     return 0
 
@@ -74,8 +75,8 @@ def _verdicts(results: dict[str, Any]) -> dict[str, Any]:
     verdicts = {}
     for name, (voxel, limit, unit) in TARGETS.items():
         value = results.get(f"{voxel:g}", {}).get(name)
-        verdicts[name] = {"voxel": voxel, "limit": limit, "unit": unit, "value": value,
-                          "met": value is not None and value <= limit}
+        met = value is not None and value <= limit
+        verdicts[name] = {"voxel": voxel, "limit": limit, "unit": unit, "value": value, "met": met}
     return verdicts
 
 
@@ -204,7 +205,9 @@ def _measure(config: SwarmConfig, voxel: float) -> dict[str, Any]:
         if patch is not None:
             seal_s.append(time.perf_counter() - t0 - backend.integrate_s[-1])
             patches.append(patch)
-    blocks_per_frame = [len(frame_blocks(d, K, lattice.to_lattice_frame(T), lattice, max_range)) for T, d in frames[::10]]
+    blocks_per_frame = [
+        len(frame_blocks(d, K, lattice.to_lattice_frame(T), lattice, max_range)) for T, d in frames[::10]
+    ]
 
     inverse = VoxelBlockGridBackend(Lattice.from_settings(mapping.model_copy(update={"weight_law": "inverse_square"})))
     inverse_s = []
@@ -229,7 +232,9 @@ def _measure(config: SwarmConfig, voxel: float) -> dict[str, Any]:
         encode_s.append(t1 - t0)
         decode_s.append(t2 - t1)
         fuse_s.append(t3 - t2)
-    full = [len(d) for d, p in zip(encoded, patches) if p.span.frames == mapping.patch_frames] or [len(d) for d in encoded]
+    full = [len(d) for d, p in zip(encoded, patches) if p.span.frames == mapping.patch_frames]
+    full = full or [len(d) for d in encoded]
+    raw_bytes = [p.block_count * (6 + (1 + lattice.weight_dtype.itemsize) * lattice.voxels_per_block) for p in patches]
 
     occupancy_s = []
     for _ in range(3):
@@ -258,9 +263,7 @@ def _measure(config: SwarmConfig, voxel: float) -> dict[str, Any]:
         "blocks_per_patch": float(np.median([p.block_count for p in patches])) if patches else 0.0,
         "patch_kb": float(np.median([len(d) for d in encoded]) / 1024) if encoded else 0.0,
         "patch_kb_max": float(max(full) / 1024) if encoded else 0.0,
-        "raw_kb": float(np.median([p.block_count * (6 + (1 + lattice.weight_dtype.itemsize) * lattice.voxels_per_block) for p in patches]) / 1024)
-        if patches
-        else 0.0,
+        "raw_kb": float(np.median(raw_bytes) / 1024) if raw_bytes else 0.0,
         "encode_ms": _ms(encode_s),
         "decode_ms": _ms(decode_s),
         "fuse_ms": _ms(fuse_s),

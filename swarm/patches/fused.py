@@ -1,10 +1,11 @@
 """The fused map: every held patch summed into one TSDF over the bounded mission volume.
 
 Per voxel it keeps W = sum of the patches' quantised weights (int32, in weight units) and S = sum of
-weight * quantised tsdf (int32, promoted to int64 once a voxel could reach 2^31 / 127 units); the fused tsdf is S / (127 W). Integer sums make fusion exactly commutative
-and associative: agents that hold the same patch ids hold bit-identical arrays, whatever the arrival order, and a
-temporary contribution (the open patch) is removed exactly. With uncapped sums this equals one TSDF
-integrated from all the frames, up to the int8 quantisation of each patch's tsdf.
+weight * quantised tsdf (int32, promoted to int64 once a voxel could reach 2^31 / 127 units); the fused tsdf is
+S / (127 W). Integer sums make fusion exactly commutative and associative: agents that hold the same patch ids
+hold bit-identical arrays whatever the arrival order, and a temporary contribution (the open patch) is removed
+exactly. With uncapped sums this equals one TSDF integrated from all the frames, up to the int8 quantisation of
+each patch's tsdf.
 
 Storage is a block pool (rows of R^3 voxels) with a dense block-index grid over the mission volume; blocks of
 a patch outside that volume are ignored.
@@ -166,7 +167,7 @@ class FusedMap:
             ((keys[:, a : a + 1] * r + steps) >= self._vlo[a]) & ((keys[:, a : a + 1] * r + steps) <= self._vhi[a])
             for a in range(3)
         ]
-        inside = (ok[2][:, :, None, None] & ok[1][:, None, :, None] & ok[0][:, None, None, :]).reshape(len(keys), -1)
+        inside = (ok[2][:, :, None, None] & ok[1][:, None, :, None] & ok[0][:, None, None, :]).reshape(len(keys), r**3)
         known = self._weight[: self._count] >= self.known_units
         total = int(np.prod(self._vhi - self._vlo + 1))
         return int(np.count_nonzero(known & inside)) / total
@@ -254,8 +255,9 @@ class FusedMap:
         ox, oy, oz = (ok[rows] for ok in per_axis_ok)
         ny, nz = int(shape[1]), int(shape[2])
         # storage order inside a block is [z, y, x]
-        flat = ((cx[:, None, None, :] * ny + cy[:, None, :, None]) * nz + cz[:, :, None, None]).reshape(len(rows), -1)
-        ok = (oz[:, :, None, None] & oy[:, None, :, None] & ox[:, None, None, :]).reshape(len(rows), -1)
+        flat = (cx[:, None, None, :] * ny + cy[:, None, :, None]) * nz + cz[:, :, None, None]
+        ok = oz[:, :, None, None] & oy[:, None, :, None] & ox[:, None, None, :]
+        flat, ok = flat.reshape(len(rows), r**3), ok.reshape(len(rows), r**3)
         weight, total_sum = self._weight[rows], self._sum[rows]
         known = ok & (weight >= self.known_units)
         occupied = known & (total_sum <= 0)

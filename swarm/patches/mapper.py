@@ -1,8 +1,9 @@
 """One agent's map: its own frames sealed into patches, the private and public stores, and the fused map.
 
-`integrate` feeds a depth frame to the open patch and returns the patch it sealed, if any (the caller pushes it
-to peers); own sealed patches go to the private store and the fused map at once. `receive` stores and fuses a
-peer's patch once. `current_map` is the fused map with the open patch included, for queries and export.
+`integrate` feeds a depth frame to the open patch and returns the patch it sealed, if any; own sealed patches go
+to the private store (encoded there: `private.data(pid)` is what to push) and into the fused map at once.
+`receive` stores and fuses a peer's patch once, keeping the bytes it came in. `current_map` is the fused map
+with the open patch included, for queries and export. Not thread-safe: call it from one thread.
 """
 
 from __future__ import annotations
@@ -16,8 +17,9 @@ from swarm.config import MappingSettings
 from swarm.patches.backend import TsdfBackend, VoxelBlockGridBackend
 from swarm.patches.fused import Bounds, FusedMap
 from swarm.patches.lattice import Lattice
-from swarm.patches.patch import Patch, PatchId, PatchStore
+from swarm.patches.patch import Patch, PatchId
 from swarm.patches.sealer import PatchSealer
+from swarm.patches.store import PatchStore
 
 
 class Mapper:
@@ -38,8 +40,8 @@ class Mapper:
         self.producer = producer
         self.epoch = epoch
         self.sealer = PatchSealer(backend, producer, epoch, settings.patch_frames, settings.patch_distance_m)
-        self.private = PatchStore()
-        self.public = PatchStore()
+        self.private = PatchStore(self.lattice)
+        self.public = PatchStore(self.lattice)
         self.fused = FusedMap(self.lattice, bounds, known_weight)
 
     def integrate(
@@ -58,20 +60,24 @@ class Mapper:
             self.fused.add(patch)
         return patch
 
-    def receive(self, patch: Patch) -> bool:
-        """Store and fuse a received patch; False (no change) if already held. Lattice: see `decode_patch`."""
+    def receive(self, patch: Patch, data: bytes | None = None) -> bool:
+        """Store and fuse a received patch (`data`: the bytes it was decoded from, kept to serve peers); False,
+        and no change, if already held. Raises ValueError on another lattice (decode_patch rejects those)."""
         if self.holds(patch.id):
             return False
-        if patch.lattice != self.lattice:
-            raise ValueError(f"patch {patch.id} is on another lattice")
-        self.public.add(patch)
+        self.public.add(patch, data)
         self.fused.add(patch)
         return True
+
+    def data(self, pid: PatchId) -> bytes | None:
+        """Wire bytes of a held patch, own or received."""
+        return self.private.data(pid) or self.public.data(pid)
 
     def holds(self, pid: PatchId) -> bool:
         return pid in self.private or pid in self.public
 
     def get(self, pid: PatchId) -> Patch | None:
+        """A held patch, decoded from the store."""
         return self.private.get(pid) or self.public.get(pid)
 
     def held_ids(self) -> list[PatchId]:

@@ -46,7 +46,16 @@ def extract_mesh(lattice: Lattice, arrays: TsdfArrays, weight_threshold: float) 
     return vertices, mesh.triangle.indices.numpy().astype(np.int32)
 
 
+_EMPTY_PLY = (
+    "ply\nformat binary_little_endian 1.0\nelement vertex 0\nproperty double x\nproperty double y\n"
+    "property double z\nelement face 0\nproperty list uchar int vertex_indices\nend_header\n"
+)
+
+
 def write_ply(path: str | Path, vertices: np.ndarray, triangles: np.ndarray) -> None:
+    if len(vertices) == 0:  # Open3D refuses to write an empty mesh
+        Path(path).write_text(_EMPTY_PLY)
+        return
     mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(vertices), o3d.utility.Vector3iVector(triangles))
     if not o3d.io.write_triangle_mesh(str(path), mesh, write_ascii=False):
         raise OSError(f"cannot write mesh to {path}")

@@ -1,4 +1,4 @@
-"""Patches: sealed TSDF sub-maps with a unique id, and the stores that hold them.
+"""Patches: sealed TSDF sub-maps with a unique id.
 
 A patch holds its voxels in the quantised form that travels on the wire, and fusion uses exactly that form:
 tsdf as int8 = round(tsdf * 127), weight as unsigned integers in the lattice's weight unit (constant law: uint8
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Iterator, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
@@ -144,7 +144,8 @@ class Patch:
         if not is_rigid(self.anchor_pose):
             raise ValueError("anchor pose must be a finite rigid 4x4 transform")
         if self.blocks.tsdf.shape[1] != self.lattice.voxels_per_block:
-            raise ValueError(f"blocks hold {self.blocks.tsdf.shape[1]} voxels, the lattice {self.lattice.voxels_per_block}")
+            held, needed = self.blocks.tsdf.shape[1], self.lattice.voxels_per_block
+            raise ValueError(f"blocks hold {held} voxels, the lattice {needed}")
         if self.blocks.weight.dtype != self.lattice.weight_dtype:
             raise ValueError(f"weights are {self.blocks.weight.dtype}, the lattice needs {self.lattice.weight_dtype}")
         if self.span.first > self.span.last or not self.span.t_first <= self.span.t_last:
@@ -155,7 +156,8 @@ class Patch:
         cls, pid: PatchId, lattice: Lattice, span: FrameSpan, anchor_pose: np.ndarray, blocks: VoxelBlocks
     ) -> Patch:
         """A patch whose bounds are those of its blocks."""
-        return cls(pid, lattice, span, np.array(anchor_pose, dtype=np.float64), lattice.block_bounds(blocks.keys), blocks)
+        pose = np.array(anchor_pose, dtype=np.float64)
+        return cls(pid, lattice, span, pose, lattice.block_bounds(blocks.keys), blocks)
 
     @property
     def voxel_count(self) -> int:
@@ -179,37 +181,4 @@ class Patch:
             and all(np.array_equal(a, b) for a, b in zip(self.bounds, other.bounds))
             and self.blocks.same_as(other.blocks)
         )
-
-
-class PatchStore:
-    """Patches by id; adding one already held changes nothing."""
-
-    def __init__(self) -> None:
-        self._patches: dict[PatchId, Patch] = {}
-
-    def add(self, patch: Patch) -> bool:
-        """Store `patch`; False (and no change) if its id is already held."""
-        if patch.id in self._patches:
-            return False
-        self._patches[patch.id] = patch
-        return True
-
-    def get(self, pid: PatchId) -> Patch | None:
-        return self._patches.get(pid)
-
-    def ids(self) -> list[PatchId]:
-        return sorted(self._patches)
-
-    def __contains__(self, pid: object) -> bool:
-        return pid in self._patches
-
-    def __len__(self) -> int:
-        return len(self._patches)
-
-    def __iter__(self) -> Iterator[Patch]:
-        return iter([self._patches[pid] for pid in sorted(self._patches)])
-
-    @property
-    def voxel_count(self) -> int:
-        return sum(p.voxel_count for p in self._patches.values())
 

@@ -5,13 +5,23 @@ header fields (format version, patch id, lattice, frame span, anchor pose, bound
 CRC-32) and `payload`, one zstd frame (level 3) holding three little-endian arrays back to back:
 keys int16 (M,3), tsdf int8 (M,R^3), weight (M,R^3) in the lattice's weight dtype (uint8 or uint16).
 
-The CRC-32 covers the header fields and the compressed payload, so any corruption is caught before
-decompression. `decode_patch` validates, in this order, and raises `PatchDecodeError(reason)` only:
-"too_large" (input over max_bytes, or a declared/decompressed size over the bound), "not_msgpack",
-"version" (envelope or patch format), "invalid" (envelope, fields, pose, span, array contents), "lattice",
-"bounds" (bounding box or keys outside it), "checksum", "decompress" (zstd error), "shape" (a frame whose declared or actual size does not match
-the block count; a frame that decompresses beyond it without declaring its size is "too_large"). Decompression never produces more than the size the header declares (plus one
-byte to detect excess), itself bounded by MAX_EXPANSION * max_bytes.
+The CRC-32 covers the header fields and the compressed payload, so corruption is caught before decompression
+(it guards against damage, not forgery: everything else is validated as hostile input). `decode_patch` checks,
+in this order, and raises `PatchDecodeError(reason)` only:
+
+- "too_large": input over max_bytes; a block count whose arrays would exceed MAX_EXPANSION * max_bytes; a frame
+  that decompresses beyond the size the block count implies (a zip bomb without a declared size);
+- "not_msgpack": not bytes, or not a bounded msgpack document (containers <= 64 items, no extension types);
+- "version": envelope version or patch format version;
+- "invalid": not a patch envelope, a field missing, unknown, out of range or not finite (pydantic), a pose that
+  is not rigid, an unordered frame span, duplicate keys, tsdf -128, tsdf on unobserved voxels, a wrong voxel count;
+- "lattice": voxel size, block resolution, truncation, origin or weight law differ from ours;
+- "bounds": a bounding box that is inverted or larger than MAX_EXTENT_M, or blocks outside it;
+- "checksum": CRC-32 mismatch;
+- "decompress": zstd rejects the payload;
+- "shape": the payload's declared or actual size does not match the block count.
+
+Decompression writes into a buffer of the expected size plus one byte, so it never allocates more than that.
 """
 
 from __future__ import annotations
@@ -164,7 +174,8 @@ def _decode(data: bytes, lattice: Lattice, max_bytes: int) -> Patch:
     if not isinstance(envelope, dict) or envelope.keys() != {"v", "k", "d"} or not isinstance(envelope["d"], dict):
         raise PatchDecodeError("invalid", "expected the envelope {v, k, d}")
     if envelope["v"] != codec.SCHEMA_VERSION or envelope["d"].get("patch_format") != PATCH_FORMAT:
-        raise PatchDecodeError("version", f"envelope {envelope['v']!r}, patch format {envelope['d'].get('patch_format')!r}")
+        got = f"envelope {envelope['v']!r}, patch format {envelope['d'].get('patch_format')!r}"
+        raise PatchDecodeError("version", got[:200])
     if envelope["k"] != KIND:
         raise PatchDecodeError("invalid", f"kind {str(envelope['k'])[:40]!r} is not {KIND!r}")
     try:
@@ -262,6 +273,7 @@ def _check_arrays(
         raise PatchDecodeError("invalid", "tsdf value -128 is outside [-127, 127]")
     observed = weight > 0
     if int(np.count_nonzero(observed)) != msg.voxel_count:
-        raise PatchDecodeError("invalid", f"{np.count_nonzero(observed)} observed voxels, header says {msg.voxel_count}")
+        count = np.count_nonzero(observed)
+        raise PatchDecodeError("invalid", f"{count} observed voxels, header says {msg.voxel_count}")
     if np.any(tsdf[~observed]):
         raise PatchDecodeError("invalid", "unobserved voxels must have tsdf 0")

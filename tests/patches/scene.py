@@ -29,7 +29,9 @@ def pose(position: np.ndarray, yaw_deg: float, pitch_deg: float = 0.0) -> np.nda
     return T
 
 
-def render_room(K: np.ndarray, T: np.ndarray, shape: tuple[int, int] = (120, 160), max_range: float = MAX_RANGE) -> np.ndarray:
+def render_room(
+    K: np.ndarray, T: np.ndarray, shape: tuple[int, int] = (120, 160), max_range: float = MAX_RANGE
+) -> np.ndarray:
     """z-depth (float32, 0 = no return) of the room's inner walls seen from T (the camera must be inside)."""
     h, w = shape
     v, u = np.mgrid[0:h, 0:w]
@@ -52,7 +54,9 @@ class Frame:
     t: float
 
 
-def rotate_in_place(position: np.ndarray = CENTRE, yaws: int = 12, pitches: tuple[float, ...] = (-40.0, 0.0, 40.0)) -> list[Frame]:
+def rotate_in_place(
+    position: np.ndarray = CENTRE, yaws: int = 12, pitches: tuple[float, ...] = (-40.0, 0.0, 40.0)
+) -> list[Frame]:
     K = intrinsics()
     frames = []
     for i in range(yaws):

@@ -114,7 +114,8 @@ def test_blocks_outside_the_mission_volume_are_ignored() -> None:
         small.add(p)
     keys = small.arrays().keys
     lo, hi = small.lattice.block_bounds(keys)
-    assert np.all(lo >= CENTRE - 1.0 - small.lattice.block_size) and np.all(hi <= CENTRE + 1.0 + small.lattice.block_size)
+    margin = small.lattice.block_size
+    assert np.all(lo >= CENTRE - 1.0 - margin) and np.all(hi <= CENTRE + 1.0 + margin)
     assert 0.0 < small.known_fraction <= 1.0
 
 

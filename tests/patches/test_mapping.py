@@ -9,7 +9,17 @@ from swarm.patches.carving import frame_blocks
 from swarm.patches.fused import FREE, OCCUPIED, UNKNOWN, FusedMap
 from swarm.patches.lattice import Lattice
 from swarm.patches.patch import FrameSpan, Patch, PatchId, quantise
-from tests.patches.scene import CENTRE, MAX_RANGE, ROOM_HI, ROOM_LO, distance_to_walls, intrinsics, pose, render_room, rotate_in_place
+from tests.patches.scene import (
+    CENTRE,
+    MAX_RANGE,
+    ROOM_HI,
+    ROOM_LO,
+    distance_to_walls,
+    intrinsics,
+    pose,
+    render_room,
+    rotate_in_place,
+)
 
 BOUNDS = (ROOM_LO - 1.0, ROOM_HI + 1.0)
 
@@ -109,3 +119,16 @@ def test_inverse_square_weights_fall_with_distance() -> None:
     free_part = on_axis.copy()
     free_part[on_axis] = d < 2.5
     assert np.allclose(tsdf[free_part], 1.0, atol=1 / 127)
+
+
+def test_an_empty_map_answers_unknown_everywhere(tmp_path) -> None:
+    fused = FusedMap(Lattice(0.1, 8, 4.0), BOUNDS)
+    assert fused.voxel_count == 0 and fused.known_fraction == 0.0 and fused.block_count == 0
+    assert fused.state_at(np.zeros((0, 3))).shape == (0,)
+    assert np.all(fused.state_at([[1.0, 1.0, 1.0], [100.0, 0.0, 0.0]]) == UNKNOWN)
+    _, states = fused.occupancy_grid(0.2)
+    assert not states.any()
+    vertices, triangles = fused.mesh()
+    assert vertices.shape == (0, 3) and triangles.shape == (0, 3)
+    assert fused.write_mesh(tmp_path / "empty.ply") == (0, 0)
+    assert fused.digest() == FusedMap(Lattice(0.1, 8, 4.0), BOUNDS).digest()

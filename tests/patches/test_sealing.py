@@ -6,6 +6,7 @@ import pytest
 from swarm.config import MappingSettings
 from swarm.patches.mapper import Mapper
 from swarm.patches.patch import PatchId
+from swarm.patches.wire import decode_patch, encode_patch
 from tests.patches.scene import CENTRE, MAX_RANGE, ROOM_HI, ROOM_LO, intrinsics, pose, render_room, rotate_in_place
 
 BOUNDS = (ROOM_LO - 1.0, ROOM_HI + 1.0)
@@ -13,7 +14,7 @@ BOUNDS = (ROOM_LO - 1.0, ROOM_HI + 1.0)
 
 def test_patch_id_order_text_and_hash() -> None:
     ids = [PatchId(3, 1795340000000, 12), PatchId(1, 5, 0), PatchId(3, 1795340000000, 2), PatchId(3, 2, 40)]
-    assert sorted(ids) == [PatchId(1, 5, 0), PatchId(3, 2, 40), PatchId(3, 1795340000000, 2), PatchId(3, 1795340000000, 12)]
+    assert sorted(ids) == [ids[1], ids[3], ids[2], ids[0]]
     assert str(ids[0]) == "3.1795340000000.12"
     assert PatchId.parse("3.1795340000000.12") == ids[0]
     assert len({PatchId(1, 2, 3), PatchId(1, 2, 3)}) == 1
@@ -78,4 +79,16 @@ def test_received_patches_are_stored_once_and_own_ones_are_not_stored_again() ->
     assert b.public.ids() == [p.id for p in patches] and len(b.private) == 0
     assert not a.receive(patches[0])  # its own
     assert len(a.public) == 0
-    assert b.get(patches[2].id) is patches[2] and b.holds(patches[0].id)
+    assert b.get(patches[2].id) == patches[2] and b.holds(patches[0].id)
+    assert b.data(patches[2].id) == a.data(patches[2].id) == encode_patch(patches[2])
+    assert b.public.nbytes == sum(len(encode_patch(p)) for p in patches)
+
+
+def test_a_received_patch_keeps_the_bytes_it_came_in() -> None:
+    settings = MappingSettings(patch_frames=2)
+    a = Mapper(settings, producer=1, epoch=1, bounds=BOUNDS)
+    b = Mapper(settings, producer=2, epoch=1, bounds=BOUNDS)
+    patch = [p for f in rotate_in_place()[:2] if (p := a.integrate(f.depth, f.K, f.T, f.t, MAX_RANGE))][0]
+    data = a.data(patch.id)
+    assert b.receive(decode_patch(data, b.lattice, settings.max_patch_bytes), data)
+    assert b.data(patch.id) == data and b.public.info(patch.id).voxel_count == patch.voxel_count

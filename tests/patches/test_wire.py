@@ -23,7 +23,8 @@ MAX_BYTES = 4 << 20
 
 
 def sealed_patch(voxel: float, frames: int) -> Patch:
-    mapper = Mapper(MappingSettings(voxel_size_m=voxel, patch_frames=frames), producer=3, epoch=1795340000000, bounds=BOUNDS)
+    settings = MappingSettings(voxel_size_m=voxel, patch_frames=frames)
+    mapper = Mapper(settings, producer=3, epoch=1795340000000, bounds=BOUNDS)
     for f in rotate_in_place()[:frames]:
         patch = mapper.integrate(f.depth, f.K, f.T, f.t, MAX_RANGE)
     assert patch is not None
@@ -162,8 +163,8 @@ def test_array_contents_are_validated(patch: Patch) -> None:
 
     def with_arrays(keys, tsdf, weight) -> bytes:
         raw = keys.astype("<i2").tobytes() + tsdf.astype(np.int8).tobytes() + weight.astype("<u1").tobytes()
-        fields = {"payload": zstandard.ZstdCompressor(level=1).compress(raw), "voxel_count": int(np.count_nonzero(weight))}
-        return tamper(encode_patch(patch), **fields)
+        payload = zstandard.ZstdCompressor(level=1).compress(raw)
+        return tamper(encode_patch(patch), payload=payload, voxel_count=int(np.count_nonzero(weight)))
 
     b = patch.blocks
     duplicate = b.keys.copy()
