@@ -1,0 +1,51 @@
+"""The observer's map: patch files are decoded like received patches; a bad one is counted and never fused."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from swarm.agent.sensing import SimulatedDepthSource
+from swarm.config import load_config
+from swarm.mission.coverage import SwarmCoverage
+from swarm.patches.mapper import Mapper
+from swarm.sim.worlds import load_world
+
+
+def _sealed_patch_bytes(config) -> list[bytes]:
+    world = load_world("box")
+    source = SimulatedDepthSource(world, config.camera)
+    lo, hi = world.bounds
+    mapper = Mapper(config.mapping, producer=1, epoch=7, bounds=(lo, hi))
+    start = world.default_start
+    for i, yaw in enumerate(range(0, 360, 30)):
+        frame = source.capture(i, float(i), (start[0], start[1], 1.2), float(yaw))
+        mapper.integrate(frame.depth, frame.K, frame.T_world_cam, frame.t, config.camera.max_range_m)
+    mapper.seal()
+    return [mapper.data(pid) for pid in mapper.held_ids()]
+
+
+def test_corrupt_patch_files_are_counted_and_never_fused(tmp_path: Path) -> None:
+    config = load_config(None, {"mission.world": "box", "mapping.patch_frames": 6})
+    good = _sealed_patch_bytes(config)
+    assert len(good) == 2
+    (tmp_path / "a.patch").write_bytes(good[0])
+    flipped = bytearray(good[1])
+    flipped[len(flipped) // 2] ^= 0xFF
+    (tmp_path / "b.patch").write_bytes(bytes(flipped))
+    (tmp_path / "c.patch").write_bytes(good[1][: len(good[1]) // 3])
+
+    coverage = SwarmCoverage(config, tmp_path)
+    coverage.update(t=1.0)
+    snapshot = coverage.snapshot()
+    assert snapshot["patches_fused"] == 1
+    assert sum(snapshot["patches_rejected"].values()) == 2
+    only_good = coverage.fused.digest()
+    first = coverage.fraction
+    assert 0.0 < first < 1.0
+
+    (tmp_path / "d.patch").write_bytes(good[1])  # the intact version arrives later
+    coverage.update(t=2.0)
+    assert coverage.snapshot()["patches_fused"] == 2
+    assert coverage.fused.digest() != only_good
+    assert coverage.fraction > first
+    assert [t for t, _ in coverage.snapshot()["explored_timeline"]] == [1.0, 2.0]
