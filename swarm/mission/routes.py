@@ -6,9 +6,11 @@ the drone radius plus a margin, so a scripted flight never touches a wall.
 
 Sectors are strips across the longer horizontal axis of the mission volume, handed to drones in the order of
 their spawn points along that axis so outbound legs do not cross; drones fly at staggered altitudes so that
-legs that do cross are vertically separated. An indoor floor has room for only a few such layers, so a drone
-that shares its layer with an earlier one waits on the ground until that one is expected to have landed
-(real deconfliction between drones comes with autonomous exploration).
+legs that do cross are vertically separated (0.45 m apart, more than two drone radii). The layers used are those
+that fit under the ceiling above the take-off area (three under an office's 3 m ceiling, all eleven in a 6 m
+hall); a drone that has to share its layer with an earlier one waits on the ground until that one is expected to
+have landed (real deconfliction between drones comes with autonomous exploration). A layer above the doorways
+simply yields a tour of the spaces reachable at that height.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
 
 from swarm.config import Vec3
 from swarm.explore.grid import OccupancyGrid
@@ -24,7 +27,7 @@ from swarm.sim.worlds import World
 
 PLAN_RESOLUTION_M = 0.2
 SAFETY_MARGIN_M = 0.15
-ALTITUDES_M = (1.2, 0.75, 1.65)  # above each drone's home floor; 0.45 m apart > two drone radii
+ALTITUDES_M = (1.2, 0.75, 1.65, 2.1, 2.55, 3.0, 3.45, 3.9, 4.35, 4.8, 5.25)  # above the home floor, 0.45 m apart
 MAX_TOUR_M = 45.0  # per drone, out and back: keeps the scripted mission to about a minute of flight
 CANDIDATES_TRIED = 12
 TAKEOFF_AND_LANDING_S = 12.0  # generous: climb, settle, descend and disarm
@@ -48,9 +51,10 @@ def scripted_routes(
     axis = 0 if hi[0] - lo[0] >= hi[1] - lo[1] else 1
     order = sorted(range(len(spawns)), key=lambda i: spawns[i][axis])
     edges = np.linspace(lo[axis], hi[axis], len(spawns) + 1)
+    layers = _layers_under_ceiling(world, spawns, drone_radius_m)
     routes: list[ScriptedRoute] = []
     for strip, index in enumerate(order):
-        altitude = ALTITUDES_M[index % len(ALTITUDES_M)]
+        altitude = layers[index % len(layers)]
         home = np.array(spawns[index], float)
         airborne = (float(home[0]), float(home[1]), float(home[2] + altitude))
         sector = (edges[strip], edges[strip + 1])
@@ -60,6 +64,13 @@ def scripted_routes(
     routes.sort(key=lambda r: r.drone_id)
     _stagger_shared_layers(routes, cruise_speed_m_s)
     return routes
+
+
+def _layers_under_ceiling(world: World, spawns: list[Vec3], drone_radius_m: float) -> tuple[float, ...]:
+    homes = np.array(spawns, float)
+    headroom = float(np.min(world.ceiling_above(homes + (0.0, 0.0, 0.1)) - homes[:, 2]))
+    fits = tuple(a for a in ALTITUDES_M if a + drone_radius_m + SAFETY_MARGIN_M <= headroom)
+    return fits or ALTITUDES_M[:1]
 
 
 def _stagger_shared_layers(routes: list[ScriptedRoute], cruise_speed_m_s: float) -> None:
@@ -90,8 +101,11 @@ def _sector_tour(free: OccupancyGrid, airborne: Vec3, axis: int, sector: tuple[f
     layer = free.index_of((airborne[0], airborne[1], z))
     if layer is None:
         return [airborne]
-    k = layer[2]
-    xs, ys = np.nonzero(~free.occupied[:, :, k])
+    # Only cells connected to the take-off point in this layer (8-connected, as the planner moves) are candidates.
+    labels, _ = ndimage.label(~free.occupied[:, :, layer[2]], structure=np.ones((3, 3)))
+    if labels[layer[0], layer[1]] == 0:
+        return [airborne]
+    xs, ys = np.nonzero(labels == labels[layer[0], layer[1]])
     centres = free.origin[:2] + (np.stack([xs, ys], axis=1) + 0.5) * free.resolution
     inside = (centres[:, axis] >= sector[0]) & (centres[:, axis] < sector[1])
     centres = centres[inside]

@@ -84,6 +84,15 @@ class World:
         hit[hit > max_drop] = np.inf
         return np.where(np.isfinite(hit), pts[:, 2] - hit, np.nan)
 
+    def ceiling_above(self, points: np.ndarray) -> np.ndarray:
+        """(N,) z of the first surface straight above each point (inf when there is none)."""
+        pts = _as_points(points)
+        rays = np.zeros((len(pts), 6), dtype=np.float32)
+        rays[:, :3] = pts
+        rays[:, 5] = 1.0
+        hit = self.scene.cast_rays(_tensor(rays), nthreads=_threads(pts))["t_hit"].numpy().astype(np.float64)
+        return pts[:, 2] + hit
+
     def line_of_sight(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """(N,) bool: the segments a[i] -> b[i] cross no surface."""
         a, b = _as_points(a), _as_points(b)
