@@ -19,12 +19,14 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+import numpy as np
+
 from swarm.agent.autopilot import TelemetryCache
 from swarm.agent.sensing import DepthSource
 from swarm.config import SwarmConfig
 from swarm.patches.mapper import Mapper
 from swarm.patches.patch import Patch
-from swarm.sim.worlds import load_world
+from swarm.sim.worlds import load_world, mission_volume
 
 MIN_HEIGHT_M = 0.3  # below this the camera mostly sees the floor it stands on
 
@@ -122,9 +124,7 @@ class MappingTask:
         }
 
 
-def mission_bounds(config: SwarmConfig) -> tuple[tuple[float, ...], tuple[float, ...]]:
+def mission_bounds(config: SwarmConfig) -> tuple[np.ndarray, np.ndarray]:
     """The volume the map covers: the configured mission volume, else the simulated world's bounds."""
-    if config.mission.volume is not None:
-        return config.mission.volume.min, config.mission.volume.max
-    lo, hi = load_world(config.mission.world).bounds
-    return tuple(lo), tuple(hi)
+    volume = config.mission.volume
+    return mission_volume(load_world(config.mission.world) if volume is None else None, volume)

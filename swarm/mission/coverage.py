@@ -16,7 +16,7 @@ from swarm.patches.fused import UNKNOWN, FusedMap
 from swarm.patches.lattice import Lattice
 from swarm.patches.wire import PatchDecodeError, decode_patch
 from swarm.sim.coverage import explored_fraction, mission_reachable_space
-from swarm.sim.worlds import load_world
+from swarm.sim.worlds import load_world, mission_volume
 
 
 class SwarmCoverage:
@@ -25,9 +25,7 @@ class SwarmCoverage:
         self.patches_dir = patches_dir
         world = load_world(config.mission.world)
         self.space = mission_reachable_space(world, config)
-        lo, hi = world.bounds
-        if config.mission.volume is not None:
-            lo, hi = config.mission.volume.min, config.mission.volume.max
+        lo, hi = mission_volume(world, config.mission.volume)
         self.lattice = Lattice.from_settings(config.mapping)
         self.fused = FusedMap(self.lattice, (lo, hi), config.mapping.known_weight)
         self.seen: set[str] = set()

@@ -31,7 +31,7 @@ from swarm.mission.processes import Child, start_child, stop_all, swarm_command
 from swarm.mission.progress import ProgressView
 from swarm.mission.report import build_report, read_json, write_report
 from swarm.mission.routes import ScriptedRoute, scripted_routes
-from swarm.sim.worlds import World, load_world, spawn_points
+from swarm.sim.worlds import World, load_world, mission_volume, spawn_points
 
 SIM_READY_TIMEOUT_S = 30.0
 LANDING_GRACE_S = 60.0
@@ -68,9 +68,7 @@ def prepare(config: SwarmConfig) -> RunPlan:
     """Validate everything and plan the flights; raises SwarmError (one line) before any process starts."""
     m = config.mission
     world = load_world(m.world)
-    lo, hi = world.bounds
-    if m.volume is not None:
-        lo, hi = np.array(m.volume.min, float), np.array(m.volume.max, float)
+    lo, hi = mission_volume(world, m.volume)
     spawns = spawn_points(world, m.start, m.drones, m.spawn_spacing_m)
     host = config.sim.host
     for k in range(1, m.drones + 1):

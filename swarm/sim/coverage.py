@@ -32,7 +32,7 @@ from numpy.typing import ArrayLike
 from scipy import ndimage
 
 from swarm.config import SwarmConfig, Vec3
-from swarm.sim.worlds import World
+from swarm.sim.worlds import World, mission_volume
 
 START_LIFT_M = 1.0  # the take-off seed is this far above the start point, so not in the floor contact
 MAX_SEED_OFFSET_M = 1.0  # the seed cell may be this far from the lifted start point
@@ -79,8 +79,7 @@ def reachable_free_space(
 
 def mission_reachable_space(world: World, config: SwarmConfig) -> ReachableSpace:
     """`reachable_free_space` with the mission's defaults: volume, planning resolution, start, drone radius."""
-    volume = config.mission.volume
-    lo, hi = (volume.min, volume.max) if volume is not None else world.bounds
+    lo, hi = mission_volume(world, config.mission.volume)
     start = config.mission.start if config.mission.start is not None else world.default_start
     return reachable_free_space(
         world, lo, hi, config.mapping.planning_resolution_m, start, config.sim.drone_radius_m

@@ -17,6 +17,7 @@ from typing import Callable
 import numpy as np
 import open3d as o3d
 
+from swarm.config import Box
 from swarm.errors import WorldError
 from swarm.sim import layouts
 
@@ -336,3 +337,12 @@ def _mm(z: float) -> float:
 
 def _fmt(v: np.ndarray) -> str:
     return "(" + ", ".join(f"{c:.1f}" for c in v) + ")"
+
+
+def mission_volume(world: World | None, volume: Box | None) -> tuple[np.ndarray, np.ndarray]:
+    """The mission volume (lo, hi): the configured box, else the world mesh's bounds."""
+    if volume is not None:
+        return np.array(volume.min, dtype=float), np.array(volume.max, dtype=float)
+    if world is None:
+        raise ValueError("no mission volume configured and no world to take its bounds from")
+    return world.bounds
