@@ -1,8 +1,10 @@
-"""The agent process: one drone's flight, presence and peer table, supervised under one asyncio loop.
+"""The agent process: one drone's flight, map, presence and peer table, supervised under one asyncio loop.
 
-Tasks: the flight (MAVSDK), the heartbeat publisher (AgentState at `heartbeat_hz` on the drone's state key,
-best effort), and the membership upkeep (expire silent peers, re-elect). A liveliness token announces the
-agent. SIGINT/SIGTERM ask the flight to land and the process to exit; a second signal exits at once.
+Tasks: the flight (MAVSDK), the mapping task (depth frames into patches while airborne, in a worker thread),
+the heartbeat publisher (AgentState at `heartbeat_hz` on the drone's state key, best effort), and the
+membership upkeep (expire silent peers, re-elect). A liveliness token announces the agent. SIGINT/SIGTERM ask
+the flight to land and the process to exit; a second signal exits at once. After the flight the open patch is
+sealed, the agent's mesh and summary are written, and the bus is closed.
 """
 
 from __future__ import annotations
