@@ -18,6 +18,14 @@ Publishing never blocks the loop:
   flap at 30 % loss). With DROP, only a congested peer loses messages, and the protocols above (digests, pull
   with retry) repair the gaps. The writer thread keeps even DROP's short waits (up to 50 ms for a fragmented
   large message) off the loop. When the backlog is full, the message is dropped and counted as "backlog".
+
+Queries (`declare_queryable` / `get`) carry raw bytes, not `WireMessage`s, so the caller picks the encoding
+(a patch served as its wire bytes, a digest as an encoded message). Both sides count under a caller-given
+`kind`: the querier counts its selector as sent and every ok reply as received; the queryable counts each
+query (its selector) as received and every reply it serves as sent. A session never answers its own queries:
+queryables are declared with ``allowed_origin=REMOTE``, as subscribers are, so a drone asking "who holds
+patch X" is not answered by itself. Replies use CongestionControl.DROP like puts; a reply lost to
+congestion makes the querier time out, and the sync protocol retries.
 """
 
 from __future__ import annotations
@@ -48,6 +56,8 @@ T = TypeVar("T", bound=WireMessage)
 CLOSE_TIMEOUT_S = 5.0
 MAX_RELIABLE_BACKLOG_BYTES = 16 << 20
 MAX_PENDING_DELIVERY_BYTES = 64 << 20
+MAX_PENDING_QUERIES = 1024
+_GET_GRACE_S = 1.0  # how long past its timeout a get waits for Zenoh to finish the query
 _WRITER_DRAIN_S = 1.0
 
 
@@ -128,6 +138,7 @@ class AsyncBus:
         self._tokens: dict[str, zenoh.LivelinessToken] = {}
         self._writer: _ReliableWriter | None = None
         self._pending_bytes = 0
+        self._pending_queries = 0
         self._closed = False
         with _open_buses_lock:
             _open_buses.add(self)
@@ -261,6 +272,145 @@ class AsyncBus:
             self.counters.dropped(kind, "handler_error")
             log.exception("handler for %s on %s failed", kind, key)
 
+    # --- queries ----------------------------------------------------------------------------------------
+
+    def declare_queryable(
+        self, key_expr: str, kind: str, handler: Callable[[str, dict[str, str]], bytes | None]
+    ) -> None:
+        """Answer queries on `key_expr` with `handler(key, parameters)`, called on the loop thread.
+
+        `key` is the query's key expression, `parameters` its selector parameters (``?a=1;b=2``). The handler
+        returns the reply payload, or None for "not held" (answered with an error reply, which the querier
+        counts as "query_error"). An exception in the handler is logged, counted as "handler_error" and
+        answered with an error reply. Only remote sessions' queries arrive here (see the module docstring).
+        The reply goes out on the query's key expression when it is concrete, else on `key_expr`.
+        """
+        if inspect.iscoroutinefunction(handler):
+            raise TypeError("handler must be a plain function returning bytes or None")
+
+        def on_query(query: zenoh.Query) -> None:
+            # A Zenoh thread: count and hand over. The closure given to the loop keeps the Query alive
+            # (Zenoh finalises a query when its Query object is garbage-collected) until it is answered.
+            try:
+                self.counters.received(kind, len(str(query.selector).encode()))
+                with self._pending_lock:
+                    busy = self._pending_queries >= MAX_PENDING_QUERIES
+                    if not busy:
+                        self._pending_queries += 1
+                if busy:
+                    self.counters.dropped(kind, "backlog")
+                    _reply_err(query, b"busy")
+                    return
+                try:
+                    self._loop.call_soon_threadsafe(self._answer, kind, key_expr, handler, query)
+                except RuntimeError:  # the loop is closed
+                    with self._pending_lock:
+                        self._pending_queries -= 1
+                    self.counters.dropped(kind, "closed")
+                    _reply_err(query, b"closed")
+            except Exception:
+                log.exception("queryable callback for %s failed", key_expr)
+
+        self._declare(
+            lambda: self.session.declare_queryable(
+                key_expr, on_query, complete=True, allowed_origin=zenoh.Locality.REMOTE
+            ),
+            key_expr,
+            "declare a queryable on",
+        )
+
+    def _answer(
+        self,
+        kind: str,
+        key_expr: str,
+        handler: Callable[[str, dict[str, str]], bytes | None],
+        query: zenoh.Query,
+    ) -> None:
+        with self._pending_lock:
+            self._pending_queries -= 1
+        if self._closed:
+            self.counters.dropped(kind, "closed")
+            return  # the session is going away; dropping the Query finalises it
+        try:
+            key = str(query.key_expr)
+            data = handler(key, dict(query.parameters))
+            if data is not None and not isinstance(data, (bytes, bytearray, memoryview)):
+                raise TypeError(f"handler returned {type(data).__name__}, expected bytes or None")
+        except Exception:
+            self.counters.dropped(kind, "handler_error")
+            log.exception("query handler for %s on %s failed", kind, key_expr)
+            _reply_err(query, b"handler error")
+            return
+        if data is None:
+            self.counters.dropped(kind, "not_held")
+            _reply_err(query, b"not held")
+            return
+        data = bytes(data)
+        reply_key = key if "*" not in key else key_expr
+        try:
+            query.reply(reply_key, data, congestion_control=zenoh.CongestionControl.DROP)
+            self.counters.sent(kind, len(data))
+        except Exception as exc:
+            self.counters.dropped(kind, "send_error")
+            log.warning("reply of %s on %s failed: %s", kind, reply_key, zenoh_error_text(exc))
+
+    async def get(self, selector: str, kind: str, timeout_s: float) -> list[tuple[str | None, bytes]]:
+        """Query every queryable matching `selector` (``key?a=1;b=2``); the ok replies as (replier, payload).
+
+        The replier is the answering session's Zenoh id as text, or None if unknown. Error replies are
+        counted as dropped "query_error", a query that ran out of time as "timeout"; neither is returned.
+        Returns [] at once when no queryable is reachable, and never later than about `timeout_s` (+1 s of
+        grace). Never blocks the loop.
+        """
+        if self._closed:
+            self.counters.dropped(kind, "closed")
+            return []
+        loop = asyncio.get_running_loop()
+        done: asyncio.Future[None] = loop.create_future()
+        replies: list[tuple[str | None, bytes]] = []
+
+        def on_reply(reply: zenoh.Reply) -> None:  # a Zenoh thread
+            try:
+                sample = reply.ok
+                if sample is not None:
+                    data = sample.payload.to_bytes()
+                    self.counters.received(kind, len(data))
+                    replies.append((_replier_text(reply), data))
+                    return
+                err = reply.err
+                text = err.payload.to_bytes() if err is not None else b""
+                self.counters.dropped(kind, "timeout" if text == b"Timeout" else "query_error")
+            except Exception:
+                log.exception("reply callback for %s failed", selector)
+
+        def on_drop() -> None:  # a Zenoh thread, once the query is finished
+            try:
+                loop.call_soon_threadsafe(lambda: done.done() or done.set_result(None))
+            except RuntimeError:  # the loop is closed
+                pass
+
+        try:
+            self.session.get(
+                selector,
+                zenoh.handlers.Callback(on_reply, on_drop),
+                target=zenoh.QueryTarget.ALL,
+                consolidation=zenoh.ConsolidationMode.NONE,
+                congestion_control=zenoh.CongestionControl.DROP,
+                timeout=timeout_s,
+            )
+        except Exception as exc:
+            if self._closed:
+                self.counters.dropped(kind, "closed")
+                return []
+            raise BusError(f"cannot query {selector}: {zenoh_error_text(exc)}") from None
+        self.counters.sent(kind, len(selector.encode()))
+        try:
+            await asyncio.wait_for(asyncio.shield(done), timeout_s + _GET_GRACE_S)
+        except asyncio.TimeoutError:
+            self.counters.dropped(kind, "timeout")
+            log.warning("query %s was not finished %.1f s after its timeout", selector, _GET_GRACE_S)
+        return list(replies)
+
     # --- liveliness -------------------------------------------------------------------------------------
 
     def declare_token(self, key: str) -> None:
@@ -317,8 +467,8 @@ class AsyncBus:
         except Exception as exc:
             raise BusError(f"cannot {what}: {zenoh_error_text(exc)}") from None
 
-    def _declare(self, declare: Callable[[], Any], key_expr: str) -> None:
-        subscriber = self._call(declare, f"subscribe to {key_expr}")
+    def _declare(self, declare: Callable[[], Any], key_expr: str, what: str = "subscribe to") -> None:
+        subscriber = self._call(declare, f"{what} {key_expr}")
         with self._lock:
             self._subscribers.append(subscriber)
 
@@ -400,6 +550,21 @@ class AsyncBus:
         self._start_close(on_done)
         ended = finished.wait(timeout_s)
         self._closing_ended(ended, errors[0] if errors else None, timeout_s)
+
+
+def _reply_err(query: zenoh.Query, text: bytes) -> None:
+    try:
+        query.reply_err(text)
+    except Exception as exc:
+        log.debug("error reply failed: %s", zenoh_error_text(exc))
+
+
+def _replier_text(reply: zenoh.Reply) -> str | None:
+    try:
+        replier = reply.replier_id
+        return None if replier is None else str(replier.zid)
+    except Exception:
+        return None
 
 
 # A process that exits with a Zenoh callback still declared hangs in interpreter shutdown (measured: every

@@ -8,14 +8,16 @@ key                              Zenoh entity          carries
 ===============================  ====================  ==========================================
 swarm/<m>/agent/<id>/state       publisher (periodic)  `AgentState` heartbeat: pose, role, leader
 swarm/<m>/alive/<id>             liveliness token      presence; vanishes when the lease expires
+swarm/<m>/agent/<id>/patch       publisher (on seal)   a sealed patch (chunks) pushed to peers
+swarm/<m>/agent/<id>/store       queryable             serves the patches this agent holds
+                                                       (`AsyncBus.declare_queryable` / `get`)
 ===============================  ====================  ==========================================
 
 Keys planned for later issues, to be added here and nowhere else:
 
 ===============================  ====================  ==========================================
 swarm/<m>/agent/<id>/digest      publisher (periodic)  compact ranges of every patch id held
-swarm/<m>/agent/<id>/patch       publisher (on seal)   a sealed patch (chunks) pushed to peers
-swarm/<m>/agent/<id>/store/**    queryable             serves the patches this agent holds
+                                                       (or a `DigestMessage` inside the heartbeat)
 swarm/<m>/agent/<id>/frontier    publisher             frontier points sent to the leader
 swarm/<m>/agent/<id>/target      publisher (leader)    the target the leader assigns to drone <id>
 ===============================  ====================  ==========================================
@@ -54,9 +56,11 @@ class Keys:
         self.root = f"swarm/{mission}"
         self.all_states = f"{self.root}/agent/*/state"
         self.all_alive = f"{self.root}/alive/*"
+        self.all_patches = f"{self.root}/agent/*/patch"
+        self.all_stores = f"{self.root}/agent/*/store"
         root = re.escape(self.root)
         self._id_patterns = (
-            re.compile(rf"^{root}/agent/{_ID_RE}/state$"),
+            re.compile(rf"^{root}/agent/{_ID_RE}/(?:state|patch|store)$"),
             re.compile(rf"^{root}/alive/{_ID_RE}$"),
         )
 
@@ -66,8 +70,17 @@ class Keys:
     def alive(self, agent_id: int) -> str:
         return f"{self.root}/alive/{check_agent_id(agent_id)}"
 
+    def patch(self, agent_id: int) -> str:
+        """Where drone `agent_id` pushes the patches it seals."""
+        return f"{self.root}/agent/{check_agent_id(agent_id)}/patch"
+
+    def store(self, agent_id: int) -> str:
+        """The queryable of drone `agent_id` that serves the patches it holds."""
+        return f"{self.root}/agent/{check_agent_id(agent_id)}/store"
+
     def agent_id_of(self, key: str) -> int | None:
-        """The drone id in a state or liveliness key of this mission; None for any other or malformed key."""
+        """The drone id in a per-agent key (state, patch, store) or liveliness key of this mission; None for
+        any other or malformed key."""
         if not isinstance(key, str):
             return None
         for pattern in self._id_patterns:

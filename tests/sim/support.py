@@ -14,29 +14,16 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
 from swarm.config import SwarmConfig, load_config
+from swarm.mission.ports import find_free_base
 from swarm.sim.server import SimServer
 from swarm.sim.worlds import World
 
 PORT_BLOCK = 40  # vehicle ports at base .. base+19, GCS ports at base+20 .. base+39
 
 
-def udp_port_free(port: int, host: str = "127.0.0.1") -> bool:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        try:
-            sock.bind((host, port))
-        except OSError:
-            return False
-    return True
-
-
 def free_port_block(size: int = PORT_BLOCK) -> int:
     """A base port such that base .. base+size-1 are free UDP ports (never the 14540/14580 defaults)."""
-    rng = random.Random()
-    for _ in range(200):
-        base = rng.randrange(20000, 60000 - size, size)
-        if all(udp_port_free(p) for p in range(base, base + size)):
-            return base
-    raise RuntimeError("no free UDP port block found")
+    return find_free_base("127.0.0.1", size, "udp", random.randrange(20000, 50000, size), step=size)
 
 
 def sim_config(base_port: int, **overrides: Any) -> SwarmConfig:
