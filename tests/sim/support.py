@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 import random
-import socket
 import threading
 import time
 from contextlib import contextmanager
