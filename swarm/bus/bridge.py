@@ -24,8 +24,9 @@ Queries (`declare_queryable` / `get`) carry raw bytes, not `WireMessage`s, so th
 `kind`: the querier counts its selector as sent and every ok reply as received; the queryable counts each
 query (its selector) as received and every reply it serves as sent. A session never answers its own queries:
 queryables are declared with ``allowed_origin=REMOTE``, as subscribers are, so a drone asking "who holds
-patch X" is not answered by itself. Replies use CongestionControl.DROP like puts; a reply lost to
-congestion makes the querier time out, and the sync protocol retries.
+patch X" is not answered by itself. Zenoh 1.10 ignores (and deprecates) a congestion control given to a
+reply: replies follow the query's QoS, and `get` sends with CongestionControl.DROP as puts do. A query or
+reply lost to congestion makes the querier time out; the sync protocol retries.
 """
 
 from __future__ import annotations
@@ -348,7 +349,7 @@ class AsyncBus:
         data = bytes(data)
         reply_key = key if "*" not in key else key_expr
         try:
-            query.reply(reply_key, data, congestion_control=zenoh.CongestionControl.DROP)
+            query.reply(reply_key, data)
             self.counters.sent(kind, len(data))
         except Exception as exc:
             self.counters.dropped(kind, "send_error")

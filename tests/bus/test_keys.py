@@ -35,7 +35,7 @@ def test_agent_id_round_trips(agent_id: int) -> None:
         "swarm/m/agent/3",
         "swarm/m/alive/3/x",
         "swarm/m/alive/",
-        "swarm/m/agent/3/patch",
+        "swarm/m/agent/3/bogus",  # an agent key of no known kind
         "xswarm/m/alive/3",
         "",
     ],

@@ -1,0 +1,291 @@
+"""Patch digests: the compact list of every patch id an agent holds, for the sync protocol.
+
+A producer numbers its patches 0, 1, 2, ... within an epoch, so what an agent holds is a few ranges per
+(producer, epoch). A `PatchDigest` keeps, per producer and epoch, the sorted, disjoint, non-adjacent ranges
+of seq ``[(lo, hi), ...]``, both ends inclusive. Comparing a peer's digest with one's own (`missing_from`)
+says which patches to request from it.
+
+On the wire (`to_wire` / `from_wire`, and `DigestMessage` for the bus) a digest is
+``{"entries": [{"producer": p, "epoch": e, "ranges": [[lo, hi], ...]}, ...]}``, entries sorted by
+(producer, epoch) and unique, ranges in the canonical form above. Received digests are hostile: both are
+validated by pydantic, bounded (`MAX_PRODUCERS` producers, `MAX_EPOCHS_PER_PRODUCER` epochs each,
+`MAX_RANGES` ranges in all, ints in range) and anything else raises ValueError (DecodeError via the codec).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator, Mapping
+from itertools import islice
+from typing import Annotated, Any
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from swarm.bus.codec import WireMessage
+from swarm.bus.keys import MAX_AGENT_ID, MIN_AGENT_ID
+from swarm.patches.patch import PatchId
+
+MAX_PRODUCERS = 64
+MAX_EPOCHS_PER_PRODUCER = 16
+MAX_RANGES = 4096
+MAX_COUNTER = 2**63 - 1
+
+# Strict: a hostile peer's True, 1.0 or "1" is not an int.
+_Producer = Annotated[int, Field(ge=MIN_AGENT_ID, le=MAX_AGENT_ID, strict=True)]
+_Counter = Annotated[int, Field(ge=0, le=MAX_COUNTER, strict=True)]
+
+Range = tuple[int, int]
+_Key = tuple[int, int]  # (producer, epoch)
+
+
+class DigestEntry(BaseModel):
+    """The seq ranges held of one producer's epoch: sorted, disjoint, non-adjacent, inclusive."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    producer: _Producer
+    epoch: _Counter
+    ranges: Annotated[list[tuple[_Counter, _Counter]], Field(min_length=1, max_length=MAX_RANGES)]
+
+    @model_validator(mode="after")
+    def _canonical(self) -> DigestEntry:
+        previous_hi = -2
+        for lo, hi in self.ranges:
+            if lo > hi:
+                raise ValueError(f"range [{lo}, {hi}] is empty")
+            if lo <= previous_hi + 1:
+                raise ValueError("ranges must be sorted, disjoint and not adjacent")
+            previous_hi = hi
+        return self
+
+
+class DigestWire(BaseModel):
+    """The wire form of a `PatchDigest`; validating it checks every bound."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    entries: Annotated[list[DigestEntry], Field(max_length=MAX_PRODUCERS * MAX_EPOCHS_PER_PRODUCER)]
+
+    @model_validator(mode="after")
+    def _bounded(self) -> DigestWire:
+        previous: _Key | None = None
+        epochs_of: dict[int, int] = {}
+        total = 0
+        for entry in self.entries:
+            key = (entry.producer, entry.epoch)
+            if previous is not None and key <= previous:
+                raise ValueError("entries must be sorted by (producer, epoch) and unique")
+            previous = key
+            epochs_of[entry.producer] = epochs_of.get(entry.producer, 0) + 1
+            if epochs_of[entry.producer] > MAX_EPOCHS_PER_PRODUCER:
+                raise ValueError(f"more than {MAX_EPOCHS_PER_PRODUCER} epochs of producer {entry.producer}")
+            total += len(entry.ranges)
+        if len(epochs_of) > MAX_PRODUCERS:
+            raise ValueError(f"more than {MAX_PRODUCERS} producers")
+        if total > MAX_RANGES:
+            raise ValueError(f"more than {MAX_RANGES} ranges")
+        return self
+
+
+def _normalise(ranges: Iterable[Range]) -> tuple[Range, ...]:
+    """Sorted, merged (overlapping and adjacent ranges joined) copy of `ranges`."""
+    merged: list[list[int]] = []
+    for lo, hi in sorted(ranges):
+        if merged and lo <= merged[-1][1] + 1:
+            merged[-1][1] = max(merged[-1][1], hi)
+        else:
+            merged.append([lo, hi])
+    return tuple((lo, hi) for lo, hi in merged)
+
+
+def _subtract(ranges: tuple[Range, ...], holes: tuple[Range, ...]) -> Iterator[Range]:
+    """The parts of `ranges` not covered by `holes` (both canonical)."""
+    j = 0
+    for lo, hi in ranges:
+        while j < len(holes) and holes[j][1] < lo:
+            j += 1
+        k = j
+        while lo <= hi:
+            if k >= len(holes) or holes[k][0] > hi:
+                yield lo, hi
+                break
+            h_lo, h_hi = holes[k]
+            if h_lo > lo:
+                yield lo, h_lo - 1
+            lo = max(lo, h_hi + 1)
+            k += 1
+
+
+class PatchDigest:
+    """An immutable set of patch ids, kept as seq ranges per (producer, epoch). Compare with ==."""
+
+    __slots__ = ("_ranges",)
+
+    def __init__(self, ranges: Mapping[_Key, Iterable[Range]] | None = None) -> None:
+        """`ranges`: {(producer, epoch): [(lo, hi), ...]} in any order; overlaps and neighbours are merged."""
+        table: dict[_Key, tuple[Range, ...]] = {}
+        for (producer, epoch), seqs in sorted((ranges or {}).items()):
+            checked = []
+            for lo, hi in seqs:
+                PatchId(producer, epoch, lo)  # validates non-negative ints
+                PatchId(producer, epoch, hi)
+                if lo > hi:
+                    raise ValueError(f"range [{lo}, {hi}] is empty")
+                checked.append((lo, hi))
+            if checked:
+                table[(producer, epoch)] = _normalise(checked)
+        self._ranges = table
+
+    @classmethod
+    def of(cls, ids: Iterable[PatchId]) -> PatchDigest:
+        """The digest of a set of ids (duplicates are fine)."""
+        seqs: dict[_Key, set[int]] = {}
+        for pid in ids:
+            seqs.setdefault((pid.producer, pid.epoch), set()).add(pid.seq)
+        table: dict[_Key, list[Range]] = {}
+        for key, values in seqs.items():
+            ranges: list[Range] = []
+            for seq in sorted(values):
+                if ranges and seq == ranges[-1][1] + 1:
+                    ranges[-1] = (ranges[-1][0], seq)
+                else:
+                    ranges.append((seq, seq))
+            table[key] = ranges
+        return cls(table)
+
+    @property
+    def ranges(self) -> dict[_Key, tuple[Range, ...]]:
+        """{(producer, epoch): ((lo, hi), ...)}, keys sorted; a copy."""
+        return dict(self._ranges)
+
+    @property
+    def count(self) -> int:
+        """How many patch ids the digest lists."""
+        return sum(hi - lo + 1 for seqs in self._ranges.values() for lo, hi in seqs)
+
+    @property
+    def range_count(self) -> int:
+        return sum(len(seqs) for seqs in self._ranges.values())
+
+    def ids(self) -> Iterator[PatchId]:
+        """Every listed id, in PatchId order (lazily: a hostile digest may list 2**63 ids)."""
+        for (producer, epoch), seqs in self._ranges.items():
+            for lo, hi in seqs:
+                for seq in range(lo, hi + 1):
+                    yield PatchId(producer, epoch, seq)
+
+    def __contains__(self, pid: object) -> bool:
+        if not isinstance(pid, PatchId):
+            return False
+        return any(lo <= pid.seq <= hi for lo, hi in self._ranges.get((pid.producer, pid.epoch), ()))
+
+    def __len__(self) -> int:
+        return self.count
+
+    def __bool__(self) -> bool:
+        return bool(self._ranges)
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, PatchDigest):
+            return NotImplemented
+        return self._ranges == other._ranges
+
+    def __hash__(self) -> int:
+        return hash(tuple(self._ranges.items()))
+
+    def __repr__(self) -> str:
+        parts = [f"{p}.{e}:" + ",".join(f"{lo}-{hi}" for lo, hi in seqs) for (p, e), seqs in self._ranges.items()]
+        return f"PatchDigest({' '.join(parts)})"
+
+    def union(self, other: PatchDigest | Iterable[PatchId]) -> PatchDigest:
+        """Every id listed by either."""
+        if not isinstance(other, PatchDigest):
+            other = PatchDigest.of(other)
+        table: dict[_Key, list[Range]] = {key: list(seqs) for key, seqs in self._ranges.items()}
+        for key, seqs in other._ranges.items():
+            table.setdefault(key, []).extend(seqs)
+        return PatchDigest(table)
+
+    __or__ = union
+
+    def missing_from(self, held: PatchDigest | set[PatchId], limit: int | None = None) -> list[PatchId]:
+        """The ids this digest lists that `held` lacks, sorted; at most `limit` of them if given.
+
+        Works on ranges, so a peer's digest listing a huge range costs no more than its range count, as long
+        as a `limit` bounds the answer.
+        """
+        if not isinstance(held, PatchDigest):
+            held = PatchDigest.of(held)
+        missing = self._missing_ids(held)
+        return list(missing if limit is None else islice(missing, max(limit, 0)))
+
+    def _missing_ids(self, held: PatchDigest) -> Iterator[PatchId]:
+        for key, seqs in self._ranges.items():
+            producer, epoch = key
+            for lo, hi in _subtract(seqs, held._ranges.get(key, ())):
+                for seq in range(lo, hi + 1):
+                    yield PatchId(producer, epoch, seq)
+
+    # --- wire -------------------------------------------------------------------------------------------
+
+    def to_wire_model(self) -> DigestWire:
+        """The validated wire model; raises ValueError if the digest exceeds the wire bounds."""
+        entries = [
+            {"producer": producer, "epoch": epoch, "ranges": [list(r) for r in seqs]}
+            for (producer, epoch), seqs in self._ranges.items()
+        ]
+        return _validated({"entries": entries})
+
+    def to_wire(self) -> dict[str, Any]:
+        """``{"entries": [{"producer", "epoch", "ranges": [[lo, hi], ...]}, ...]}``; ValueError if too big."""
+        return _to_dict(self.to_wire_model())
+
+    @classmethod
+    def from_wire_model(cls, wire: DigestWire) -> PatchDigest:
+        digest = cls.__new__(cls)
+        digest._ranges = {(e.producer, e.epoch): tuple((lo, hi) for lo, hi in e.ranges) for e in wire.entries}
+        return digest
+
+    @classmethod
+    def from_wire(cls, data: Any) -> PatchDigest:
+        """Validate a (hostile) wire dict; raise ValueError if it is not a canonical, bounded digest."""
+        return cls.from_wire_model(_validated(data))
+
+
+def _validated(data: Any) -> DigestWire:
+    if isinstance(data, DigestWire):
+        return data
+    if not isinstance(data, dict):
+        raise ValueError(f"a digest must be a dict, got {type(data).__name__}")
+    try:
+        return DigestWire.model_validate(data)
+    except ValidationError as exc:
+        first = exc.errors(include_url=False, include_input=False)[0]
+        where = ".".join(str(p) for p in first["loc"])
+        raise ValueError(f"invalid digest: {where}: {first['msg']}"[:300]) from None
+
+
+def _to_dict(wire: DigestWire) -> dict[str, Any]:
+    return {
+        "entries": [
+            {"producer": e.producer, "epoch": e.epoch, "ranges": [[lo, hi] for lo, hi in e.ranges]}
+            for e in wire.entries
+        ]
+    }
+
+
+class DigestMessage(WireMessage):
+    """What agent `id` (in its process epoch `epoch`) holds: sent alone or inside a heartbeat."""
+
+    KIND = "digest"
+
+    id: _Producer
+    epoch: _Counter = Field(description="the sender's process epoch")
+    digest: DigestWire
+
+    @classmethod
+    def of(cls, agent_id: int, epoch: int, digest: PatchDigest) -> DigestMessage:
+        """ValueError if the digest exceeds the wire bounds."""
+        return cls(id=agent_id, epoch=epoch, digest=digest.to_wire_model())
+
+    def patch_digest(self) -> PatchDigest:
+        return PatchDigest.from_wire_model(self.digest)
