@@ -1,0 +1,332 @@
+"""Pull scheduling: which missing patches to ask for, and from whom (design §2.3.5).
+
+An agent compares its own digest with the digests its peers put in their heartbeats and asks for what it
+misses from the nearest alive holder, which is not necessarily the producer (a relay that holds a copy is
+asked if it is nearer). `PullScheduler` is pure and synchronous: no I/O, no threads, no randomness, time from
+an injected clock. The agent feeds it heartbeats (`update_peer`), departures (`remove_peer`), what it holds
+(`set_held` / `note_received`) and replies (`on_reply`), and sends what `next_requests` returns; it calls
+`expire` periodically. Jitter, if wanted, is the caller's.
+
+State machine of one patch id (only ids some alive peer lists and the agent lacks are tracked):
+
+    missing ──next_requests──▶ requested(holder, token, deadline)
+       ▲                          │          │
+       │                          │          └─ note_received / on_reply lists it ─▶ received (held)
+       │                          ▼
+       └── back-off over ──── failed(holder, back-off until t)
+                               (expire past the deadline, on_reply without it, or remove_peer(holder))
+
+- A *missing* id is requested from its holder: the alive peer (not this agent) whose digest lists it, nearest
+  by Euclidean distance between the last heartbeat position and ``own_position``, ties to the lower peer id,
+  skipping holders the id is backing off from. With no such holder the id waits (it is never requested from
+  a peer that does not list it).
+- A failure puts the (id, holder) pair on back-off: ``backoff_initial_s`` the first time, doubled on every
+  further failure with that holder, capped at ``backoff_max_s``. Meanwhile the id is missing again and the
+  next request goes to the next-nearest holder not backing off; once the back-off is over the first holder
+  may be chosen again (its back-off level is kept, so a repeated failure waits twice as long). Receiving the
+  id forgets all its back-offs.
+- A removed peer's in-flight ids fail over at once (they count as failures in the stats) and its back-offs
+  are forgotten: it is no longer a holder, and comes back fresh with its next heartbeat.
+
+Bounds: at most ``max_in_flight`` requests in flight of at most ``batch_size`` ids each; at most
+``max_missing_tracked`` missing ids are tracked, the oldest in PatchId order (a peer digest listing 10^9 ids
+costs its range count, through `PatchDigest.missing_from` with a limit); back-offs are kept only for tracked
+ids and known peers.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+
+from swarm.patches.digest import PatchDigest
+from swarm.patches.patch import PatchId
+
+Position = tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class PullSettings:
+    max_in_flight: int = 4  # requests in flight in total (R_max)
+    batch_size: int = 4  # ids per request
+    timeout_s: float = 2.0  # a request's deadline after it is issued (T_req)
+    backoff_initial_s: float = 0.5  # first back-off of an (id, holder) pair after a failure
+    backoff_max_s: float = 8.0  # back-off cap (doubling)
+    max_missing_tracked: int = 4096  # missing ids tracked at most (the oldest in PatchId order)
+
+    def __post_init__(self) -> None:
+        for name in ("max_in_flight", "batch_size", "max_missing_tracked"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be a positive int, got {value!r}")
+        for name in ("timeout_s", "backoff_initial_s", "backoff_max_s"):
+            value = getattr(self, name)
+            if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+                raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+        if self.backoff_max_s < self.backoff_initial_s:
+            raise ValueError("backoff_max_s must be at least backoff_initial_s")
+
+
+@dataclass(frozen=True)
+class PullRequest:
+    """Ask `holder` for `ids`; the reply (or its absence by `deadline`) is matched by `token`."""
+
+    holder: int
+    ids: tuple[PatchId, ...]
+    token: int
+    deadline: float
+
+
+@dataclass(frozen=True)
+class PullStats:
+    requested: int  # ids requested (an id asked twice counts twice)
+    received: int  # ids newly held through note_received / on_reply
+    timeouts: int  # requests expired past their deadline
+    failures: dict[int, int]  # holder -> ids that failed with it (timeout, missing from a reply, removal)
+    in_flight: int  # requests in flight now
+
+
+@dataclass
+class _InFlight:
+    holder: int
+    pending: set[PatchId]
+    token: int
+    deadline: float
+
+
+@dataclass
+class _Backoff:
+    until: float
+    duration: float
+
+
+@dataclass
+class _Peer:
+    position: Position
+    digest: PatchDigest
+
+
+@dataclass
+class _Counters:
+    requested: int = 0
+    received: int = 0
+    timeouts: int = 0
+    failures: dict[int, int] = field(default_factory=dict)
+
+
+class PullScheduler:
+    """Decides which missing patches to request from which peer; see the module docstring."""
+
+    def __init__(
+        self, own_id: int, settings: PullSettings | None = None, clock: Callable[[], float] = time.monotonic
+    ) -> None:
+        self.own_id = own_id
+        self.settings = settings or PullSettings()
+        self._clock = clock
+        self._peers: dict[int, _Peer] = {}
+        self._held = PatchDigest()
+        self._holders: dict[PatchId, set[int]] = {}  # tracked missing id -> alive peers listing it
+        self._dirty = False  # _holders must be recomputed
+        self._in_flight: dict[int, _InFlight] = {}  # token -> request
+        self._token_of: dict[PatchId, int] = {}  # in-flight id -> token
+        self._backoff: dict[tuple[PatchId, int], _Backoff] = {}
+        self._next_token = 1
+        self._counters = _Counters()
+
+    # --- inputs -----------------------------------------------------------------------------------------
+
+    def update_peer(self, peer_id: int, position: Iterable[float], digest: PatchDigest) -> None:
+        """From a heartbeat: the peer is alive, at `position`, and holds `digest`. Its own id is ignored."""
+        if peer_id == self.own_id:
+            return
+        x, y, z = (float(c) for c in position)
+        previous = self._peers.get(peer_id)
+        if previous is None or previous.digest != digest:
+            self._dirty = True
+        self._peers[peer_id] = _Peer((x, y, z), digest)
+
+    def remove_peer(self, peer_id: int) -> None:
+        """The peer left or is unreachable: its in-flight ids fail over at once, its back-offs are forgotten."""
+        if self._peers.pop(peer_id, None) is not None:
+            self._dirty = True
+        for request in [r for r in self._in_flight.values() if r.holder == peer_id]:
+            self._close(request)
+            self._count_failures(peer_id, len(request.pending))
+        for key in [k for k in self._backoff if k[1] == peer_id]:
+            del self._backoff[key]
+
+    def set_held(self, held: PatchDigest | set[PatchId]) -> None:
+        """What this agent holds now (replaces the previous); held ids leave the in-flight requests."""
+        self._held = held if isinstance(held, PatchDigest) else PatchDigest.of(held)
+        self._dirty = True
+        for pid in [p for p in self._token_of if p in self._held]:
+            self._forget(pid)
+
+    def note_received(self, pid: PatchId) -> None:
+        """A patch arrived (push or reply) and was accepted: no longer missing, no longer in flight."""
+        if pid not in self._held:
+            self._held = self._held.union((pid,))
+            self._counters.received += 1
+            self._dirty = True
+        self._forget(pid)
+
+    def on_reply(self, token: int, received: Iterable[PatchId]) -> None:
+        """The reply to request `token` brought `received`; the request's other ids failed with its holder.
+
+        A late reply (after `expire`) or an unknown token still marks `received` as held.
+        """
+        request = self._in_flight.get(token)
+        for pid in received:
+            self.note_received(pid)
+        if request is None or self._in_flight.get(token) is not request:
+            return
+        self._close(request)
+        now = self._clock()
+        for pid in sorted(request.pending):
+            self._fail(pid, request.holder, now)
+
+    # --- outputs ----------------------------------------------------------------------------------------
+
+    def next_requests(self, own_position: Iterable[float]) -> list[PullRequest]:
+        """The requests to send now (marked in flight): missing ids not in flight and not backing off, oldest
+        first, grouped per chosen holder into batches of at most `batch_size`, while fewer than
+        `max_in_flight` requests are in flight."""
+        slots = self.settings.max_in_flight - len(self._in_flight)
+        if slots <= 0:
+            return []
+        self._refresh()
+        now = self._clock()
+        here = tuple(float(c) for c in own_position)
+        distance = {pid: _distance(here, peer.position) for pid, peer in self._peers.items()}
+        open_batch: dict[int, list[PatchId]] = {}
+        batches: list[tuple[int, list[PatchId]]] = []
+        for pid in sorted(self._holders):
+            if pid in self._token_of:
+                continue
+            holder = self._choose(pid, self._holders[pid], distance, now)
+            if holder is None:
+                continue
+            batch = open_batch.get(holder)
+            if batch is None or len(batch) >= self.settings.batch_size:
+                if slots == 0:
+                    continue  # no new request; an open batch of another holder may still take ids
+                slots -= 1
+                batch = open_batch[holder] = []
+                batches.append((holder, batch))
+            batch.append(pid)
+        requests = []
+        for holder, ids in batches:
+            request = PullRequest(holder, tuple(ids), self._next_token, now + self.settings.timeout_s)
+            self._next_token += 1
+            self._in_flight[request.token] = _InFlight(holder, set(ids), request.token, request.deadline)
+            for pid in ids:
+                self._token_of[pid] = request.token
+            self._counters.requested += len(ids)
+            requests.append(request)
+        return requests
+
+    def expire(self) -> list[PullRequest]:
+        """Requests past their deadline, each with the ids still pending: they fail with their holder."""
+        now = self._clock()
+        expired = []
+        for request in sorted(self._in_flight.values(), key=lambda r: r.token):
+            if now < request.deadline:
+                continue
+            self._close(request)
+            self._counters.timeouts += 1
+            ids = tuple(sorted(request.pending))
+            for pid in ids:
+                self._fail(pid, request.holder, now)
+            expired.append(PullRequest(request.holder, ids, request.token, request.deadline))
+        return expired
+
+    # --- introspection ----------------------------------------------------------------------------------
+
+    @property
+    def stats(self) -> PullStats:
+        c = self._counters
+        return PullStats(c.requested, c.received, c.timeouts, dict(c.failures), len(self._in_flight))
+
+    def missing(self) -> list[PatchId]:
+        """The tracked missing ids (in flight or not), sorted."""
+        self._refresh()
+        return sorted(self._holders)
+
+    def in_flight(self) -> dict[PatchId, int]:
+        """In-flight id -> holder asked."""
+        return {pid: self._in_flight[token].holder for pid, token in self._token_of.items()}
+
+    def backoff_until(self, pid: PatchId, holder: int) -> float | None:
+        """When the (id, holder) back-off ends, or None if the pair never failed (or was forgotten)."""
+        entry = self._backoff.get((pid, holder))
+        return None if entry is None else entry.until
+
+    # --- internals --------------------------------------------------------------------------------------
+
+    def _refresh(self) -> None:
+        """Recompute the tracked missing ids and their holders, bounded by max_missing_tracked.
+
+        Each peer contributes its `limit` oldest missing ids; the `limit` oldest of their union are exact
+        (an id among them has fewer than `limit` older missing ids in any peer's digest), so are its holders.
+        """
+        if not self._dirty:
+            return
+        limit = self.settings.max_missing_tracked
+        holders: dict[PatchId, set[int]] = {}
+        for peer_id, peer in self._peers.items():
+            for pid in peer.digest.missing_from(self._held, limit=limit):
+                holders.setdefault(pid, set()).add(peer_id)
+        if len(holders) > limit:
+            holders = {pid: holders[pid] for pid in sorted(holders)[:limit]}
+        self._holders = holders
+        self._dirty = False
+        self._backoff = {k: v for k, v in self._backoff.items() if k[0] in holders and k[1] in self._peers}
+
+    def _choose(self, pid: PatchId, holders: set[int], distance: dict[int, float], now: float) -> int | None:
+        best: tuple[float, int] | None = None
+        for holder in holders:
+            if holder not in self._peers:
+                continue
+            backoff = self._backoff.get((pid, holder))
+            if backoff is not None and backoff.until > now:
+                continue
+            key = (distance[holder], holder)
+            if best is None or key < best:
+                best = key
+        return None if best is None else best[1]
+
+    def _fail(self, pid: PatchId, holder: int, now: float) -> None:
+        self._count_failures(holder, 1)
+        previous = self._backoff.get((pid, holder))
+        s = self.settings
+        duration = s.backoff_initial_s if previous is None else min(previous.duration * 2, s.backoff_max_s)
+        self._backoff[(pid, holder)] = _Backoff(now + duration, duration)
+
+    def _count_failures(self, holder: int, n: int) -> None:
+        if n:
+            self._counters.failures[holder] = self._counters.failures.get(holder, 0) + n
+
+    def _close(self, request: _InFlight) -> None:
+        del self._in_flight[request.token]
+        for pid in request.pending:
+            if self._token_of.get(pid) == request.token:
+                del self._token_of[pid]
+
+    def _forget(self, pid: PatchId) -> None:
+        """`pid` is held: out of the missing set, out of its request (closed once empty), back-offs dropped."""
+        self._holders.pop(pid, None)
+        token = self._token_of.pop(pid, None)
+        if token is not None:
+            request = self._in_flight[token]
+            request.pending.discard(pid)
+            if not request.pending:
+                del self._in_flight[token]
+        for key in [k for k in self._backoff if k[0] == pid]:
+            del self._backoff[key]
+
+
+def _distance(a: tuple[float, ...], b: Position) -> float:
+    d = math.dist(a, b)
+    return d if math.isfinite(d) else math.inf

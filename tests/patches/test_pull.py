@@ -1,0 +1,212 @@
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from swarm.patches.digest import PatchDigest
+from swarm.patches.patch import PatchId
+from swarm.patches.pull import PullScheduler, PullSettings
+
+HERE = (0.0, 0.0, 0.0)
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.t = 100.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def pid(seq: int, producer: int = 9, epoch: int = 0) -> PatchId:
+    return PatchId(producer, epoch, seq)
+
+
+def digest(*seqs: int, producer: int = 9) -> PatchDigest:
+    return PatchDigest.of(pid(s, producer) for s in seqs)
+
+
+def make(**settings: object) -> tuple[PullScheduler, Clock]:
+    clock = Clock()
+    return PullScheduler(1, PullSettings(**settings), clock), clock  # type: ignore[arg-type]
+
+
+def asked(requests: list) -> dict[PatchId, int]:
+    return {i: r.holder for r in requests for i in r.ids}
+
+
+def test_nearest_holder_ties_to_lower_id_never_self_never_a_peer_lacking_the_id() -> None:
+    s, _ = make(batch_size=1, max_in_flight=10)
+    s.update_peer(1, (0.1, 0, 0), digest(0, 1, 2, 3))  # itself: ignored
+    s.update_peer(5, (3, 0, 0), digest(0, 1, 2))
+    s.update_peer(4, (0, 3, 0), digest(0, 1))  # same distance as 5, lower id
+    s.update_peer(2, (0.5, 0, 0), digest(2))  # nearest, but holds only seq 2
+    s.update_peer(3, (0.2, 0, 0), PatchDigest())  # nearest, holds nothing
+    got = asked(s.next_requests(HERE))
+    assert got == {pid(0): 4, pid(1): 4, pid(2): 2}  # seq 3: only listed by itself
+
+
+def test_relay_nearer_than_the_producer_is_asked() -> None:
+    s, _ = make()
+    s.update_peer(9, (100, 0, 0), digest(0, 1))  # the producer, far away
+    s.update_peer(7, (2, 0, 0), digest(0, 1))  # a relay holding copies
+    [request] = s.next_requests((1, 0, 0))
+    assert request.holder == 7 and request.ids == (pid(0), pid(1))
+
+
+def test_batching_and_in_flight_bound() -> None:
+    s, clock = make(batch_size=3, max_in_flight=2, timeout_s=2.0)
+    s.update_peer(2, (1, 0, 0), digest(*range(10)))
+    s.update_peer(3, (5, 0, 0), digest(100, 101))
+    first = s.next_requests(HERE)
+    assert [(r.holder, r.ids) for r in first] == [(2, (pid(0), pid(1), pid(2))), (2, (pid(3), pid(4), pid(5)))]
+    assert all(r.deadline == clock.t + 2.0 for r in first) and len({r.token for r in first}) == 2
+    assert s.next_requests(HERE) == [] and s.stats.in_flight == 2
+    s.on_reply(first[0].token, first[0].ids)
+    [third] = s.next_requests(HERE)
+    assert third.holder == 2 and third.ids == (pid(6), pid(7), pid(8))
+    assert s.stats.in_flight == 2 and s.stats.requested == 9 and s.stats.received == 3
+
+
+def test_oldest_ids_first_and_open_batches_take_ids_when_no_slot_is_left() -> None:
+    s, _ = make(batch_size=2, max_in_flight=2)
+    s.update_peer(2, (1, 0, 0), digest(0, 2, 4))
+    s.update_peer(3, (1, 0, 0), digest(1, 3, 5, producer=8))
+    reqs = s.next_requests(HERE)
+    assert [(r.holder, r.ids) for r in reqs] == [(3, (pid(1, 8), pid(3, 8))), (3, (pid(5, 8),))]
+    s2, _ = make(batch_size=3, max_in_flight=2)
+    s2.update_peer(2, (1, 0, 0), digest(1, 3, 5, 7))
+    s2.update_peer(3, (1, 0, 0), digest(0, 2, 4, producer=8))  # older ids
+    reqs = s2.next_requests(HERE)
+    assert [(r.holder, r.ids) for r in reqs] == [(3, (pid(0, 8), pid(2, 8), pid(4, 8))), (2, (pid(1), pid(3), pid(5)))]
+
+
+def test_timeout_fails_over_to_the_next_nearest_then_backs_off_doubling_to_the_max() -> None:
+    s, clock = make(timeout_s=2.0, backoff_initial_s=0.5, backoff_max_s=2.0)
+    s.update_peer(2, (1, 0, 0), digest(0))
+    s.update_peer(3, (2, 0, 0), digest(0))
+    [r] = s.next_requests(HERE)
+    assert r.holder == 2
+    clock.t += 1.9
+    assert s.expire() == []
+    clock.t += 0.1
+    [expired] = s.expire()
+    assert expired.token == r.token and expired.ids == (pid(0),)
+    assert s.stats.timeouts == 1 and s.stats.failures == {2: 1} and s.stats.in_flight == 0
+    assert s.backoff_until(pid(0), 2) == clock.t + 0.5
+    [r] = s.next_requests(HERE)
+    assert r.holder == 3  # next-nearest
+    clock.t += 0.4  # 3 fails early (a Nack): both backing off, nothing to ask
+    s.on_reply(r.token, [])
+    assert s.next_requests(HERE) == []
+    clock.t = s.backoff_until(pid(0), 2)  # holder 2's back-off ends: the nearest is tried again...
+    s.remove_peer(3)  # (3's back-off is forgotten with it)
+    durations = []  # ...and the back-off doubles on each further failure, up to the max
+    for _ in range(4):
+        [r] = s.next_requests(HERE)
+        assert r.holder == 2
+        clock.t = r.deadline
+        s.expire()
+        durations.append(s.backoff_until(pid(0), 2) - clock.t)
+        assert s.next_requests(HERE) == []  # still backing off
+        clock.t = s.backoff_until(pid(0), 2)
+    assert durations == [1.0, 2.0, 2.0, 2.0]
+    assert s.stats.failures == {2: 5, 3: 1}
+
+
+def test_after_back_off_the_first_holder_is_tried_again() -> None:
+    s, clock = make(timeout_s=1.0, backoff_initial_s=3.0, backoff_max_s=8.0)
+    s.update_peer(2, (1, 0, 0), digest(0))
+    s.update_peer(3, (2, 0, 0), digest(0))
+    [r] = s.next_requests(HERE)
+    clock.t = r.deadline
+    s.expire()
+    [r] = s.next_requests(HERE)
+    assert r.holder == 3
+    s.on_reply(r.token, [])  # a Nack: fails with 3
+    assert s.stats.failures == {2: 1, 3: 1}
+    clock.t = s.backoff_until(pid(0), 2)
+    [r] = s.next_requests(HERE)
+    assert r.holder == 2
+
+
+def test_remove_peer_fails_over_its_in_flight_ids_at_once() -> None:
+    s, _ = make(batch_size=4)
+    s.update_peer(2, (1, 0, 0), digest(0, 1))
+    s.update_peer(3, (9, 0, 0), digest(0, 1))
+    [r] = s.next_requests(HERE)
+    assert r.holder == 2
+    s.remove_peer(2)
+    assert s.stats.in_flight == 0 and s.stats.failures == {2: 2}
+    [r2] = s.next_requests(HERE)  # no waiting for the deadline
+    assert r2.holder == 3 and r2.ids == r.ids
+    s.on_reply(r.token, [])  # a late reply from the removed peer is ignored
+    assert s.stats.in_flight == 1
+
+
+def test_note_received_and_replies_remove_ids_partial_replies_fail_the_rest() -> None:
+    s, clock = make(batch_size=3, max_in_flight=1, backoff_initial_s=1.0)
+    s.update_peer(2, (1, 0, 0), digest(0, 1, 2, 3))
+    s.update_peer(3, (5, 0, 0), digest(0, 1, 2, 3))
+    [r] = s.next_requests(HERE)
+    assert r.ids == (pid(0), pid(1), pid(2))
+    s.note_received(pid(0))  # a push overtook the request
+    s.note_received(pid(3))  # not requested yet: no longer missing
+    assert s.missing() == [pid(1), pid(2)] and set(s.in_flight()) == {pid(1), pid(2)}
+    s.on_reply(r.token, [pid(1)])  # pid(2) was not in the reply
+    assert s.missing() == [pid(2)] and s.in_flight() == {} and s.stats.in_flight == 0
+    assert s.stats.failures == {2: 1} and s.stats.received == 3
+    assert s.backoff_until(pid(2), 2) == clock.t + 1.0
+    [r] = s.next_requests(HERE)
+    assert r.holder == 3 and r.ids == (pid(2),)
+    s.note_received(pid(2))  # the last id of a request closes it
+    assert s.stats.in_flight == 0 and s.missing() == [] and s.backoff_until(pid(2), 2) is None
+    s.on_reply(r.token, [pid(2)])  # a reply after the push: harmless
+    assert s.stats.received == 4 and s.next_requests(HERE) == []
+
+
+def test_set_held_cancels_in_flight_ids() -> None:
+    s, _ = make()
+    s.update_peer(2, (1, 0, 0), digest(0, 1))
+    [r] = s.next_requests(HERE)
+    s.set_held({pid(0), pid(1)})
+    assert s.stats.in_flight == 0 and s.missing() == []
+    s.set_held(digest(0))
+    assert s.missing() == [pid(1)]
+
+
+def test_nothing_missing_nothing_requested_and_ids_nobody_holds_are_not_requested() -> None:
+    s, _ = make()
+    assert s.next_requests(HERE) == []
+    s.set_held(digest(0, 1, 2))
+    s.update_peer(2, (1, 0, 0), digest(0, 1, 2))
+    assert s.next_requests(HERE) == []
+    s.update_peer(2, (1, 0, 0), digest(0, 1, 2, 5))
+    s.update_peer(3, (1, 0, 0), digest(6))
+    s.remove_peer(3)  # the only holder of 6 left
+    assert asked(s.next_requests(HERE)) == {pid(5): 2}
+    assert s.stats.requested == 1
+
+
+def test_hostile_digest_listing_a_billion_ids_is_tracked_bounded() -> None:
+    s, _ = make(max_missing_tracked=50, batch_size=8, max_in_flight=4)
+    huge = PatchDigest({(9, 0): [(0, 10**9 - 1)], (2, 0): [(0, 10**9 - 1)]})
+    s.update_peer(2, (1, 0, 0), huge)
+    s.update_peer(3, (2, 0, 0), PatchDigest({(2, 0): [(5, 6)]}))
+    start = time.perf_counter()
+    reqs = s.next_requests(HERE)
+    assert time.perf_counter() - start < 1.0
+    missing = s.missing()
+    assert len(missing) == 50 and missing == sorted(missing)
+    assert missing[0] == PatchId(2, 0, 0) and missing[-1] == PatchId(2, 0, 49)  # oldest in PatchId order
+    assert sum(len(r.ids) for r in reqs) == 32 and all(r.holder == 2 for r in reqs)
+    for pid_ in missing[:10]:
+        s.note_received(pid_)
+    assert len(s.missing()) == 50 and s.missing()[-1] == PatchId(2, 0, 59)
+
+
+def test_settings_are_validated() -> None:
+    for bad in ({"max_in_flight": 0}, {"batch_size": True}, {"timeout_s": float("nan")}, {"backoff_max_s": 0.1}):
+        with pytest.raises(ValueError):
+            PullSettings(**bad)  # type: ignore[arg-type]
