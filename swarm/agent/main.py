@@ -10,7 +10,6 @@ sealed, the agent's mesh and summary are written, and the bus is closed.
 from __future__ import annotations
 
 import asyncio
-import json
 import os
 import signal
 import time
@@ -26,7 +25,9 @@ from swarm.agent.sensing import make_depth_source
 from swarm.bus.bridge import AsyncBus
 from swarm.bus.messages import AgentState
 from swarm.config import SwarmConfig
+from swarm.files import write_json_atomic
 from swarm.roles.membership import PeerTable
+from swarm.sim.worlds import load_world, mission_volume
 
 EXIT_OK, EXIT_FLIGHT_FAILED, EXIT_FAILSAFE = 0, 1, 3
 
@@ -86,8 +87,10 @@ class Agent:
         stop = asyncio.Event()
         if self.config.camera.source == "none":
             return None, stop
+        world = load_world(self.config.mission.world)  # once: the camera ray-casts it, the map spans its volume
         mapping = MappingTask(
-            self.config, self.epoch, make_depth_source(self.config), self.log, self.config.agent.out_dir
+            self.config, self.epoch, make_depth_source(self.config, world),
+            mission_volume(world, self.config.mission.volume), self.log, self.config.agent.out_dir,
         )
 
         def home_z() -> float | None:
@@ -182,7 +185,5 @@ class Agent:
         }
         path = Path(out_dir) / f"agent-{self.id}.json"
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(summary, indent=2))
-        os.replace(tmp, path)
+        write_json_atomic(path, summary, indent=2)
 

@@ -13,7 +13,6 @@ seen is lost, and the agent writes its own fused mesh.
 from __future__ import annotations
 
 import asyncio
-import os
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
@@ -24,9 +23,9 @@ import numpy as np
 from swarm.agent.autopilot import TelemetryCache
 from swarm.agent.sensing import DepthSource
 from swarm.config import SwarmConfig
+from swarm.files import write_atomic
 from swarm.patches.mapper import Mapper
 from swarm.patches.patch import Patch
-from swarm.sim.worlds import load_world, mission_volume
 
 MIN_HEIGHT_M = 0.3  # below this the camera mostly sees the floor it stands on
 
@@ -37,6 +36,7 @@ class MappingTask:
         config: SwarmConfig,
         epoch: int,
         source: DepthSource,
+        bounds: tuple[np.ndarray, np.ndarray],
         log: Callable[..., None],
         out_dir: Path | None,
     ) -> None:
@@ -44,7 +44,7 @@ class MappingTask:
         self.source = source
         self.log = log
         self.mapper = Mapper(
-            config.mapping, config.agent.id, epoch, mission_bounds(config), known_weight=config.mapping.known_weight
+            config.mapping, config.agent.id, epoch, bounds, known_weight=config.mapping.known_weight
         )
         self.patches_dir = out_dir / "patches" if out_dir is not None else None
         if self.patches_dir is not None:
@@ -92,11 +92,9 @@ class MappingTask:
         self.log("patch_sealed", patch=str(patch.id), blocks=patch.block_count, frames=patch.span.frames)
         if self.patches_dir is not None:
             path = self.patches_dir / f"{patch.id}.patch"
-            tmp = path.with_suffix(".tmp")
             data = self.mapper.data(patch.id)
             assert data is not None  # a sealed patch is in the private store
-            tmp.write_bytes(data)
-            os.replace(tmp, path)
+            write_atomic(path, data)
 
     async def finish(self) -> None:
         """Seal what is open and write this agent's own fused mesh; runs after the flight."""
@@ -122,9 +120,3 @@ class MappingTask:
             if self.frames else 0.0,
             "known_voxels": int(self.mapper.fused.voxel_count),
         }
-
-
-def mission_bounds(config: SwarmConfig) -> tuple[np.ndarray, np.ndarray]:
-    """The volume the map covers: the configured mission volume, else the simulated world's bounds."""
-    volume = config.mission.volume
-    return mission_volume(load_world(config.mission.world) if volume is None else None, volume)

@@ -52,10 +52,11 @@ class SimulatedDepthSource:
         return DepthFrame(index, t, self.camera.render(T), self.camera.intrinsics.copy(), T)
 
 
-def make_depth_source(config: SwarmConfig) -> DepthSource:
-    """The agent's depth source: for now always the simulated camera in config.mission.world.
+def make_depth_source(config: SwarmConfig, world: World | None = None) -> DepthSource:
+    """The agent's depth source: for now always the simulated camera in config.mission.world (pass the world if
+    it is already loaded).
 
     Each drone's noise stream is seeded from (mission.seed, agent.id), so runs repeat and drones differ.
     """
     seed = int(np.random.SeedSequence([config.mission.seed % 2**32, config.agent.id]).generate_state(1)[0])
-    return SimulatedDepthSource(load_world(config.mission.world), config.camera, seed)
+    return SimulatedDepthSource(world or load_world(config.mission.world), config.camera, seed)
