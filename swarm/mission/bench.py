@@ -64,11 +64,15 @@ class Sampler:
                 s.last_cpu, s.last_t = cpu, now
 
 
-def bench_flight(config: SwarmConfig, sizes: list[int], out: Path | None) -> int:
+def _console_and_root(out: Path | None) -> tuple[Console, Path]:
     console = Console()
     if not console.is_terminal:
         console = Console(width=160)  # logs and pipes: never truncate the figures
-    root = out or Path(tempfile.mkdtemp(prefix="swarm-bench-"))
+    return console, out or Path(tempfile.mkdtemp(prefix="swarm-bench-"))
+
+
+def bench_flight(config: SwarmConfig, sizes: list[int], out: Path | None) -> int:
+    console, root = _console_and_root(out)
     results: list[dict[str, Any]] = []
     for n in sizes:
         run_config = config.model_copy(deep=True)
@@ -121,10 +125,7 @@ def _print(console: Console, results: list[dict[str, Any]]) -> None:
 
 def bench_mapping_swarm(config: SwarmConfig, drones: int, out: Path | None) -> int:
     """The depth frame rate each agent sustains while N agents map at once on this machine (a real mission)."""
-    console = Console()
-    if not console.is_terminal:
-        console = Console(width=160)
-    root = out or Path(tempfile.mkdtemp(prefix="swarm-bench-"))
+    console, root = _console_and_root(out)
     run_config = config.model_copy(deep=True)
     run_config.mission.drones = drones
     run_config.mission.out = root / f"mapping-swarm-{drones}"
