@@ -13,8 +13,6 @@ bus, the files are how the observer sees them.
 from __future__ import annotations
 
 import asyncio
-import json
-import os
 import signal
 import time
 from pathlib import Path
@@ -23,6 +21,7 @@ from typing import Any
 from swarm.bus.bridge import AsyncBus
 from swarm.bus.messages import AgentState
 from swarm.config import SwarmConfig
+from swarm.files import write_json_atomic
 from swarm.mission.coverage import SwarmCoverage
 
 SNAPSHOT_PERIOD_S = 0.5
@@ -111,9 +110,7 @@ class Observer:
             "traffic": bus.counters.snapshot(),
             **(self.coverage.snapshot() if self.coverage is not None else {}),
         }
-        tmp = self.status_path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(snapshot))
-        os.replace(tmp, self.status_path)
+        write_json_atomic(self.status_path, snapshot)
 
 
 def observe_command(

@@ -7,11 +7,11 @@ own counters, presence from the observer.
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from swarm import __version__
+from swarm.files import write_json_atomic
 
 if TYPE_CHECKING:
     from swarm.mission.run import RunPlan, RunState
@@ -74,9 +74,7 @@ def build_report(
 
 def write_report(out: Path, report: dict[str, Any]) -> Path:
     path = out / "report.json"
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(report, indent=2))
-    os.replace(tmp, path)
+    write_json_atomic(path, report, indent=2)
     return path
 
 

@@ -8,8 +8,6 @@ collision checks run at sim.physics_hz; telemetry streams at their own rates (at
 from __future__ import annotations
 
 import errno
-import json
-import os
 import selectors
 import signal
 import socket
@@ -23,6 +21,7 @@ import numpy as np
 
 from swarm.config import ConfigError, SwarmConfig, gcs_port, vehicle_port
 from swarm.errors import PortInUseError, SwarmError, WorldError
+from swarm.files import write_json_atomic
 from swarm.sim.collisions import CollisionMonitor
 from swarm.sim.vehicle import Downlink, SimVehicle
 from swarm.sim.worlds import World, load_world, spawn_points
@@ -209,11 +208,9 @@ class SimServer:
     def write_status(self, path: Path) -> None:
         """Write the status JSON atomically (temp file + rename), so a reader never sees half a file."""
         path = Path(path)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
-            tmp.write_text(json.dumps(self.status()))
-            os.replace(tmp, path)
+            write_json_atomic(path, self.status())
         except OSError as exc:
             raise SwarmError(f"cannot write simulator status to {path}: {exc.strerror or exc}") from None
 
