@@ -1,8 +1,8 @@
 """Every setting of the swarm, in one place.
 
-The whole configuration is one `SwarmConfig` made of six sections (mission, agent, sim, bus, camera, mapping). It loads from
-a TOML file whose tables have the same names, and any field can be overridden on the command line with a
-dotted key (`--set agent.altitude_m=2.0`). A value that does not validate is reported as one line naming the
+The whole configuration is one `SwarmConfig` made of seven sections (mission, agent, sim, bus, camera, mapping,
+sync). It loads from a TOML file whose tables have the same names, and any field can be overridden on the
+command line with a dotted key (`--set agent.altitude_m=2.0`). A value that does not validate is reported as one line naming the
 field; the CLI turns `ConfigError` into exit code 2.
 
 Frames: the world frame is z-up (x east, y north, z up), in metres. The autopilot's local frame is NED with its
@@ -184,6 +184,42 @@ class MappingSettings(_Section):
     max_patch_bytes: int = Field(4 << 20, ge=1024, description="larger patches are rejected on receipt")
 
 
+class SyncSettings(_Section):
+    """Map sharing between agents (`swarm.sync`): push on seal in chunks, digests in heartbeats, pull from the
+    nearest holder. Defaults follow Hardouin's proposal (research notes 2.3.9), shortened for indoor speeds."""
+
+    chunk_bytes: int = Field(
+        8192, ge=512, le=1 << 20, description="patches travel in chunks of at most this many payload bytes"
+    )
+    period_s: PositiveFloat = Field(0.25, description="how often missing patches are looked for and requested")
+    grace_s: float = Field(
+        1.0, ge=0.0, le=60.0, description="a patch first advertised this recently is left to its push"
+    )
+    request_timeout_s: PositiveFloat = Field(3.0, description="a pull request not fully answered by then fails")
+    max_in_flight: int = Field(4, ge=1, le=64, description="pull requests in flight at once")
+    batch_size: int = Field(4, ge=1, le=64, description="patch ids per pull request")
+    backoff_initial_s: PositiveFloat = Field(0.5, description="first back-off from a holder that failed")
+    backoff_max_s: PositiveFloat = Field(8.0, description="back-off cap (doubles on each failure)")
+    assembly_timeout_s: PositiveFloat = Field(30.0, description="a patch still incomplete after this is dropped")
+    max_assembly_bytes: int = Field(64 << 20, ge=1 << 20, description="bytes of incomplete patches kept at most")
+    linger_max_s: float = Field(
+        60.0, ge=0.0, le=3600.0,
+        description="after landing, stay on the bus until every peer has landed and holds what we hold, or this long",
+    )
+    push_drop_fraction: float = Field(
+        0.0, ge=0.0, le=1.0, description="experiments only: drop this fraction of outgoing push chunks on purpose"
+    )
+    baseline_loop_s: PositiveFloat = Field(
+        2.0, description="exploration loop period of the whole-map baseline (one whole fused map per agent per loop)"
+    )
+
+    @model_validator(mode="after")
+    def _backoff(self) -> SyncSettings:
+        if self.backoff_max_s < self.backoff_initial_s:
+            raise ValueError(f"backoff_max_s {self.backoff_max_s} must be at least backoff_initial_s")
+        return self
+
+
 class SwarmConfig(_Section):
     mission: MissionSettings = MissionSettings()
     agent: AgentSettings = AgentSettings()
@@ -191,6 +227,7 @@ class SwarmConfig(_Section):
     bus: BusSettings = BusSettings()
     camera: CameraSettings = CameraSettings()
     mapping: MappingSettings = MappingSettings()
+    sync: SyncSettings = SyncSettings()
 
 
 def _format_error(err: ValidationError) -> str:

@@ -1,10 +1,13 @@
 """The agent process: one drone's flight, map, presence and peer table, supervised under one asyncio loop.
 
 Tasks: the flight (MAVSDK), the mapping task (depth frames into patches while airborne, in a worker thread),
-the heartbeat publisher (AgentState at `heartbeat_hz` on the drone's state key, best effort), and the
+the patch sync (push on seal, pull what is missing, serve what is held), the heartbeat publisher (AgentState
+with the patch holdings at `heartbeat_hz`, and soon after the holdings change, best effort), and the
 membership upkeep (expire silent peers, re-elect). A liveliness token announces the agent. SIGINT/SIGTERM ask
-the flight to land and the process to exit; a second signal exits at once. After the flight the open patch is
-sealed, the agent's mesh and summary are written, and the bus is closed.
+the flight to land and the process to exit at once after it; a second signal exits immediately. After a normal
+landing the open patch is sealed and pushed, and the agent lingers on the bus until every peer has landed and
+holds the same patches (bounded by `sync.linger_max_s`); then its mesh and summary are written and the bus is
+closed.
 """
 
 from __future__ import annotations
@@ -27,9 +30,16 @@ from swarm.bus.messages import AgentState
 from swarm.config import SwarmConfig
 from swarm.files import write_json_atomic
 from swarm.roles.membership import PeerTable
+from swarm.patches.lattice import Lattice
+from swarm.patches.patch import PatchId
+from swarm.patches.wire import decode_expected
 from swarm.sim.worlds import load_world, mission_volume
+from swarm.sync.service import PatchSync
 
 EXIT_OK, EXIT_FLIGHT_FAILED, EXIT_FAILSAFE = 0, 1, 3
+FINAL_PHASES = frozenset({Phase.LANDED.value, Phase.FAILSAFE.value, Phase.FAILED.value})
+LINGER_POLL_S = 0.2
+MIN_HEARTBEAT_GAP_S = 0.05
 
 
 def agent_command(config: SwarmConfig) -> int:
@@ -48,6 +58,8 @@ class Agent:
         self.started = time.time()
         self._seq = 0
         self._last_leader = self.id
+        self._announce = asyncio.Event()
+        self.keys_mismatch = 0
 
     async def run(self) -> int:
         loop = asyncio.get_running_loop()
@@ -59,54 +71,107 @@ class Agent:
         autopilot = Autopilot(self.config.agent.autopilot, self.config.mission.origin, self.config.agent.command_timeout_s)
         self.flight = Flight(autopilot, self.config.agent, self.log)
         keys = self.keys = bus.keys
+        mapping_stop = asyncio.Event()
+        mapping = self._make_mapping(loop)
+        self.sync = PatchSync(
+            bus, self.config.sync, self.id,
+            sink=mapping.receive if mapping is not None else self._validate_only,
+            position=self._position,
+            max_patch_bytes=self.config.mapping.max_patch_bytes,
+            on_holdings_changed=self._announce.set,
+        )
         bus.declare_token(keys.alive(self.id))
         bus.subscribe(keys.all_states, AgentState, self._on_state)
         bus.watch_liveliness(keys.all_alive, self._on_token_join, self._on_token_leave)
+        self.sync.start()
         background = [asyncio.create_task(self._heartbeat(bus)), asyncio.create_task(self._upkeep())]
-        mapping, mapping_stop = self._start_mapping(autopilot, background)
+        if mapping is not None:
+            self._run_mapping(mapping, autopilot, mapping_stop, background)
         final = Phase.FAILED
+        released = False
         try:
             final = await self.flight.run(list(self.config.agent.waypoints), self.stop)
+            self.log("flight_ended", phase=final.value)
         finally:
-            self._publish_state(bus)  # the last phase goes out before we leave
             mapping_stop.set()
+            released = await autopilot.close()
+            if mapping is not None:
+                await mapping.seal_last()
+            if not self.stop.is_set():
+                await self._linger()
+            self._publish_state(bus)  # the last phase and holdings go out before we leave
             for task in background:
                 task.cancel()
             await asyncio.gather(*background, return_exceptions=True)
+            await self.sync.stop()
             if mapping is not None:
-                await mapping.finish()
-            released = await autopilot.close()
+                await mapping.close()
             self._write_summary(bus, final, released, mapping)
             await bus.close()
         self.log("exit", phase=final.value)
         return {Phase.LANDED: EXIT_OK, Phase.FAILSAFE: EXIT_FAILSAFE}.get(final, EXIT_FLIGHT_FAILED)
 
-    def _start_mapping(
-        self, autopilot: Autopilot, background: list[asyncio.Task[None]]
-    ) -> tuple[MappingTask | None, asyncio.Event]:
-        stop = asyncio.Event()
+    def _make_mapping(self, loop: asyncio.AbstractEventLoop) -> MappingTask | None:
         if self.config.camera.source == "none":
-            return None, stop
+            return None
         world = load_world(self.config.mission.world)  # once: the camera ray-casts it, the map spans its volume
-        mapping = MappingTask(
+
+        def on_sealed(pid: PatchId, data: bytes) -> None:  # the mapping thread: hand over to the loop
+            loop.call_soon_threadsafe(self.sync.add_own, pid, data)
+
+        return MappingTask(
             self.config, self.epoch, make_depth_source(self.config, world),
-            mission_volume(world, self.config.mission.volume), self.log, self.config.agent.out_dir,
+            mission_volume(world, self.config.mission.volume), self.log, self.config.agent.out_dir, on_sealed,
         )
 
+    def _run_mapping(
+        self, mapping: MappingTask, autopilot: Autopilot, stop: asyncio.Event, background: list[asyncio.Task[None]]
+    ) -> None:
         def home_z() -> float | None:
             return autopilot.home_world[2] if autopilot.home_world is not None else None
 
         background.append(asyncio.create_task(mapping.run(autopilot.telemetry, home_z, stop)))
-        return mapping, stop
+        background.append(asyncio.create_task(mapping.measure_baseline(stop)))
+
+    async def _validate_only(self, data: bytes, pid: PatchId) -> None:
+        """The sync's sink without a map (camera "none"): validate, hold and relay, fuse nothing."""
+        lattice = Lattice.from_settings(self.config.mapping)
+        await asyncio.to_thread(decode_expected, data, pid, lattice, self.config.mapping.max_patch_bytes)
+
+    async def _linger(self) -> None:
+        """After landing, stay until every present peer has ended its flight and holds what we hold (so the
+        swarm ends with one map), or `sync.linger_max_s` passes, or a signal asks us to go."""
+        deadline = time.monotonic() + self.config.sync.linger_max_s
+        self.log("linger", peers=sorted(self.peers.peers))
+        while time.monotonic() < deadline and not self.stop.is_set():
+            peers_done = all(p.phase in FINAL_PHASES for p in self.peers.peers.values())
+            if peers_done and self.sync.in_step_with_peers():
+                self.log("in_step", patches=len(self.sync.held_ids()))
+                return
+            try:
+                await asyncio.wait_for(self.stop.wait(), LINGER_POLL_S)
+            except TimeoutError:
+                pass
+        self.log("linger_ended", reason="signal" if self.stop.is_set() else "timeout")
+
+    def _position(self) -> tuple[float, float, float]:
+        tel = self.flight.ap.telemetry
+        return tel.position if tel.samples > 0 else (0.0, 0.0, 0.0)
 
     # -- presence ----------------------------------------------------------------------------------------
 
     async def _heartbeat(self, bus: AsyncBus) -> None:
+        """Every heartbeat period, and soon after the holdings change (at most every MIN_HEARTBEAT_GAP_S)."""
         period = 1.0 / self.config.agent.heartbeat_hz
         while True:
             self.flight.update_distance()
+            self._announce.clear()
             self._publish_state(bus)
-            await asyncio.sleep(period)
+            await asyncio.sleep(min(MIN_HEARTBEAT_GAP_S, period))
+            try:
+                await asyncio.wait_for(self._announce.wait(), max(0.0, period - MIN_HEARTBEAT_GAP_S))
+            except TimeoutError:
+                pass
 
     def _publish_state(self, bus: AsyncBus) -> None:
         tel = self.flight.ap.telemetry
@@ -124,6 +189,7 @@ class Agent:
             phase=self.flight.phase.value,
             role=self.peers.role,
             leader=self.peers.leader,
+            holdings=self.sync.holdings,
         )
         bus.publish(bus.keys.state(self.id), state)
 
@@ -133,7 +199,11 @@ class Agent:
             await asyncio.sleep(0.2)
 
     def _on_state(self, key: str, state: AgentState) -> None:
+        if self.keys.agent_id_of(key) != state.id:
+            self.keys_mismatch += 1  # a heartbeat on another drone's key is not that drone's
+            return
         self.peers.heard(state.id, state.position, state.phase, state.epoch)
+        self.sync.on_state(state)
 
     def _on_token_join(self, key: str) -> None:
         peer_id = self.keys.agent_id_of(key)
@@ -146,6 +216,8 @@ class Agent:
             self.peers.token_vanished(peer_id)
 
     def _on_membership(self, event: str, peer_id: int, cause: str) -> None:
+        if event == "left":
+            self.sync.peer_left(peer_id)
         self.peer_events.append({"t": round(time.time(), 3), "event": event, "peer": peer_id, "cause": cause})
         self.log(f"peer_{event}", peer=peer_id, cause=cause, cluster=self.peers.cluster)
         if self.peers.leader != self._last_leader:
@@ -181,6 +253,8 @@ class Agent:
             "peers_seen": sorted(self.peers.ever_seen),
             "peer_events": self.peer_events,
             "mavsdk_released": released,
+            "sync": self.sync.stats(),
+            "heartbeats_on_wrong_key": self.keys_mismatch,
             **(mapping.summary() if mapping is not None else {"patches_sealed": 0}),
         }
         path = Path(out_dir) / f"agent-{self.id}.json"

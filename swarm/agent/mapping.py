@@ -4,10 +4,14 @@ Capture and integration run in one dedicated worker thread (the TSDF is never to
 event loop stays free for flight and heartbeats). Frames are taken only while the drone is airborne. A tick that
 is late is skipped rather than bunched, so a loaded machine lowers the frame rate instead of building a queue.
 
-Every sealed patch goes to the private store and to the agent's fused map, and, when the agent has an output
-directory, to `<out_dir>/patches/<id>.patch` in the wire format (until patch sharing over the bus exists, the
-mission observer builds the swarm's map from these files). At the end the open patch is sealed too, so nothing
-seen is lost, and the agent writes its own fused mesh.
+Every sealed patch goes to the private store and to the agent's fused map, to `on_sealed` (the patch sync, which
+pushes it), and, when the agent has an output directory, to `<out_dir>/patches/<id>.patch` in the wire format
+(the mission observer's referee view of what was mapped). Patches received from peers are decoded, validated
+and fused in the same worker thread (`receive`). At the end the open patch is sealed too, so nothing seen is
+lost, and the agent writes its own fused mesh.
+
+For the bandwidth report the task also measures, once per `sync.baseline_loop_s`, what sending its whole fused
+map would cost (`FusedMap.wire_size`): the whole-map baseline patch sharing is compared with.
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -25,7 +30,10 @@ from swarm.agent.sensing import DepthSource
 from swarm.config import SwarmConfig
 from swarm.files import write_atomic
 from swarm.patches.mapper import Mapper
-from swarm.patches.patch import Patch
+from swarm.patches.patch import Patch, PatchId
+from swarm.patches.wire import decode_expected
+
+SealedCallback = Callable[[PatchId, bytes], None]
 
 MIN_HEIGHT_M = 0.3  # below this the camera mostly sees the floor it stands on
 
@@ -39,6 +47,7 @@ class MappingTask:
         bounds: tuple[np.ndarray, np.ndarray],
         log: Callable[..., None],
         out_dir: Path | None,
+        on_sealed: SealedCallback | None = None,
     ) -> None:
         self.config = config
         self.source = source
@@ -54,6 +63,10 @@ class MappingTask:
         self.frames_skipped = 0
         self.patches_sealed = 0
         self.busy_s = 0.0
+        self.patches_received = 0
+        self.baseline_bytes = 0  # sum of the whole map's wire size, once per baseline loop
+        self.baseline_loops = 0
+        self.on_sealed = on_sealed
         self._worker = ThreadPoolExecutor(1, thread_name_prefix="mapping")
 
     async def run(self, telemetry: TelemetryCache, home_z: Callable[[], float | None], stop: asyncio.Event) -> None:
@@ -90,26 +103,54 @@ class MappingTask:
     def _keep(self, patch: Patch) -> None:
         self.patches_sealed += 1
         self.log("patch_sealed", patch=str(patch.id), blocks=patch.block_count, frames=patch.span.frames)
+        data = self.mapper.data(patch.id)
+        assert data is not None  # a sealed patch is in the private store
         if self.patches_dir is not None:
-            path = self.patches_dir / f"{patch.id}.patch"
-            data = self.mapper.data(patch.id)
-            assert data is not None  # a sealed patch is in the private store
-            write_atomic(path, data)
+            write_atomic(self.patches_dir / f"{patch.id}.patch", data)
+        if self.on_sealed is not None:
+            self.on_sealed(patch.id, data)
 
-    async def finish(self) -> None:
-        """Seal what is open and write this agent's own fused mesh; runs after the flight."""
+    async def receive(self, data: bytes, pid: PatchId) -> None:
+        """Decode, validate and fuse a peer's patch (the sync's sink); PatchDecodeError if unusable."""
+        await asyncio.get_running_loop().run_in_executor(self._worker, self._receive, data, pid)
+
+    def _receive(self, data: bytes, pid: PatchId) -> None:
+        patch = decode_expected(data, pid, self.mapper.lattice, self.config.mapping.max_patch_bytes)
+        if self.mapper.receive(patch, data):
+            self.patches_received += 1
+
+    async def measure_baseline(self, stop: asyncio.Event) -> None:
+        """Once per baseline loop, add up what sending the whole fused map would cost, until `stop`."""
         loop = asyncio.get_running_loop()
-        await loop.run_in_executor(self._worker, self._finish)
-        self._worker.shutdown(wait=True)
+        period = self.config.sync.baseline_loop_s
+        while not stop.is_set():
+            try:
+                await asyncio.wait_for(stop.wait(), period)
+            except TimeoutError:
+                pass
+            size = await loop.run_in_executor(self._worker, self.mapper.fused.wire_size)
+            self.baseline_bytes += size
+            self.baseline_loops += 1
 
-    def _finish(self) -> None:
+    async def seal_last(self) -> None:
+        """Seal what is open (after the flight), so nothing seen is lost."""
+        await asyncio.get_running_loop().run_in_executor(self._worker, self._seal_last)
+
+    def _seal_last(self) -> None:
         last = self.mapper.seal()
         if last is not None:
             self._keep(last)
+
+    async def close(self) -> None:
+        """Write this agent's own fused mesh and stop the worker; nothing can be received after this."""
+        await asyncio.get_running_loop().run_in_executor(self._worker, self._write_mesh)
+        self._worker.shutdown(wait=True)
+
+    def _write_mesh(self) -> None:
         if self.out_dir is not None and self.mapper.fused.voxel_count > 0:
             self.mapper.fused.write_mesh(self.out_dir / f"agent-{self.config.agent.id}.ply")
 
-    def summary(self) -> dict[str, float | int]:
+    def summary(self) -> dict[str, Any]:
         return {
             "patches_sealed": self.patches_sealed,
             "frames": self.frames,
@@ -119,4 +160,11 @@ class MappingTask:
             "frame_rate_hz": round(self.config.camera.rate_hz * self.frames / (self.frames + self.frames_skipped), 2)
             if self.frames else 0.0,
             "known_voxels": int(self.mapper.fused.voxel_count),
+            "patches_received": self.patches_received,
+            "fused_digest": self.mapper.fused.digest(),
+            "whole_map_baseline": {
+                "loop_s": self.config.sync.baseline_loop_s,
+                "loops": self.baseline_loops,
+                "bytes": self.baseline_bytes,
+            },
         }

@@ -53,6 +53,7 @@ from swarm.errors import BusError
 log = logging.getLogger(__name__)
 
 T = TypeVar("T", bound=WireMessage)
+QueryHandler = Callable[[str, dict[str, str]], "bytes | list[bytes] | None"]
 
 CLOSE_TIMEOUT_S = 5.0
 MAX_RELIABLE_BACKLOG_BYTES = 16 << 20
@@ -275,14 +276,13 @@ class AsyncBus:
 
     # --- queries ----------------------------------------------------------------------------------------
 
-    def declare_queryable(
-        self, key_expr: str, kind: str, handler: Callable[[str, dict[str, str]], bytes | None]
-    ) -> None:
+    def declare_queryable(self, key_expr: str, kind: str, handler: QueryHandler) -> None:
         """Answer queries on `key_expr` with `handler(key, parameters)`, called on the loop thread.
 
         `key` is the query's key expression, `parameters` its selector parameters (``?a=1;b=2``). The handler
-        returns the reply payload, or None for "not held" (answered with an error reply, which the querier
-        counts as "query_error"). An exception in the handler is logged, counted as "handler_error" and
+        returns the reply payload, a list of payloads (sent as that many replies, in order: e.g. the chunks of a
+        large answer), or None for "not held" (answered with an error reply, which the querier counts as
+        "query_error"). An exception in the handler is logged, counted as "handler_error" and
         answered with an error reply. Only remote sessions' queries arrive here (see the module docstring).
         The reply goes out on the query's key expression when it is concrete, else on `key_expr`.
         """
@@ -320,13 +320,7 @@ class AsyncBus:
             "declare a queryable on",
         )
 
-    def _answer(
-        self,
-        kind: str,
-        key_expr: str,
-        handler: Callable[[str, dict[str, str]], bytes | None],
-        query: zenoh.Query,
-    ) -> None:
+    def _answer(self, kind: str, key_expr: str, handler: QueryHandler, query: zenoh.Query) -> None:
         with self._pending_lock:
             self._pending_queries -= 1
         if self._closed:
@@ -335,25 +329,29 @@ class AsyncBus:
         try:
             key = str(query.key_expr)
             data = handler(key, dict(query.parameters))
-            if data is not None and not isinstance(data, (bytes, bytearray, memoryview)):
-                raise TypeError(f"handler returned {type(data).__name__}, expected bytes or None")
+            payloads = [data] if isinstance(data, (bytes, bytearray, memoryview)) else data
+            if payloads is not None and not (
+                isinstance(payloads, list) and all(isinstance(p, (bytes, bytearray, memoryview)) for p in payloads)
+            ):
+                raise TypeError(f"handler returned {type(data).__name__}, expected bytes, a list of bytes or None")
         except Exception:
             self.counters.dropped(kind, "handler_error")
             log.exception("query handler for %s on %s failed", kind, key_expr)
             _reply_err(query, b"handler error")
             return
-        if data is None:
+        if payloads is None:
             self.counters.dropped(kind, "not_held")
             _reply_err(query, b"not held")
             return
-        data = bytes(data)
         reply_key = key if "*" not in key else key_expr
-        try:
-            query.reply(reply_key, data)
-            self.counters.sent(kind, len(data))
-        except Exception as exc:
-            self.counters.dropped(kind, "send_error")
-            log.warning("reply of %s on %s failed: %s", kind, reply_key, zenoh_error_text(exc))
+        for payload in payloads:
+            try:
+                query.reply(reply_key, bytes(payload))
+                self.counters.sent(kind, len(payload))
+            except Exception as exc:
+                self.counters.dropped(kind, "send_error")
+                log.warning("reply of %s on %s failed: %s", kind, reply_key, zenoh_error_text(exc))
+                return
 
     async def get(self, selector: str, kind: str, timeout_s: float) -> list[tuple[str | None, bytes]]:
         """Query every queryable matching `selector` (``key?a=1;b=2``); the ok replies as (replier, payload).

@@ -7,6 +7,7 @@ from typing import Annotated, Literal
 from pydantic import Field, StringConstraints
 
 from swarm.bus.codec import WireMessage
+from swarm.bus.holdings import EMPTY_DIGEST, DigestWire
 from swarm.bus.keys import MAX_AGENT_ID, MIN_AGENT_ID
 
 AgentId = Annotated[int, Field(ge=MIN_AGENT_ID, le=MAX_AGENT_ID)]
@@ -20,7 +21,7 @@ Role = Literal["leader", "explorer"]
 
 
 class AgentState(WireMessage):
-    """An agent's heartbeat: who it is, where it is, what it does and whom it follows."""
+    """An agent's heartbeat: who it is, where it is, what it does, whom it follows and which patches it holds."""
 
     KIND = "state"
 
@@ -35,3 +36,6 @@ class AgentState(WireMessage):
     phase: ShortText = Field(description="e.g. connecting, takeoff, flying, landing, landed, failsafe")
     role: Role
     leader: AgentId
+    holdings: DigestWire = Field(
+        default=EMPTY_DIGEST, description="every patch id the agent holds, own and received (ranges of seq)"
+    )

@@ -23,8 +23,10 @@ def build_report(
     vehicles = {v["id"]: v for v in (sim or {}).get("vehicles", [])}
     routes = {r.drone_id: r for r in plan.routes}
     agents = []
+    summaries: dict[int, dict[str, Any]] = {}
     for k in sorted(state.agents):
         summary = read_json(plan.out / "agents" / f"agent-{k}.json") or {}
+        sync = summary.get("sync", {})
         truth = vehicles.get(k, {})
         agents.append(
             {
@@ -41,8 +43,18 @@ def build_report(
                 "frames": int(summary.get("frames", 0)),
                 "mapping_ms_per_frame": summary.get("mapping_ms_per_frame"),
                 "frame_rate_hz": summary.get("frame_rate_hz"),
+                "patches_held": int(sync.get("patches_held", 0)),
+                "patches_requested": int(sync.get("patches_requested", 0)),
+                "patches_served": int(sync.get("patches_served", 0)),
+                "patches_received": {
+                    "push": int(sync.get("received_by_push", 0)), "pull": int(sync.get("received_by_pull", 0))
+                },
+                "patches_rejected": sync.get("rejected", {}),
+                "duration_s": float(summary.get("duration_s", 0.0)),
+                "traffic": summary.get("traffic", {}),
             }
         )
+        summaries[k] = summary
     status = state.status
     if status == "complete" and not all(a["landed"] for a in agents):
         status, state.reason = "failed", "an agent exited but its vehicle is not landed and disarmed"
@@ -58,6 +70,8 @@ def build_report(
         "explored_fraction": float((observer or {}).get("explored_fraction", 0.0)),
         "explored_timeline": (observer or {}).get("explored_timeline", []),
         "map": "map.ply" if (plan.out / "map.ply").exists() else None,
+        "converged": converged(summaries, sealed_patch_ids(plan.out / "agents" / "patches")),
+        "bandwidth": bandwidth(summaries),
         "collision_events": (sim or {}).get("collision_events", []),
         "agents": agents,
         "presence_timeline": (observer or {}).get("timeline", []),
@@ -69,6 +83,51 @@ def build_report(
             "spawns": [list(s) for s in plan.spawns],
         },
         "swarm_version": __version__,
+    }
+
+
+def sealed_patch_ids(patches_dir: Path) -> set[str]:
+    """Every patch the agents sealed (the files they wrote), as "producer.epoch.seq"."""
+    return {path.stem for path in patches_dir.glob("*.patch")} if patches_dir.is_dir() else set()
+
+
+def held_patch_ids(summary: dict[str, Any]) -> set[str]:
+    """The patch ids an agent held at the end, from the holdings in its summary."""
+    ids = set()
+    for entry in summary.get("sync", {}).get("holdings", {}).get("entries", []):
+        for lo, hi in entry["ranges"]:
+            ids.update(f"{entry['producer']}.{entry['epoch']}.{seq}" for seq in range(lo, hi + 1))
+    return ids
+
+
+def converged(summaries: dict[int, dict[str, Any]], sealed: set[str]) -> bool:
+    """Every agent ended holding the same patch set, and it is every patch any agent sealed."""
+    if not summaries or any("sync" not in s for s in summaries.values()):
+        return False
+    return all(held_patch_ids(s) == sealed for s in summaries.values())
+
+
+def bandwidth(summaries: dict[int, dict[str, Any]]) -> dict[str, Any]:
+    """Bus bytes received per agent-second, against the whole-map baseline in the same run.
+
+    Received bytes are what crossed the network (a publication reaches each peer separately). The baseline is
+    what it would have cost for every agent to send its whole fused map to every other agent once per
+    exploration loop: the sum, over agents and loops, of the map's wire size times the number of receivers.
+    Both are divided by the same agent-seconds (each agent's whole run, flight and linger).
+    """
+    n = len(summaries)
+    agent_seconds = sum(float(s.get("duration_s", 0.0)) for s in summaries.values())
+    received = sum(int(s.get("bytes_received", 0)) for s in summaries.values())
+    baseline = sum(int(s.get("whole_map_baseline", {}).get("bytes", 0)) for s in summaries.values()) * max(n - 1, 0)
+    loop_s = next((s["whole_map_baseline"]["loop_s"] for s in summaries.values() if "whole_map_baseline" in s), None)
+    per_s = received / agent_seconds if agent_seconds > 0 else 0.0
+    baseline_per_s = baseline / agent_seconds if agent_seconds > 0 else 0.0
+    return {
+        "bytes_per_agent_s": round(per_s, 1),
+        "whole_map_baseline_bytes_per_agent_s": round(baseline_per_s, 1),
+        "baseline_ratio": round(baseline_per_s / per_s, 2) if per_s > 0 else None,
+        "baseline_loop_s": loop_s,
+        "agent_seconds": round(agent_seconds, 2),
     }
 
 

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Iterator, Sequence
 
 import numpy as np
+import zstandard
 
 from swarm.patches.lattice import Lattice
 from swarm.patches.patch import TSDF_SCALE, Patch, PatchId, TsdfArrays, VoxelBlocks
@@ -208,6 +209,16 @@ class FusedMap:
         for array in (keys, weight, total):
             h.update(np.ascontiguousarray(array).astype(array.dtype.newbyteorder("<"), copy=False).tobytes())
         return h.hexdigest()
+
+    def wire_size(self, level: int = 3) -> int:
+        """Bytes of this whole map compressed the way a patch is (keys int16, tsdf int8, weight uint16, zstd):
+        what sending the whole fused map once would cost, the baseline patch sharing is measured against."""
+        keys, weight, total = self._observed_blocks()
+        tsdf = np.where(weight > 0, np.rint(total / np.maximum(weight, 1)), 0).astype(np.int8)
+        raw = b"".join(
+            (keys.astype("<i2").tobytes(), tsdf.tobytes(), np.minimum(weight, 65535).astype("<u2").tobytes())
+        )
+        return len(zstandard.ZstdCompressor(level=level).compress(raw))
 
     def occupancy_grid(
         self, resolution: float, lo: Sequence[float] | None = None, hi: Sequence[float] | None = None

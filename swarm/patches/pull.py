@@ -16,7 +16,8 @@ State machine of one patch id (only ids some alive peer lists and the agent lack
        └── back-off over ──── failed(holder, back-off until t)
                                (expire past the deadline, on_reply without it, or remove_peer(holder))
 
-- A *missing* id is requested from its holder: the alive peer (not this agent) whose digest lists it, nearest
+- A *missing* id is requested only once it has been tracked for ``grace_s`` (a push may be bringing it), from
+  its holder: the alive peer (not this agent) whose digest lists it, nearest
   by Euclidean distance between the last heartbeat position and ``own_position``, ties to the lower peer id,
   skipping holders the id is backing off from. With no such holder the id waits (it is never requested from
   a peer that does not list it).
@@ -55,6 +56,7 @@ class PullSettings:
     backoff_initial_s: float = 0.5  # first back-off of an (id, holder) pair after a failure
     backoff_max_s: float = 8.0  # back-off cap (doubling)
     max_missing_tracked: int = 4096  # missing ids tracked at most (the oldest in PatchId order)
+    grace_s: float = 0.0  # an id first seen missing this recently is not requested yet (its push may be under way)
 
     def __post_init__(self) -> None:
         for name in ("max_in_flight", "batch_size", "max_missing_tracked"):
@@ -65,6 +67,8 @@ class PullSettings:
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
                 raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+        if not isinstance(self.grace_s, (int, float)) or not math.isfinite(self.grace_s) or self.grace_s < 0:
+            raise ValueError(f"grace_s must be a non-negative finite number, got {self.grace_s!r}")
         if self.backoff_max_s < self.backoff_initial_s:
             raise ValueError("backoff_max_s must be at least backoff_initial_s")
 
@@ -128,6 +132,7 @@ class PullScheduler:
         self._peers: dict[int, _Peer] = {}
         self._held = PatchDigest()
         self._holders: dict[PatchId, set[int]] = {}  # tracked missing id -> alive peers listing it
+        self._first_seen: dict[PatchId, float] = {}  # tracked missing id -> when it was first tracked
         self._dirty = False  # _holders must be recomputed
         self._in_flight: dict[int, _InFlight] = {}  # token -> request
         self._token_of: dict[PatchId, int] = {}  # in-flight id -> token
@@ -202,8 +207,9 @@ class PullScheduler:
         distance = {pid: _distance(here, peer.position) for pid, peer in self._peers.items()}
         open_batch: dict[int, list[PatchId]] = {}
         batches: list[tuple[int, list[PatchId]]] = []
+        young = now - self.settings.grace_s
         for pid in sorted(self._holders):
-            if pid in self._token_of:
+            if pid in self._token_of or self._first_seen.get(pid, now) > young:
                 continue
             holder = self._choose(pid, self._holders[pid], distance, now)
             if holder is None:
@@ -281,6 +287,8 @@ class PullScheduler:
         if len(holders) > limit:
             holders = {pid: holders[pid] for pid in sorted(holders)[:limit]}
         self._holders = holders
+        now = self._clock()
+        self._first_seen = {pid: self._first_seen.get(pid, now) for pid in holders}
         self._dirty = False
         self._backoff = {k: v for k, v in self._backoff.items() if k[0] in holders and k[1] in self._peers}
 
@@ -317,6 +325,7 @@ class PullScheduler:
     def _forget(self, pid: PatchId) -> None:
         """`pid` is held: out of the missing set, out of its request (closed once empty), back-offs dropped."""
         self._holders.pop(pid, None)
+        self._first_seen.pop(pid, None)
         token = self._token_of.pop(pid, None)
         if token is not None:
             request = self._in_flight[token]

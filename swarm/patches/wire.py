@@ -249,3 +249,11 @@ def _check_arrays(
         raise PatchDecodeError("invalid", f"{count} observed voxels, header says {msg.voxel_count}")
     if np.any(tsdf[~observed]):
         raise PatchDecodeError("invalid", "unobserved voxels must have tsdf 0")
+
+
+def decode_expected(data: bytes, pid: PatchId, lattice: Lattice, max_bytes: int) -> Patch:
+    """`decode_patch`, and the bytes must hold patch `pid` (a chunk or request named it): else "id_mismatch"."""
+    patch = decode_patch(data, lattice, max_bytes)
+    if patch.id != pid:
+        raise PatchDecodeError("id_mismatch", f"bytes hold patch {patch.id}, expected {pid}")
+    return patch

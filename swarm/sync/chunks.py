@@ -1,0 +1,176 @@
+"""Patches in chunks: splitting a patch's wire bytes into small messages, and putting them back together.
+
+Measured here (research notes on Zenoh under loss): a 200 kB reliable message stalls a TCP link at 30 % loss and
+never arrives over UDP, so a patch (50-80 kB at 0.1 m) never travels as one message. Every push and every pull
+reply is a stream of `PatchChunk`s of at most `chunk_bytes` payload each. A chunk names its patch, its index and
+the patch's total size and CRC-32, so the `Reassembler` can mix chunks of the same patch from different senders
+(a push that lost chunks, then a pull reply from another holder: every holder serves the exact bytes it
+received) and tell when they cannot belong together.
+
+The reassembler is bounded: at most `max_bytes` of incomplete patches (the oldest is dropped to make room), and
+an assembly that gets no chunk for `timeout_s` is dropped. Either way the digests show the patch missing and it
+is pulled again. A chunk that contradicts its assembly (another size, CRC or count) restarts it.
+"""
+
+from __future__ import annotations
+
+import time
+import zlib
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from pydantic import Field, model_validator
+
+from swarm.bus.codec import WireMessage
+from swarm.bus.messages import AgentId, Counter
+from swarm.patches.patch import PatchId
+
+MAX_CHUNKS = 4096  # a patch of more chunks than this is not a patch (4096 x 8 kB = 32 MB)
+
+
+class PatchChunk(WireMessage):
+    """Chunk `index` of `count` of patch (producer, epoch, seq), sent by agent `sender` (any holder)."""
+
+    KIND = "patch_chunk"
+
+    sender: AgentId
+    producer: AgentId
+    epoch: Counter
+    seq: Counter
+    index: int = Field(ge=0, lt=MAX_CHUNKS)
+    count: int = Field(ge=1, le=MAX_CHUNKS)
+    total_bytes: int = Field(ge=1, le=1 << 30)
+    crc32: int = Field(ge=0, le=0xFFFFFFFF, description="CRC-32 of the whole patch's wire bytes")
+    data: bytes
+
+    @model_validator(mode="after")
+    def _consistent(self) -> PatchChunk:
+        if self.index >= self.count:
+            raise ValueError(f"chunk index {self.index} is not below count {self.count}")
+        if len(self.data) == 0 or len(self.data) > self.total_bytes:
+            raise ValueError(f"chunk of {len(self.data)} bytes in a patch of {self.total_bytes}")
+        return self
+
+    @property
+    def patch_id(self) -> PatchId:
+        return PatchId(self.producer, self.epoch, self.seq)
+
+
+def split_patch(sender: int, pid: PatchId, data: bytes, chunk_bytes: int) -> list[PatchChunk]:
+    """The chunks of a patch's wire bytes, in order."""
+    if not data:
+        raise ValueError("a patch has at least one byte")
+    count = -(-len(data) // chunk_bytes)
+    if count > MAX_CHUNKS:
+        raise ValueError(f"{len(data)} bytes need {count} chunks of {chunk_bytes}, more than {MAX_CHUNKS}")
+    crc = zlib.crc32(data)
+    return [
+        PatchChunk(
+            sender=sender, producer=pid.producer, epoch=pid.epoch, seq=pid.seq, index=i, count=count,
+            total_bytes=len(data), crc32=crc, data=data[i * chunk_bytes : (i + 1) * chunk_bytes],
+        )
+        for i in range(count)
+    ]
+
+
+@dataclass
+class _Assembly:
+    count: int
+    total_bytes: int
+    crc32: int
+    parts: dict[int, bytes] = field(default_factory=dict)
+    received_bytes: int = 0
+    touched: float = 0.0
+
+    def matches(self, chunk: PatchChunk) -> bool:
+        return (chunk.count, chunk.total_bytes, chunk.crc32) == (self.count, self.total_bytes, self.crc32)
+
+
+class Reassembler:
+    """Collects chunks into whole patches; `add` returns the patch's bytes once the last chunk arrives.
+
+    Counts what it throws away in `dropped` (reason -> chunks or assemblies): "mismatch" (a chunk contradicting
+    its assembly, which restarts it), "overflow" (an assembly evicted for room), "expired", "corrupt" (all
+    chunks arrived but the CRC-32 or size is wrong), "oversize" (a patch larger than `max_patch_bytes`).
+    """
+
+    def __init__(
+        self,
+        max_bytes: int,
+        timeout_s: float,
+        max_patch_bytes: int,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.max_bytes = max_bytes
+        self.timeout_s = timeout_s
+        self.max_patch_bytes = max_patch_bytes
+        self._clock = clock
+        self._assemblies: dict[PatchId, _Assembly] = {}
+        self._bytes = 0
+        self.dropped: dict[str, int] = {}
+
+    def add(self, chunk: PatchChunk) -> bytes | None:
+        """Take one chunk; the whole patch's bytes when this chunk completes it, else None."""
+        pid = chunk.patch_id
+        if chunk.total_bytes > self.max_patch_bytes:
+            self._count("oversize")
+            return None
+        assembly = self._assemblies.get(pid)
+        if assembly is not None and not assembly.matches(chunk):
+            self._count("mismatch")
+            self._discard(pid)
+            assembly = None
+        if assembly is None:
+            assembly = self._assemblies[pid] = _Assembly(chunk.count, chunk.total_bytes, chunk.crc32)
+        assembly.touched = self._clock()
+        if chunk.index in assembly.parts:
+            return None  # a duplicate (push and pull overlapped)
+        assembly.parts[chunk.index] = chunk.data
+        assembly.received_bytes += len(chunk.data)
+        self._bytes += len(chunk.data)
+        if len(assembly.parts) == assembly.count:
+            self._discard(pid)
+            data = b"".join(assembly.parts[i] for i in range(assembly.count))
+            if len(data) != assembly.total_bytes or zlib.crc32(data) != assembly.crc32:
+                self._count("corrupt")
+                return None
+            return data
+        self._make_room()
+        return None
+
+    def forget(self, pid: PatchId) -> None:
+        """Drop a partial patch that is no longer wanted (e.g. it arrived whole by another way)."""
+        self._discard(pid)
+
+    def expire(self) -> None:
+        """Drop assemblies that got no chunk for `timeout_s`."""
+        cutoff = self._clock() - self.timeout_s
+        for pid in [p for p, a in self._assemblies.items() if a.touched < cutoff]:
+            self._count("expired")
+            self._discard(pid)
+
+    def partial(self, pid: PatchId) -> tuple[int, int] | None:
+        """(chunks received, chunks expected) of an incomplete patch, or None."""
+        assembly = self._assemblies.get(pid)
+        return None if assembly is None else (len(assembly.parts), assembly.count)
+
+    @property
+    def pending_bytes(self) -> int:
+        return self._bytes
+
+    def __len__(self) -> int:
+        return len(self._assemblies)
+
+    def _make_room(self) -> None:
+        while self._bytes > self.max_bytes and len(self._assemblies) > 1:
+            oldest = min(self._assemblies, key=lambda p: self._assemblies[p].touched)
+            self._count("overflow")
+            self._discard(oldest)
+
+    def _discard(self, pid: PatchId) -> None:
+        assembly = self._assemblies.pop(pid, None)
+        if assembly is not None:
+            self._bytes -= assembly.received_bytes
+
+    def _count(self, reason: str) -> None:
+        self.dropped[reason] = self.dropped.get(reason, 0) + 1

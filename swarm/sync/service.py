@@ -1,0 +1,312 @@
+"""`PatchSync`: one agent's side of map sharing, on the bus (design: docs/architecture.md, "Patch sync").
+
+- **Push:** an own sealed patch goes out once, as chunks on ``agent/<own>/patch`` (reliable, drop when
+  congested).
+- **Announce:** `holdings` is the digest of every patch held, own and received; the agent puts it in each
+  heartbeat and sends an extra heartbeat when it changes (`on_holdings_changed`).
+- **Pull:** heartbeats from peers (`on_state`) feed a `PullScheduler`; every `period_s` the missing patches are
+  requested from the nearest alive holder with a query on ``agent/<holder>/store``; the reply is the patches'
+  chunks.
+- **Serve:** the queryable answers for every held patch, own or received, with the exact bytes it holds, so any
+  holder relays and a healed partition converges by store and forward.
+
+Received chunks are reassembled (`Reassembler`), the whole patch is handed to the `sink` (decode, validate,
+fuse; in the mapper's thread), and only a patch the sink accepted is held, announced and served. A patch held
+already is ignored, so receiving it twice changes nothing. Anything malformed is counted (`stats()`) and
+dropped. Everything here runs on the event loop thread except the sink's work.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import random
+import time
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass
+from typing import Any
+
+from swarm.bus.bridge import AsyncBus
+from swarm.bus.codec import DecodeError, decode, encode
+from swarm.bus.holdings import EMPTY_DIGEST, DigestWire
+from swarm.bus.messages import AgentState
+from swarm.config import SyncSettings
+from swarm.patches.digest import PatchDigest
+from swarm.patches.patch import PatchId
+from swarm.patches.pull import PullRequest, PullScheduler, PullSettings
+from swarm.patches.wire import PatchDecodeError
+from swarm.sync.chunks import PatchChunk, Reassembler, split_patch
+from swarm.sync.requests import parse_request, request_parameters
+
+log = logging.getLogger(__name__)
+
+CHUNK_KIND = PatchChunk.KIND
+STORE_KIND = "store"
+_CHUNK_OVERHEAD = 512  # envelope and header fields around a chunk's data, generously
+
+# Decode and validate a patch's wire bytes, check that they hold patch `pid`, and fuse it; raise
+# PatchDecodeError (reason "id_mismatch" for another id) without changing anything if it is unusable.
+PatchSink = Callable[[bytes, PatchId], Awaitable[None]]
+Position = Callable[[], tuple[float, float, float]]
+
+
+@dataclass
+class SyncCounters:
+    pushed: int = 0  # own patches pushed
+    push_chunks_dropped: int = 0  # on purpose (push_drop_fraction)
+    received_by_push: int = 0
+    received_by_pull: int = 0
+    duplicates: int = 0  # whole patches that arrived when already held
+    served: int = 0  # patches sent in replies
+    requests_served: int = 0
+    requests_refused: int = 0  # malformed requests
+
+
+class PatchSync:
+    def __init__(
+        self,
+        bus: AsyncBus,
+        settings: SyncSettings,
+        own_id: int,
+        sink: PatchSink,
+        position: Position,
+        max_patch_bytes: int,
+        on_holdings_changed: Callable[[], None] | None = None,
+    ) -> None:
+        self.bus = bus
+        self.keys = bus.keys
+        self.settings = settings
+        self.own_id = own_id
+        self._sink = sink
+        self._position = position
+        self._on_holdings_changed = on_holdings_changed
+        self.scheduler = PullScheduler(
+            own_id,
+            PullSettings(
+                max_in_flight=settings.max_in_flight,
+                batch_size=settings.batch_size,
+                timeout_s=settings.request_timeout_s,
+                backoff_initial_s=settings.backoff_initial_s,
+                backoff_max_s=settings.backoff_max_s,
+                grace_s=settings.grace_s,
+            ),
+        )
+        self.reassembler = Reassembler(settings.max_assembly_bytes, settings.assembly_timeout_s, max_patch_bytes)
+        self.counters = SyncCounters()
+        self.rejected: dict[str, int] = {}  # whole patches the sink refused, by reason
+        self.received_from: dict[int, int] = {}  # sender -> patches completed by its chunks
+        self.served_to: dict[int, int] = {}  # requester -> patches served
+        self.held_at: dict[PatchId, float] = {}  # wall-clock time each patch was first held
+        self._held: dict[PatchId, bytes] = {}
+        self._digest = PatchDigest()
+        self._holdings: DigestWire = EMPTY_DIGEST
+        self._peer_digests: dict[int, PatchDigest] = {}
+        self._accepting: set[PatchId] = set()
+        self._tasks: set[asyncio.Task[Any]] = set()
+        self._loop_task: asyncio.Task[None] | None = None
+        self._random = random.Random(own_id)
+
+    # --- lifecycle --------------------------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Subscribe to pushes, serve the store, and start the pull loop (call on the event loop)."""
+        self.bus.subscribe(
+            self.keys.all_patches, PatchChunk, self._on_push, max_bytes=self.settings.chunk_bytes + _CHUNK_OVERHEAD
+        )
+        self.bus.declare_queryable(self.keys.store(self.own_id), STORE_KIND, self._serve)
+        self._loop_task = asyncio.create_task(self._run())
+
+    async def stop(self) -> None:
+        tasks = [t for t in (self._loop_task, *self._tasks) if t is not None]
+        for task in tasks:
+            task.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+
+    # --- what we hold -----------------------------------------------------------------------------------
+
+    @property
+    def holdings(self) -> DigestWire:
+        """The digest to put in the heartbeat."""
+        return self._holdings
+
+    @property
+    def digest(self) -> PatchDigest:
+        return self._digest
+
+    def holds(self, pid: PatchId) -> bool:
+        return pid in self._held
+
+    def held_ids(self) -> list[PatchId]:
+        return sorted(self._held)
+
+    def add_own(self, pid: PatchId, data: bytes) -> None:
+        """An own patch was sealed: hold it, announce it, push it."""
+        if pid.producer != self.own_id:
+            raise ValueError(f"patch {pid} is not produced by agent {self.own_id}")
+        if not self._hold(pid, data):
+            return
+        self.counters.pushed += 1
+        key = self.keys.patch(self.own_id)
+        for chunk in split_patch(self.own_id, pid, data, self.settings.chunk_bytes):
+            if self.settings.push_drop_fraction and self._random.random() < self.settings.push_drop_fraction:
+                self.counters.push_chunks_dropped += 1
+                continue
+            self.bus.publish(key, chunk, reliable=True)
+
+    def _hold(self, pid: PatchId, data: bytes) -> bool:
+        if pid in self._held:
+            return False
+        self._held[pid] = data
+        self.held_at[pid] = time.time()
+        self._digest = self._digest.union((pid,))
+        try:
+            self._holdings = self._digest.to_wire_model()
+        except ValueError as exc:  # beyond the wire bounds: keep announcing the last digest that fits
+            log.warning("holdings no longer fit a heartbeat: %s", exc)
+        self.scheduler.note_received(pid)
+        self.reassembler.forget(pid)
+        if self._on_holdings_changed is not None:
+            self._on_holdings_changed()
+        return True
+
+    # --- peers ------------------------------------------------------------------------------------------
+
+    def on_state(self, state: AgentState) -> None:
+        """A peer's heartbeat: where it is and what it holds."""
+        if state.id == self.own_id:
+            return
+        digest = PatchDigest.from_wire_model(state.holdings)
+        self._peer_digests[state.id] = digest
+        self.scheduler.update_peer(state.id, state.position, digest)
+
+    def peer_left(self, peer_id: int) -> None:
+        self._peer_digests.pop(peer_id, None)
+        self.scheduler.remove_peer(peer_id)
+
+    def in_step_with_peers(self) -> bool:
+        """Every peer heard from holds exactly what this agent holds."""
+        return all(digest == self._digest for digest in self._peer_digests.values())
+
+    def peer_digests(self) -> dict[int, PatchDigest]:
+        return dict(self._peer_digests)
+
+    # --- receiving --------------------------------------------------------------------------------------
+
+    def _on_push(self, key: str, chunk: PatchChunk) -> None:
+        if self.keys.agent_id_of(key) != chunk.sender:
+            self.bus.counters.dropped(CHUNK_KIND, "sender_mismatch")
+            return
+        self._take(chunk, via_pull=False)
+
+    def _take(self, chunk: PatchChunk, via_pull: bool) -> asyncio.Task[None] | None:
+        pid = chunk.patch_id
+        if pid in self._held or pid in self._accepting:
+            return None
+        data = self.reassembler.add(chunk)
+        if data is None:
+            return None
+        self._accepting.add(pid)
+        task = asyncio.create_task(self._accept(pid, data, chunk.sender, via_pull))
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+        return task
+
+    async def _accept(self, pid: PatchId, data: bytes, sender: int, via_pull: bool) -> None:
+        try:
+            try:
+                await self._sink(data, pid)
+            except PatchDecodeError as exc:
+                self._reject(exc.reason)
+                return
+            if not self._hold(pid, data):
+                self.counters.duplicates += 1
+                return
+            self.received_from[sender] = self.received_from.get(sender, 0) + 1
+            if via_pull:
+                self.counters.received_by_pull += 1
+            else:
+                self.counters.received_by_push += 1
+        finally:
+            self._accepting.discard(pid)
+
+    def _reject(self, reason: str) -> None:
+        self.rejected[reason] = self.rejected.get(reason, 0) + 1
+        self.bus.counters.dropped(CHUNK_KIND, f"patch_{reason}")
+
+    # --- serving ----------------------------------------------------------------------------------------
+
+    def _serve(self, key: str, parameters: dict[str, str]) -> list[bytes] | None:
+        try:
+            ids, requester = parse_request(parameters)
+        except ValueError:
+            self.counters.requests_refused += 1
+            self.bus.counters.dropped(STORE_KIND, "bad_request")
+            return None
+        replies: list[bytes] = []
+        served = 0
+        for pid in ids:
+            data = self._held.get(pid)
+            if data is None:
+                continue
+            served += 1
+            replies.extend(encode(c) for c in split_patch(self.own_id, pid, data, self.settings.chunk_bytes))
+        if not served:
+            return None
+        self.counters.requests_served += 1
+        self.counters.served += served
+        if requester is not None:
+            self.served_to[requester] = self.served_to.get(requester, 0) + served
+        return replies
+
+    # --- pulling ----------------------------------------------------------------------------------------
+
+    async def _run(self) -> None:
+        while True:
+            self.reassembler.expire()
+            self.scheduler.expire()
+            for request in self.scheduler.next_requests(self._position()):
+                task = asyncio.create_task(self._pull(request))
+                self._tasks.add(task)
+                task.add_done_callback(self._tasks.discard)
+            await asyncio.sleep(self.settings.period_s)
+
+    async def _pull(self, request: PullRequest) -> None:
+        selector = f"{self.keys.store(request.holder)}?{request_parameters(request.ids, self.own_id)}"
+        timeout = max(0.1, request.deadline - time.monotonic())
+        replies = await self.bus.get(selector, STORE_KIND, timeout)
+        accepting = []
+        for _, payload in replies:
+            try:
+                chunk = decode(payload, PatchChunk, self.settings.chunk_bytes + _CHUNK_OVERHEAD)
+            except DecodeError as exc:
+                self.bus.counters.dropped(STORE_KIND, exc.reason)
+                continue
+            task = self._take(chunk, via_pull=True)
+            if task is not None:
+                accepting.append(task)
+        await asyncio.gather(*accepting, return_exceptions=True)
+        self.scheduler.on_reply(request.token, [pid for pid in request.ids if pid in self._held])
+
+    # --- reporting --------------------------------------------------------------------------------------
+
+    def stats(self) -> dict[str, Any]:
+        pull = self.scheduler.stats
+        c = self.counters
+        return {
+            "patches_held": len(self._held),
+            "patches_requested": pull.requested,
+            "patches_served": c.served,
+            "patches_pushed": c.pushed,
+            "received_by_push": c.received_by_push,
+            "received_by_pull": c.received_by_pull,
+            "duplicates": c.duplicates,
+            "requests_served": c.requests_served,
+            "requests_refused": c.requests_refused,
+            "request_timeouts": pull.timeouts,
+            "push_chunks_dropped_on_purpose": c.push_chunks_dropped,
+            "rejected": dict(self.rejected),
+            "assembly_dropped": dict(self.reassembler.dropped),
+            "received_from": {str(k): v for k, v in sorted(self.received_from.items())},
+            "served_to": {str(k): v for k, v in sorted(self.served_to.items())},
+            "holdings": self._digest.to_wire() if self._held else {"entries": []},
+        }
