@@ -44,6 +44,16 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _non_negative_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not an integer") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{value} must be 0 or more")
+    return value
+
+
 def _int_list(text: str) -> list[int]:
     return [_positive_int(p) for p in text.split(",")]
 
@@ -84,6 +94,15 @@ def build_parser() -> argparse.ArgumentParser:
     observe.add_argument("--patches", type=Path, help="directory of sealed patches to fuse into the swarm's map")
     observe.add_argument("--map", type=Path, help="where to write the swarm's fused mesh (.ply) at the end")
     _add_config_flags(observe)
+
+    node = sub.add_parser("mapnode", help="a map-sharing node without a vehicle (sync experiments and tests)")
+    node.add_argument("--id", type=_positive_int, help="node id (as a drone id)")
+    node.add_argument("--status", type=Path, required=True, help="status JSON to (re)write")
+    node.add_argument("--patches", type=_non_negative_int, default=3, help="patches to seal (default 3)")
+    node.add_argument("--period", type=float, default=0.5, help="seconds between seals (default 0.5)")
+    node.add_argument("--delay", type=float, default=0.0, help="seconds before the first seal")
+    node.add_argument("--position", type=_vec3, help="position to announce, x,y,z (default: the camera's)")
+    _add_config_flags(node)
 
     bench = sub.add_parser("bench", help="benchmarks that print their figures")
     bench_sub = bench.add_subparsers(dest="bench", required=True, parser_class=_Parser)
@@ -148,6 +167,14 @@ def _dispatch(args: argparse.Namespace) -> int:
         from swarm.mission.observer import observe_command
 
         return observe_command(_config_from(args, {}), args.status, args.patches, args.map)
+    if args.command == "mapnode":
+        if args.period <= 0 or args.delay < 0:
+            raise ConfigError("--period must be positive and --delay not negative")
+        from swarm.sync.node import NodePlan, mapnode_command
+
+        config = _config_from(args, {"agent.id": args.id})
+        plan = NodePlan(args.patches, args.period, args.delay, args.position)
+        return mapnode_command(config, plan, args.status)
     if args.command == "bench" and args.bench == "flight":
         from swarm.mission.bench import bench_flight
 
