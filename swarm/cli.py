@@ -116,6 +116,12 @@ def build_parser() -> argparse.ArgumentParser:
     mapping.add_argument("--world", default="office")
     mapping.add_argument("--out", type=Path, help="where to keep the figures (default a temp dir)")
     _add_config_flags(mapping)
+    sync = bench_sub.add_parser("sync", help="patch sharing: seal-to-everyone latency, heal convergence, bandwidth")
+    sync.add_argument("--drones", type=_int_list, default=[3, 5], help="swarm sizes, e.g. 3,5")
+    sync.add_argument("--world", default="office")
+    sync.add_argument("--no-mission", action="store_true", help="skip the bandwidth missions (swarm run)")
+    sync.add_argument("--out", type=Path, help="where to keep the runs (default a temp dir)")
+    _add_config_flags(sync)
     return parser
 
 
@@ -186,6 +192,11 @@ def _dispatch(args: argparse.Namespace) -> int:
         config = _config_from(args, {"mission.world": args.world})
         single = bench_mapping(config, args.out)
         return bench_mapping_swarm(config, args.drones, args.out) or single
+    if args.command == "bench" and args.bench == "sync":
+        from swarm.sync.bench import bench_sync
+
+        config = _config_from(args, {"mission.world": args.world})
+        return bench_sync(config, args.drones, args.out, mission=not args.no_mission)
     raise SwarmError(f"unknown command {args.command}")
 
 

@@ -139,7 +139,9 @@ class SimSettings(_Section):
 class BusSettings(_Section):
     """The Zenoh session of a swarm process."""
 
-    mode: Literal["peer", "router"] = "peer"
+    mode: Literal["peer", "router"] = Field(
+        "router", description="router: sessions forward between drones that cannot reach each other (multi-hop)"
+    )
     listen: list[str] = Field(default_factory=list, description="Zenoh listen endpoints, e.g. tcp/127.0.0.1:7451")
     connect: list[str] = Field(default_factory=list, description="Zenoh endpoints to connect to")
     multicast_scouting: bool = False

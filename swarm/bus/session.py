@@ -11,7 +11,12 @@ Choices (measured in research/zenoh-netns-link-loss.md, sections 1 and 3c):
   bypass an emulated radio link.
 - with both TCP and UDP endpoints, two links per peer are allowed (`transport/unicast/max_links=2`):
   best-effort publications then use UDP (no head-of-line blocking) and reliable ones TCP.
-- an empty listen list keeps Zenoh's default (peer: every interface, ephemeral port).
+- an empty listen list means every interface on an ephemeral port (Zenoh's peer default; a router would
+  otherwise take the fixed port 7447, and two on one machine would collide).
+- router mode is the default: a router forwards between sessions that cannot reach each other, so heartbeats,
+  pushes and pull requests cross a multi-hop swarm (measured: a chain 1-2-3 gets node 1's patches to node 3 as
+  they are pushed, where peers rely on node 2's store, 0.6 s later; tests/sync). Patch sync also works between
+  peers, by store and forward.
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ import zenoh
 from swarm.config import BusSettings
 from swarm.errors import BusError
 
+ROUTER_DEFAULT_LISTEN = ["tcp/[::]:0"]  # as a peer's default: Zenoh's router default is the fixed port 7447
 CONNECT_RETRY = {"period_init_ms": 200, "period_max_ms": 1000, "period_increase_factor": 2}
 _AUTOCONNECT_ALL = {"router": ["router", "peer"], "peer": ["router", "peer"]}
 
@@ -60,6 +66,8 @@ def _settings(bus: BusSettings) -> dict[str, Any]:
     }
     if bus.listen:
         settings["listen/endpoints"] = bus.listen
+    elif bus.mode == "router":
+        settings["listen/endpoints"] = ROUTER_DEFAULT_LISTEN
     if {"tcp", "udp"} <= _protocols(bus.listen + bus.connect):
         settings["transport/unicast/max_links"] = 2
     if bus.mode == "router":

@@ -67,6 +67,7 @@ class MapNode:
         self._fused_digest = ""
         self._digest_of = -1
         self._seq = 0
+        self.first_peer_t: float | None = None
 
     def _camera_pose(self, frame: int) -> tuple[tuple[float, float, float], float]:
         angle = 2 * math.pi * frame / max(1, self.plan.patches * self.config.mapping.patch_frames) + self.id
@@ -187,6 +188,8 @@ class MapNode:
             self.peers.token_vanished(peer)
 
     def _on_membership(self, event: str, peer_id: int, cause: str) -> None:
+        if event == "joined" and self.first_peer_t is None:
+            self.first_peer_t = time.time()
         if event == "left":
             self.sync.peer_left(peer_id)
 
@@ -210,6 +213,7 @@ class MapNode:
             "fused_digest": self._fused_digest,
             "fused_patches": held,
             "peers": sorted(self.peers.peers),
+            "first_peer_t": self.first_peer_t,
             "sync": self.sync.stats(),
             "traffic": self.bus.counters.snapshot(),
         }

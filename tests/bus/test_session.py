@@ -14,8 +14,14 @@ def get(config, key: str):
     return json.loads(config.get_json(key))
 
 
+def test_router_is_the_default_and_listens_on_an_ephemeral_port() -> None:
+    config = zenoh_config(BusSettings())
+    assert get(config, "mode") == "router"
+    assert get(config, "listen/endpoints") == ["tcp/[::]:0"]
+
+
 def test_peer_defaults() -> None:
-    config = zenoh_config(BusSettings(listen=["tcp/127.0.0.1:7451"], connect=["tcp/127.0.0.1:7452"]))
+    config = zenoh_config(BusSettings(mode="peer", listen=["tcp/127.0.0.1:7451"], connect=["tcp/127.0.0.1:7452"]))
     assert get(config, "mode") == "peer"
     assert get(config, "listen/endpoints") == ["tcp/127.0.0.1:7451"]
     assert get(config, "connect/endpoints") == ["tcp/127.0.0.1:7452"]

@@ -46,6 +46,15 @@ def test_two_agents_fly_see_each_other_and_land(tmp_path: Path, swarm_ports: Swa
     assert len(list((out / "agents" / "patches").glob("*.patch"))) == sealed
     observer = json.loads((out / "observer.json").read_text())
     assert observer["patches_fused"] == sealed and observer["patches_rejected"] == {}
+    # map sharing: each drone ended holding every patch, its own and the other's (pushed, or pulled if lost)
+    assert report["converged"] is True
+    for agent in report["agents"]:
+        assert agent["patches_held"] == sealed, agent
+        other_sealed = sealed - agent["patches_sealed"]
+        assert agent["patches_received"]["push"] + agent["patches_received"]["pull"] == other_sealed, agent
+        assert agent["patches_rejected"] == {}
+    bandwidth = report["bandwidth"]
+    assert 0 < bandwidth["bytes_per_agent_s"] < bandwidth["whole_map_baseline_bytes_per_agent_s"]
     assert not processes_mentioning(str(out)), "swarm run left processes behind"
 
 

@@ -210,3 +210,15 @@ def test_settings_are_validated() -> None:
     for bad in ({"max_in_flight": 0}, {"batch_size": True}, {"timeout_s": float("nan")}, {"backoff_max_s": 0.1}):
         with pytest.raises(ValueError):
             PullSettings(**bad)  # type: ignore[arg-type]
+
+
+def test_grace_delays_the_first_request_of_a_newly_advertised_id() -> None:
+    now = [0.0]
+    scheduler = PullScheduler(1, PullSettings(grace_s=1.0), clock=lambda: now[0])
+    scheduler.update_peer(2, (0.0, 0.0, 0.0), PatchDigest.of([PatchId(2, 0, 0)]))
+    assert scheduler.next_requests((0.0, 0.0, 0.0)) == []
+    now[0] = 0.5
+    assert scheduler.next_requests((0.0, 0.0, 0.0)) == []
+    now[0] = 1.0
+    [request] = scheduler.next_requests((0.0, 0.0, 0.0))
+    assert request.ids == (PatchId(2, 0, 0),) and request.holder == 2

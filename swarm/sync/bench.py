@@ -1,0 +1,163 @@
+"""`swarm bench sync`: how fast and how cheaply patches reach everyone, on loopback, for several swarm sizes.
+
+Three measurements per swarm size N, all with real processes and the mission's configuration (0.1 m voxels,
+15-frame patches, 8 kB chunks unless overridden):
+
+1. **Seal to everyone:** N `swarm mapnode`s each seal `patches` patches, one every `period_s`; for each patch,
+   the time from its seal at the producer until the last other node holds it (wall clocks of one host).
+2. **Convergence after a heal:** N-1 nodes seal 100 patches between them and share them; then node N joins
+   (from the sync protocol's side a heal: a peer whose digest lacks 100 patches) and the time from its first
+   contact with a peer until it holds all 100 is measured.
+3. **Bandwidth in a mission:** `swarm run` with N drones in the world; the report's received bus bytes per
+   agent-second against the whole-map baseline (every agent sending its whole fused map to every other once per
+   exploration loop) at the configured loop period, and what the baseline would be at other periods.
+
+Targets (issue 4): p95 seal-to-everyone < 1 s with 5 agents, convergence of 100 patches < 10 s, at least 10x
+less traffic than the whole-map baseline.
+"""
+
+from __future__ import annotations
+
+import json
+import statistics
+from pathlib import Path
+from typing import Any
+
+from rich.table import Table
+
+from swarm.config import SwarmConfig, dump_config
+from swarm.mission.bench import _console_and_root
+from swarm.mission.run import run_mission
+from swarm.sync.launch import NodeSpec, NodeSwarm, holds_all
+
+HEAL_PATCHES = 100
+BASELINE_PERIODS_S = (1.0, 2.0, 5.0, 20.0)
+
+
+def _sets(config: SwarmConfig) -> list[str]:
+    """The config as --set overrides for mapnodes (mission, mapping, camera, sync and bus mode)."""
+    tree = dump_config(config)
+    sets = []
+    for section in ("mapping", "camera", "sync"):
+        for key, value in tree[section].items():
+            sets.append(f"{section}.{key}={json.dumps(value)}")
+    sets += [f"mission.world={json.dumps(tree['mission']['world'])}", f"bus.mode={json.dumps(config.bus.mode)}"]
+    return sets
+
+
+def _percentile(values: list[float], q: float) -> float:
+    if not values:
+        return float("nan")
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, max(0, round(q * (len(ordered) - 1))))]
+
+
+def measure_latency(config: SwarmConfig, n: int, root: Path, patches: int = 8, period_s: float = 0.5) -> dict[str, Any]:
+    swarm = NodeSwarm(root / f"latency-{n}", f"bench-latency-{n}", config.bus.mode, _sets(config))
+    swarm.tmp.mkdir(parents=True, exist_ok=True)
+    try:
+        for k in range(1, n + 1):
+            swarm.start(NodeSpec(k, patches=patches, period_s=period_s, delay_s=4.0))
+        swarm.wait_for(lambda s: all(len(st.get("sealed", [])) == patches for st in s.values()), 180, "all sealed")
+        swarm.wait_for(holds_all(swarm.all_sealed()), 60, "every node holds every patch")
+        statuses = swarm.statuses()
+    finally:
+        swarm.close()
+    latencies = []
+    for k, status in statuses.items():
+        for sealed in status["sealed"]:
+            others = [s["held_at"][sealed["id"]] for j, s in statuses.items() if j != k]
+            latencies.append(max(others) - sealed["t"])
+    sizes = [s["bytes"] for st in statuses.values() for s in st["sealed"]]
+    return {
+        "patches": len(latencies),
+        "patch_kb_mean": round(statistics.mean(sizes) / 1000, 1),
+        "seal_to_everyone_p50_s": round(_percentile(latencies, 0.5), 3),
+        "seal_to_everyone_p95_s": round(_percentile(latencies, 0.95), 3),
+        "seal_to_everyone_max_s": round(max(latencies), 3),
+    }
+
+
+def measure_heal(config: SwarmConfig, n: int, root: Path) -> dict[str, Any]:
+    swarm = NodeSwarm(root / f"heal-{n}", f"bench-heal-{n}", config.bus.mode, _sets(config))
+    swarm.tmp.mkdir(parents=True, exist_ok=True)
+    producers = list(range(1, n))
+    share = [HEAL_PATCHES // len(producers) + (1 if i < HEAL_PATCHES % len(producers) else 0) for i in range(len(producers))]
+    try:
+        for k, count in zip(producers, share):
+            swarm.start(NodeSpec(k, patches=count, period_s=0.05, delay_s=3.0))
+        swarm.wait_for(lambda s: sum(len(st.get("sealed", [])) for st in s.values()) == HEAL_PATCHES, 300, "sealed")
+        expected = swarm.all_sealed()
+        swarm.wait_for(holds_all(expected, producers), 120, "the producers share their patches")
+        swarm.start(NodeSpec(n, patches=0))
+        swarm.wait_for(holds_all(expected, [n]), 120, "the joining node holds all 100 patches")
+        status = swarm.status(n)
+    finally:
+        swarm.close()
+    done = max(status["held_at"].values())
+    return {
+        "missing_patches": len(expected),
+        "converge_after_contact_s": round(done - status["first_peer_t"], 2),
+        "by_pull": status["sync"]["received_by_pull"],
+        "bytes_received": sum(v["recv_bytes"] for v in status["traffic"].values()),
+    }
+
+
+def measure_mission(config: SwarmConfig, n: int, root: Path) -> dict[str, Any]:
+    run_config = config.model_copy(deep=True)
+    run_config.mission.drones = n
+    run_config.mission.out = root / f"mission-{n}"
+    report = run_mission(run_config, live=False)
+    bandwidth = report["bandwidth"]
+    per_loop = bandwidth["whole_map_baseline_bytes_per_agent_s"] * (bandwidth["baseline_loop_s"] or 0.0)
+    return {
+        "status": report["status"],
+        "converged": report["converged"],
+        "duration_s": report["duration_s"],
+        **bandwidth,
+        "baseline_at": {f"{p:g}s": round(per_loop / p, 1) for p in BASELINE_PERIODS_S},
+    }
+
+
+def bench_sync(config: SwarmConfig, sizes: list[int], out: Path | None, mission: bool = True) -> int:
+    console, root = _console_and_root(out)
+    results = []
+    for n in sizes:
+        if n < 2:
+            console.print(f"bench sync: skipping {n} agent(s): sharing needs at least 2")
+            continue
+        console.print(f"bench sync: {n} agents: seal-to-everyone latency ...")
+        row: dict[str, Any] = {"agents": n, "latency": measure_latency(config, n, root)}
+        console.print(f"bench sync: {n} agents: convergence of {HEAL_PATCHES} missing patches ...")
+        row["heal"] = measure_heal(config, n, root)
+        if mission:
+            console.print(f"bench sync: {n} agents: bandwidth in a '{config.mission.world}' mission ...")
+            row["mission"] = measure_mission(config, n, root)
+        results.append(row)
+    _print(console, results)
+    path = root / "bench-sync.json"
+    path.write_text(json.dumps(results, indent=2))
+    console.print(f"figures: {path}")
+    ok = all(r.get("mission", {}).get("converged", True) for r in results)
+    return 0 if ok else 1
+
+
+def _print(console: Any, results: list[dict[str, Any]]) -> None:
+    table = Table(title="swarm bench sync (loopback; targets: p95 < 1 s at 5 agents, heal < 10 s, >= 10x less than baseline)")
+    for column in ("agents", "patch kB", "seal->all p50 s", "p95 s", "max s", "heal: 100 patches s",
+                   "mission B/agent-s", "whole-map baseline B/agent-s", "ratio", "converged"):
+        table.add_column(column, justify="right")
+    for r in results:
+        lat, heal, m = r["latency"], r["heal"], r.get("mission", {})
+        table.add_row(
+            str(r["agents"]), str(lat["patch_kb_mean"]), str(lat["seal_to_everyone_p50_s"]),
+            str(lat["seal_to_everyone_p95_s"]), str(lat["seal_to_everyone_max_s"]),
+            str(heal["converge_after_contact_s"]), str(m.get("bytes_per_agent_s", "-")),
+            f"{m.get('whole_map_baseline_bytes_per_agent_s', '-')} (loop {m.get('baseline_loop_s', '-')} s)",
+            str(m.get("baseline_ratio", "-")), str(m.get("converged", "-")),
+        )
+    console.print(table)
+    for r in results:
+        if "mission" in r:
+            console.print(f"{r['agents']} agents: whole-map baseline B/agent-s at other loop periods: "
+                          f"{r['mission']['baseline_at']}")
