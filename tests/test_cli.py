@@ -21,6 +21,11 @@ def swarm(*args: str, timeout: float = 60) -> subprocess.CompletedProcess[str]:
         ("run", "--config", "/nonexistent/swarm.toml"),
         ("agent", "--autopilot", "not-a-url"),
         ("frobnicate",),
+        ("mapnode", "--status", "/tmp/n.json", "--period", "0"),
+        ("mapnode", "--status", "/tmp/n.json", "--patches", "-1"),
+        ("mapnode", "--status", "/tmp/n.json", "--set", "sync.chunk_bytes=10"),
+        ("mapnode", "--status", "/tmp/n.json", "--set", "sync.backoff_max_s=0.1"),
+        ("bench", "sync", "--drones", "x"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(args: tuple[str, ...]) -> None:
@@ -35,5 +40,5 @@ def test_bad_input_is_one_line_and_exit_2(args: tuple[str, ...]) -> None:
 def test_help_lists_every_command() -> None:
     result = swarm("--help")
     assert result.returncode == 0
-    for command in ("run", "sim", "agent", "observe", "bench"):
+    for command in ("run", "sim", "agent", "observe", "mapnode", "bench"):
         assert command in result.stdout

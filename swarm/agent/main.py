@@ -37,7 +37,6 @@ from swarm.sim.worlds import load_world, mission_volume
 from swarm.sync.service import PatchSync
 
 EXIT_OK, EXIT_FLIGHT_FAILED, EXIT_FAILSAFE = 0, 1, 3
-FINAL_PHASES = frozenset({Phase.LANDED.value, Phase.FAILSAFE.value, Phase.FAILED.value})
 LINGER_POLL_S = 0.2
 MIN_HEARTBEAT_GAP_S = 0.05
 
@@ -59,6 +58,7 @@ class Agent:
         self._seq = 0
         self._last_leader = self.id
         self._announce = asyncio.Event()
+        self.finished = False
         self.keys_mismatch = 0
 
     async def run(self) -> int:
@@ -97,6 +97,8 @@ class Agent:
             released = await autopilot.close()
             if mapping is not None:
                 await mapping.seal_last()
+            self.finished = True  # the last own patch is held now: heartbeats say our holdings are final
+            self._announce.set()
             if not self.stop.is_set():
                 await self._linger()
             self._publish_state(bus)  # the last phase and holdings go out before we leave
@@ -139,13 +141,12 @@ class Agent:
         await asyncio.to_thread(decode_expected, data, pid, lattice, self.config.mapping.max_patch_bytes)
 
     async def _linger(self) -> None:
-        """After landing, stay until every present peer has ended its flight and holds what we hold (so the
-        swarm ends with one map), or `sync.linger_max_s` passes, or a signal asks us to go."""
+        """After landing, stay until every present peer has finished (flight over, last patch sealed) and holds
+        what we hold (so the swarm ends with one map), or `sync.linger_max_s` passes, or a signal asks us to go."""
         deadline = time.monotonic() + self.config.sync.linger_max_s
         self.log("linger", peers=sorted(self.peers.peers))
         while time.monotonic() < deadline and not self.stop.is_set():
-            peers_done = all(p.phase in FINAL_PHASES for p in self.peers.peers.values())
-            if peers_done and self.sync.in_step_with_peers():
+            if set(self.sync.peer_digests()) >= set(self.peers.peers) and self.sync.settled():
                 self.log("in_step", patches=len(self.sync.held_ids()))
                 return
             try:
@@ -189,6 +190,7 @@ class Agent:
             phase=self.flight.phase.value,
             role=self.peers.role,
             leader=self.peers.leader,
+            finished=self.finished,
             holdings=self.sync.holdings,
         )
         bus.publish(bus.keys.state(self.id), state)

@@ -36,6 +36,9 @@ class AgentState(WireMessage):
     phase: ShortText = Field(description="e.g. connecting, takeoff, flying, landing, landed, failsafe")
     role: Role
     leader: AgentId
+    finished: bool = Field(
+        default=False, description="flight over and its last patch sealed: its own patches are all in holdings"
+    )
     holdings: DigestWire = Field(
         default=EMPTY_DIGEST, description="every patch id the agent holds, own and received (ranges of seq)"
     )

@@ -167,7 +167,7 @@ class MapNode:
             AgentState(
                 id=self.id, epoch=self.epoch, seq=self._seq, t=time.time(), position=self.position(),
                 velocity=(0.0, 0.0, 0.0), yaw_deg=0.0, flight_mode="NONE", phase="landed" if done else "mapping",
-                role=self.peers.role, leader=self.peers.leader, holdings=self.sync.holdings,
+                role=self.peers.role, leader=self.peers.leader, finished=done, holdings=self.sync.holdings,
             ),
         )
 

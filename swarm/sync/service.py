@@ -101,6 +101,7 @@ class PatchSync:
         self._digest = PatchDigest()
         self._holdings: DigestWire = EMPTY_DIGEST
         self._peer_digests: dict[int, PatchDigest] = {}
+        self._peer_finished: dict[int, bool] = {}
         self._accepting: set[PatchId] = set()
         self._tasks: set[asyncio.Task[Any]] = set()
         self._loop_task: asyncio.Task[None] | None = None
@@ -177,15 +178,18 @@ class PatchSync:
             return
         digest = PatchDigest.from_wire_model(state.holdings)
         self._peer_digests[state.id] = digest
+        self._peer_finished[state.id] = state.finished
         self.scheduler.update_peer(state.id, state.position, digest)
 
     def peer_left(self, peer_id: int) -> None:
         self._peer_digests.pop(peer_id, None)
+        self._peer_finished.pop(peer_id, None)
         self.scheduler.remove_peer(peer_id)
 
-    def in_step_with_peers(self) -> bool:
-        """Every peer heard from holds exactly what this agent holds."""
-        return all(digest == self._digest for digest in self._peer_digests.values())
+    def settled(self) -> bool:
+        """Every peer heard from has finished (sealed its last patch) and holds exactly what this agent holds:
+        nothing more will come, so the swarm has one map."""
+        return all(self._peer_finished.get(k, False) and d == self._digest for k, d in self._peer_digests.items())
 
     def peer_digests(self) -> dict[int, PatchDigest]:
         return dict(self._peer_digests)

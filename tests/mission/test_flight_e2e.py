@@ -53,6 +53,8 @@ def test_two_agents_fly_see_each_other_and_land(tmp_path: Path, swarm_ports: Swa
         other_sealed = sealed - agent["patches_sealed"]
         assert agent["patches_received"]["push"] + agent["patches_received"]["pull"] == other_sealed, agent
         assert agent["patches_rejected"] == {}
+    digests = {json.loads((out / "agents" / f"agent-{k}.json").read_text())["fused_digest"] for k in (1, 2)}
+    assert len(digests) == 1, "the two drones' fused maps differ"
     bandwidth = report["bandwidth"]
     assert 0 < bandwidth["bytes_per_agent_s"] < bandwidth["whole_map_baseline_bytes_per_agent_s"]
     assert not processes_mentioning(str(out)), "swarm run left processes behind"
