@@ -13,6 +13,7 @@ closed.
 from __future__ import annotations
 
 import asyncio
+import faulthandler
 import os
 import signal
 import time
@@ -20,6 +21,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
+from swarm.aio import wait_event
 from swarm.agent.autopilot import Autopilot
 from swarm.agent.events import EventLog
 from swarm.agent.flight import Flight, Phase
@@ -42,6 +44,7 @@ MIN_HEARTBEAT_GAP_S = 0.05
 
 
 def agent_command(config: SwarmConfig) -> int:
+    faulthandler.register(signal.SIGUSR1, all_threads=True)  # `kill -USR1 <pid>`: every thread's stack to the log
     return asyncio.run(Agent(config).run())
 
 
@@ -149,10 +152,7 @@ class Agent:
             if set(self.sync.peer_digests()) >= set(self.peers.peers) and self.sync.settled():
                 self.log("in_step", patches=len(self.sync.held_ids()))
                 return
-            try:
-                await asyncio.wait_for(self.stop.wait(), LINGER_POLL_S)
-            except TimeoutError:
-                pass
+            await wait_event(self.stop, LINGER_POLL_S)
         self.log("linger_ended", reason="signal" if self.stop.is_set() else "timeout")
 
     def _position(self) -> tuple[float, float, float]:
@@ -169,10 +169,7 @@ class Agent:
             self._announce.clear()
             self._publish_state(bus)
             await asyncio.sleep(min(MIN_HEARTBEAT_GAP_S, period))
-            try:
-                await asyncio.wait_for(self._announce.wait(), max(0.0, period - MIN_HEARTBEAT_GAP_S))
-            except TimeoutError:
-                pass
+            await wait_event(self._announce, max(0.0, period - MIN_HEARTBEAT_GAP_S))
 
     def _publish_state(self, bus: AsyncBus) -> None:
         tel = self.flight.ap.telemetry

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from swarm.aio import wait_event
 from swarm.agent.autopilot import TelemetryCache
 from swarm.agent.sensing import DepthSource
 from swarm.config import SwarmConfig
@@ -86,10 +87,7 @@ class MappingTask:
                 self.frames_skipped += missed if airborne else 0
                 next_tick += missed * period
                 delay = next_tick - time.monotonic()
-            try:
-                await asyncio.wait_for(stop.wait(), max(0.0, delay))
-            except TimeoutError:
-                pass
+            await wait_event(stop, max(0.0, delay))
 
     def _step(self, position: tuple[float, float, float], yaw_deg: float) -> None:
         started = time.perf_counter()
@@ -124,10 +122,7 @@ class MappingTask:
         loop = asyncio.get_running_loop()
         period = self.config.sync.baseline_loop_s
         while not stop.is_set():
-            try:
-                await asyncio.wait_for(stop.wait(), period)
-            except TimeoutError:
-                pass
+            await wait_event(stop, period)
             size = await loop.run_in_executor(self._worker, self.mapper.fused.wire_size)
             self.baseline_bytes += size
             self.baseline_loops += 1

@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from swarm.aio import wait_event
 from swarm.bus.bridge import AsyncBus
 from swarm.bus.messages import AgentState
 from swarm.config import SwarmConfig
@@ -53,10 +54,7 @@ class Observer:
         try:
             while not self.stop.is_set():
                 self._write(bus, done=False)
-                try:
-                    await asyncio.wait_for(self.stop.wait(), SNAPSHOT_PERIOD_S)
-                except TimeoutError:
-                    pass
+                await wait_event(self.stop, SNAPSHOT_PERIOD_S)
         finally:
             if coverage_task is not None:
                 coverage_task.cancel()

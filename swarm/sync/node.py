@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from swarm.aio import wait_event
 from swarm.agent.sensing import SimulatedDepthSource
 from swarm.bus.bridge import AsyncBus
 from swarm.bus.messages import AgentState
@@ -99,10 +100,7 @@ class MapNode:
                     if task.done() and task.exception() is not None:
                         raise task.exception()  # type: ignore[misc]
                 await self._write_status(done=False)
-                try:
-                    await asyncio.wait_for(self.stop.wait(), STATUS_PERIOD_S)
-                except TimeoutError:
-                    pass
+                await wait_event(self.stop, STATUS_PERIOD_S)
         finally:
             for task in tasks:
                 task.cancel()

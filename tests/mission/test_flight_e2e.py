@@ -129,7 +129,13 @@ def test_killed_agent_is_seen_leaving_within_3_s_and_sigterm_lands(tmp_path: Pat
         assert left["t"] - killed_at < 3.0, f"agent 1 saw agent 2 leave after {left['t'] - killed_at:.2f} s"
 
         agent1.send_signal(signal.SIGTERM)
-        assert agent1.wait(timeout=60) == 0
+        try:
+            code = agent1.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            agent1.send_signal(signal.SIGUSR1)  # the agent dumps every thread's stack into its log
+            time.sleep(1.0)
+            raise AssertionError(f"agent 1 did not exit after SIGTERM:\n{logs['agent-1'].read_text()[-6000:]}")
+        assert code == 0
         events = _events(logs["agent-1"])
         phases = [e["phase"] for e in events if e["event"] == "phase"]
         assert phases[-2:] == ["landing", "landed"], phases
