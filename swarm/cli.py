@@ -207,8 +207,13 @@ def _print_summary(report: dict[str, Any]) -> None:
         f"explored {100 * report['explored_fraction']:.1f} % — {report['reason']}"
     )
     for a in agents:
-        print(f"  drone {a['id']}: flew {a['distance_m']:.1f} m, {a['patches_sealed']} patches, "
-              f"sent {a['bytes_sent']} B, received {a['bytes_received']} B, {a['phase']}")
+        print(f"  drone {a['id']}: flew {a['distance_m']:.1f} m, {a['patches_sealed']} patches sealed, "
+              f"{a['patches_held']} held, sent {a['bytes_sent']} B, received {a['bytes_received']} B, {a['phase']}")
+    bandwidth = report["bandwidth"]
+    print(f"map sharing: converged {'yes' if report['converged'] else 'NO'}, "
+          f"{bandwidth['bytes_per_agent_s'] / 1000:.1f} kB per agent-second "
+          f"(whole-map baseline every {bandwidth['baseline_loop_s']} s: "
+          f"{bandwidth['whole_map_baseline_bytes_per_agent_s'] / 1000:.1f} kB, ratio {bandwidth['baseline_ratio']})")
     if report.get("map"):
         print(f"map: {Path(report['run_dir']) / report['map']}")
     print(f"report: {Path(report['run_dir']) / 'report.json'}")
