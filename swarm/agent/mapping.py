@@ -32,7 +32,6 @@ from swarm.config import SwarmConfig
 from swarm.files import write_atomic
 from swarm.patches.mapper import Mapper
 from swarm.patches.patch import Patch, PatchId
-from swarm.patches.wire import decode_expected
 
 SealedCallback = Callable[[PatchId, bytes], None]
 
@@ -113,8 +112,7 @@ class MappingTask:
         await asyncio.get_running_loop().run_in_executor(self._worker, self._receive, data, pid)
 
     def _receive(self, data: bytes, pid: PatchId) -> None:
-        patch = decode_expected(data, pid, self.mapper.lattice, self.config.mapping.max_patch_bytes)
-        if self.mapper.receive(patch, data):
+        if self.mapper.receive_wire(data, pid, self.config.mapping.max_patch_bytes):
             self.patches_received += 1
 
     async def measure_baseline(self, stop: asyncio.Event) -> None:

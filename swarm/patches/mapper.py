@@ -20,6 +20,7 @@ from swarm.patches.lattice import Lattice
 from swarm.patches.patch import Patch, PatchId
 from swarm.patches.sealer import PatchSealer
 from swarm.patches.store import PatchStore
+from swarm.patches.wire import decode_expected
 
 
 class Mapper:
@@ -68,6 +69,11 @@ class Mapper:
         self.public.add(patch, data)
         self.fused.add(patch)
         return True
+
+    def receive_wire(self, data: bytes, pid: PatchId, max_bytes: int) -> bool:
+        """Decode and validate a peer's patch bytes, which must hold patch `pid`, then `receive` it; raises
+        PatchDecodeError (nothing changes) if they are unusable."""
+        return self.receive(decode_expected(data, pid, self.lattice, max_bytes), data)
 
     def data(self, pid: PatchId) -> bytes | None:
         """Wire bytes of a held patch, own or received."""

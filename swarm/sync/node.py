@@ -30,7 +30,6 @@ from swarm.config import SwarmConfig
 from swarm.files import write_json_atomic
 from swarm.patches.mapper import Mapper
 from swarm.patches.patch import PatchId
-from swarm.patches.wire import decode_expected
 from swarm.roles.membership import PeerTable
 from swarm.sim.worlds import load_world, mission_volume
 from swarm.sync.service import PatchSync
@@ -142,11 +141,9 @@ class MapNode:
         return patch.id, data
 
     async def _receive(self, data: bytes, pid: PatchId) -> None:
-        await asyncio.get_running_loop().run_in_executor(self._worker, self._fuse, data, pid)
-
-    def _fuse(self, data: bytes, pid: PatchId) -> None:
-        patch = decode_expected(data, pid, self.mapper.lattice, self.config.mapping.max_patch_bytes)
-        self.mapper.receive(patch, data)
+        await asyncio.get_running_loop().run_in_executor(
+            self._worker, self.mapper.receive_wire, data, pid, self.config.mapping.max_patch_bytes
+        )
 
     # --- presence ---------------------------------------------------------------------------------------
 
