@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 from swarm import __version__
 from swarm.files import write_json_atomic
+from swarm.patches.digest import PatchDigest
 
 if TYPE_CHECKING:
     from swarm.mission.run import RunPlan, RunState
@@ -93,11 +94,8 @@ def sealed_patch_ids(patches_dir: Path) -> set[str]:
 
 def held_patch_ids(summary: dict[str, Any]) -> set[str]:
     """The patch ids an agent held at the end, from the holdings in its summary."""
-    ids = set()
-    for entry in summary.get("sync", {}).get("holdings", {}).get("entries", []):
-        for lo, hi in entry["ranges"]:
-            ids.update(f"{entry['producer']}.{entry['epoch']}.{seq}" for seq in range(lo, hi + 1))
-    return ids
+    holdings = summary.get("sync", {}).get("holdings", {"entries": []})
+    return {str(pid) for pid in PatchDigest.from_wire(holdings).ids()}
 
 
 def converged(summaries: dict[int, dict[str, Any]], sealed: set[str]) -> bool:
