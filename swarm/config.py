@@ -2,8 +2,8 @@
 
 The whole configuration is one `SwarmConfig` made of seven sections (mission, agent, sim, bus, camera, mapping,
 sync). It loads from a TOML file whose tables have the same names, and any field can be overridden on the
-command line with a dotted key (`--set agent.altitude_m=2.0`). A value that does not validate is reported as one line naming the
-field; the CLI turns `ConfigError` into exit code 2.
+command line with a dotted key (`--set agent.altitude_m=2.0`). A value that does not validate is reported as
+one line naming the field; the CLI turns `ConfigError` into exit code 2.
 
 Frames: the world frame is z-up (x east, y north, z up), in metres. The autopilot's local frame is NED with its
 origin at the vehicle's home; `GeoOrigin` is the geodetic point that the world origin maps to, shared by the
@@ -206,7 +206,7 @@ class SyncSettings(_Section):
     max_assembly_bytes: int = Field(64 << 20, ge=1 << 20, description="bytes of incomplete patches kept at most")
     linger_max_s: float = Field(
         60.0, ge=0.0, le=3600.0,
-        description="after landing, stay on the bus until every peer has landed and holds what we hold, or this long",
+        description="after landing, stay on the bus until every peer has finished and holds what we hold, or this long",
     )
     push_drop_fraction: float = Field(
         0.0, ge=0.0, le=1.0, description="experiments only: drop this fraction of outgoing push chunks on purpose"

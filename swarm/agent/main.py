@@ -5,9 +5,9 @@ the patch sync (push on seal, pull what is missing, serve what is held), the hea
 with the patch holdings at `heartbeat_hz`, and soon after the holdings change, best effort), and the
 membership upkeep (expire silent peers, re-elect). A liveliness token announces the agent. SIGINT/SIGTERM ask
 the flight to land and the process to exit at once after it; a second signal exits immediately. After a normal
-landing the open patch is sealed and pushed, and the agent lingers on the bus until every peer has landed and
-holds the same patches (bounded by `sync.linger_max_s`); then its mesh and summary are written and the bus is
-closed.
+landing the open patch is sealed and pushed, and the agent lingers on the bus until every peer has finished
+(landed, last patch sealed) and holds the same patches (bounded by `sync.linger_max_s`); then its mesh and
+summary are written and the bus is closed.
 """
 
 from __future__ import annotations
@@ -149,7 +149,7 @@ class Agent:
         deadline = time.monotonic() + self.config.sync.linger_max_s
         self.log("linger", peers=sorted(self.peers.peers))
         while time.monotonic() < deadline and not self.stop.is_set():
-            if set(self.sync.peer_digests()) >= set(self.peers.peers) and self.sync.settled():
+            if self.sync.heard_from() >= set(self.peers.peers) and self.sync.settled():
                 self.log("in_step", patches=len(self.sync.held_ids()))
                 return
             await wait_event(self.stop, LINGER_POLL_S)

@@ -56,7 +56,7 @@ class SyncCounters:
     push_chunks_dropped: int = 0  # on purpose (push_drop_fraction)
     received_by_push: int = 0
     received_by_pull: int = 0
-    duplicates: int = 0  # whole patches that arrived when already held
+    duplicate_chunks: int = 0  # chunks of patches already held (a push and a pull overlapped)
     served: int = 0  # patches sent in replies
     requests_served: int = 0
     requests_refused: int = 0  # malformed requests
@@ -100,8 +100,7 @@ class PatchSync:
         self._held: dict[PatchId, bytes] = {}
         self._digest = PatchDigest()
         self._holdings: DigestWire = EMPTY_DIGEST
-        self._peer_digests: dict[int, PatchDigest] = {}
-        self._peer_finished: dict[int, bool] = {}
+        self._peers: dict[int, tuple[PatchDigest, bool]] = {}  # peer -> (holdings, finished), from heartbeats
         self._accepting: set[PatchId] = set()
         self._tasks: set[asyncio.Task[Any]] = set()
         self._loop_task: asyncio.Task[None] | None = None
@@ -129,13 +128,6 @@ class PatchSync:
     def holdings(self) -> DigestWire:
         """The digest to put in the heartbeat."""
         return self._holdings
-
-    @property
-    def digest(self) -> PatchDigest:
-        return self._digest
-
-    def holds(self, pid: PatchId) -> bool:
-        return pid in self._held
 
     def held_ids(self) -> list[PatchId]:
         return sorted(self._held)
@@ -177,22 +169,21 @@ class PatchSync:
         if state.id == self.own_id:
             return
         digest = PatchDigest.from_wire_model(state.holdings)
-        self._peer_digests[state.id] = digest
-        self._peer_finished[state.id] = state.finished
+        self._peers[state.id] = (digest, state.finished)
         self.scheduler.update_peer(state.id, state.position, digest)
 
     def peer_left(self, peer_id: int) -> None:
-        self._peer_digests.pop(peer_id, None)
-        self._peer_finished.pop(peer_id, None)
+        self._peers.pop(peer_id, None)
         self.scheduler.remove_peer(peer_id)
 
     def settled(self) -> bool:
         """Every peer heard from has finished (sealed its last patch) and holds exactly what this agent holds:
         nothing more will come, so the swarm has one map."""
-        return all(self._peer_finished.get(k, False) and d == self._digest for k, d in self._peer_digests.items())
+        return all(finished and digest == self._digest for digest, finished in self._peers.values())
 
-    def peer_digests(self) -> dict[int, PatchDigest]:
-        return dict(self._peer_digests)
+    def heard_from(self) -> set[int]:
+        """The peers whose heartbeat (holdings) has arrived and who have not left since."""
+        return set(self._peers)
 
     # --- receiving --------------------------------------------------------------------------------------
 
@@ -205,6 +196,7 @@ class PatchSync:
     def _take(self, chunk: PatchChunk, via_pull: bool) -> asyncio.Task[None] | None:
         pid = chunk.patch_id
         if pid in self._held or pid in self._accepting:
+            self.counters.duplicate_chunks += 1
             return None
         data = self.reassembler.add(chunk)
         if data is None:
@@ -222,9 +214,7 @@ class PatchSync:
             except PatchDecodeError as exc:
                 self._reject(exc.reason)
                 return
-            if not self._hold(pid, data):
-                self.counters.duplicates += 1
-                return
+            self._hold(pid, data)  # new: `_take` lets one completed copy of a patch through
             self.received_from[sender] = self.received_from.get(sender, 0) + 1
             if via_pull:
                 self.counters.received_by_pull += 1
@@ -303,7 +293,7 @@ class PatchSync:
             "patches_pushed": c.pushed,
             "received_by_push": c.received_by_push,
             "received_by_pull": c.received_by_pull,
-            "duplicates": c.duplicates,
+            "duplicate_chunks": c.duplicate_chunks,
             "requests_served": c.requests_served,
             "requests_refused": c.requests_refused,
             "request_timeouts": pull.timeouts,
