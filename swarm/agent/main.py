@@ -54,6 +54,7 @@ class Agent:
         self.id = config.agent.id
         self.epoch = time.time_ns() // 1_000_000  # changes every time the process starts
         self.log = EventLog(self.id)
+        self.lattice = Lattice.from_settings(config.mapping)
         self.peers = PeerTable(self.id, timeout_s=config.agent.peer_timeout_s, on_change=self._on_membership)
         self.peer_events: list[dict[str, Any]] = []
         self.stop = asyncio.Event()
@@ -140,8 +141,7 @@ class Agent:
 
     async def _validate_only(self, data: bytes, pid: PatchId) -> None:
         """The sync's sink without a map (camera "none"): validate, hold and relay, fuse nothing."""
-        lattice = Lattice.from_settings(self.config.mapping)
-        await asyncio.to_thread(decode_expected, data, pid, lattice, self.config.mapping.max_patch_bytes)
+        await asyncio.to_thread(decode_expected, data, pid, self.lattice, self.config.mapping.max_patch_bytes)
 
     async def _linger(self) -> None:
         """After landing, stay until every present peer has finished (flight over, last patch sealed) and holds

@@ -107,16 +107,6 @@ class NodeSwarm:
         except OSError:
             return ""
 
-    def stop(self, node_id: int) -> int:
-        proc = self.procs[node_id]
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-        try:
-            return proc.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            return proc.wait()
-
     def close(self) -> None:
         for k in list(self.procs):
             if self.procs[k].poll() is None:
