@@ -56,6 +56,17 @@ def _int_list(text: str) -> list[int]:
     return [_positive_int(p) for p in text.split(",")]
 
 
+STRATEGIES = ("coordinated", "uncoordinated", "frontier-only", "scripted")
+
+
+def _strategy_list(text: str) -> list[str]:
+    names = [p.strip() for p in text.split(",")]
+    unknown = [n for n in names if n not in STRATEGIES]
+    if unknown or not names:
+        raise argparse.ArgumentTypeError(f"unknown strategy {', '.join(unknown) or text!r} (use {', '.join(STRATEGIES)})")
+    return names
+
+
 def _add_config_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", type=Path, help="TOML file with [mission], [agent], [sim], [bus] tables")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.FIELD=VALUE",
@@ -73,6 +84,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--out", type=Path, help="run directory (default runs/<time>-<world>)")
     run.add_argument("--max-time", type=float, dest="max_time", help="mission time limit in seconds")
     run.add_argument("--seed", type=int)
+    run.add_argument("--strategy", choices=STRATEGIES,
+                     help="how drones choose where to go (default coordinated: the cluster leader assigns targets)")
     run.add_argument("--no-live", action="store_true", help="plain progress lines instead of a live table")
     _add_config_flags(run)
 
@@ -120,6 +133,13 @@ def build_parser() -> argparse.ArgumentParser:
     sync.add_argument("--no-mission", action="store_true", help="skip the bandwidth missions (swarm run)")
     sync.add_argument("--out", type=Path, help="where to keep the runs (default a temp dir)")
     _add_config_flags(sync)
+    explore = bench_sub.add_parser("explore", help="time to 95 % with 1..N drones, coordinated vs uncoordinated")
+    explore.add_argument("--drones", type=_int_list, default=[1, 2, 3], help="swarm sizes, e.g. 1,2,3,5")
+    explore.add_argument("--strategies", type=_strategy_list, default=["coordinated", "uncoordinated"],
+                         help="comma-separated, e.g. coordinated,uncoordinated,frontier-only")
+    explore.add_argument("--world", default="office")
+    explore.add_argument("--out", type=Path, help="where to keep the runs (default a temp dir)")
+    _add_config_flags(explore)
     return parser
 
 
@@ -148,7 +168,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         config = _config_from(args, {
             "mission.drones": args.drones, "mission.world": args.world, "mission.start": args.start,
             "mission.out": str(args.out) if args.out else None, "mission.max_time_s": args.max_time,
-            "mission.seed": args.seed,
+            "mission.seed": args.seed, "explore.strategy": args.strategy,
         })
         from swarm.mission.run import run_mission
 
@@ -195,6 +215,11 @@ def _dispatch(args: argparse.Namespace) -> int:
 
         config = _config_from(args, {"mission.world": args.world})
         return bench_sync(config, args.drones, args.out, mission=not args.no_mission)
+    if args.command == "bench" and args.bench == "explore":
+        from swarm.mission.bench_explore import bench_explore
+
+        config = _config_from(args, {"mission.world": args.world})
+        return bench_explore(config, args.drones, args.strategies, args.out)
     raise SwarmError(f"unknown command {args.command}")
 
 

@@ -1,7 +1,7 @@
 """Every setting of the swarm, in one place.
 
-The whole configuration is one `SwarmConfig` made of seven sections (mission, agent, sim, bus, camera, mapping,
-sync). It loads from a TOML file whose tables have the same names, and any field can be overridden on the
+The whole configuration is one `SwarmConfig` made of eight sections (mission, agent, sim, bus, camera, mapping,
+sync, explore). It loads from a TOML file whose tables have the same names, and any field can be overridden on the
 command line with a dotted key (`--set agent.altitude_m=2.0`). A value that does not validate is reported as
 one line naming the field; the CLI turns `ConfigError` into exit code 2.
 
@@ -70,7 +70,7 @@ class MissionSettings(_Section):
     start: Vec3 | None = Field(None, description="take-off area centre; the world's default when unset")
     spawn_spacing_m: PositiveFloat = 1.5
     volume: Box | None = Field(None, description="mission volume; the world mesh bounds when unset")
-    max_time_s: PositiveFloat = 170.0
+    max_time_s: PositiveFloat = Field(420.0, description="the mission stops (drones land) after this long")
     seed: int = 0
     out: Path | None = Field(None, description="run directory; runs/<timestamp>-<world> when unset")
     origin: GeoOrigin = GeoOrigin()
@@ -211,15 +211,70 @@ class SyncSettings(_Section):
     push_drop_fraction: float = Field(
         0.0, ge=0.0, le=1.0, description="experiments only: drop this fraction of outgoing push chunks on purpose"
     )
-    baseline_loop_s: PositiveFloat = Field(
-        2.0, description="exploration loop period of the whole-map baseline (one whole fused map per agent per loop)"
-    )
 
     @model_validator(mode="after")
     def _backoff(self) -> SyncSettings:
         if self.backoff_max_s < self.backoff_initial_s:
             raise ValueError(f"backoff_max_s {self.backoff_max_s} must be at least backoff_initial_s")
         return self
+
+
+Strategy = Literal["coordinated", "uncoordinated", "frontier-only", "scripted"]
+
+
+class ExploreSettings(_Section):
+    """Autonomous exploration (`swarm.explore`, `swarm.roles`): frontiers, goal assignment, planning.
+
+    Mahdoui's rules (research notes 2.3-2.8) adapted to 3D and to drones ten times faster than the thesis's:
+    the loop period r and the explorer timeout tau are scaled from the cruise speed and the camera range."""
+
+    strategy: Strategy = Field(
+        "coordinated",
+        description="coordinated: the cluster leader assigns targets; uncoordinated: each drone picks its own best "
+        "frontier (maps still shared); frontier-only: frontiers and targets are exchanged, patches are not; "
+        "scripted: the harness's ground-truth routes (no exploration)",
+    )
+    loop_s: PositiveFloat = Field(3.0, description="r: assignment period (also runs when a drone reaches its target)")
+    explorer_timeout_s: PositiveFloat = Field(
+        6.0, description="tau: an explorer with no target from its leader for this long picks its own"
+    )
+    utility_lambda: float = Field(0.2, ge=0.0, le=1.0, description="lambda of U = I exp(-lambda (d_i + (n_c-1)/d_tot))")
+    sigma_m: PositiveFloat = Field(3.0, description="gain scheduling: gains near an assigned target drop (Eq. 3.5)")
+    current_target_bonus: float = Field(
+        1.5, ge=1.0, le=10.0, description="utility factor for a drone's current target (fewer U-turns between loops)"
+    )
+    clearance_m: PositiveFloat = Field(
+        0.35, description="planned paths keep this far from mapped obstacles (drone radius + margin)"
+    )
+    min_altitude_m: PositiveFloat = Field(0.6, description="lowest flight height above the mission volume's floor")
+    ceiling_margin_m: PositiveFloat = Field(0.3, description="highest flight: this far below the mission volume's top")
+    gain_radius_m: PositiveFloat = Field(
+        1.0, description="information gain: unknown cells within this half-width cube around a frontier point"
+    )
+    min_gain_m3: float = Field(
+        1.5, ge=0.0, description="frontier clusters with less unknown volume around them than this are ignored"
+    )
+    seen_fraction: float = Field(
+        0.5, gt=0.0, le=1.0,
+        description="a planning cell with no obstacle counts as seen free when this share of its voxels is known",
+    )
+    min_unknown_m3: float = Field(
+        0.2, ge=0.0, description="unknown pockets smaller than this (specks inside known space) are not worth a trip"
+    )
+    cluster_size_m: PositiveFloat = Field(1.2, description="frontier cells are grouped into candidates this large")
+    reach_m: PositiveFloat = Field(
+        1.2, description="a frontier counts when a safe reachable viewpoint lies within this distance of it"
+    )
+    visited_radius_m: PositiveFloat = Field(
+        0.8, description="a candidate this close to a viewpoint already visited is exhausted"
+    )
+    arrive_tolerance_m: PositiveFloat = Field(0.4, description="a target is reached within this distance")
+    dwell_s: float = Field(0.8, ge=0.0, le=30.0, description="at a target, face the frontier this long")
+    separation_m: PositiveFloat = Field(1.2, description="drones keep this far apart (heartbeat poses)")
+    own_frontier_bonus: float = Field(
+        1.0, ge=1.0, le=10.0, description="utility factor for a drone's own frontier points (Mahdoui 3.7; 1 = none)"
+    )
+    return_home: bool = Field(True, description="when the mission is done, fly back above the take-off point")
 
 
 class SwarmConfig(_Section):
@@ -230,6 +285,16 @@ class SwarmConfig(_Section):
     camera: CameraSettings = CameraSettings()
     mapping: MappingSettings = MappingSettings()
     sync: SyncSettings = SyncSettings()
+    explore: ExploreSettings = ExploreSettings()
+
+    @model_validator(mode="after")
+    def _explorers_see(self) -> SwarmConfig:
+        if self.explore.strategy != "scripted" and self.camera.source == "none":
+            raise ValueError(
+                f"explore.strategy '{self.explore.strategy}' needs a camera (camera.source = \"sim\"); "
+                "without one only explore.strategy = \"scripted\" flies"
+            )
+        return self
 
 
 def _format_error(err: ValidationError) -> str:

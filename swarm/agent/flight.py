@@ -1,8 +1,15 @@
-"""The flight sequence of one drone: connect, take off, follow a route, land, and fail safe.
+"""The flight sequence of one drone: connect, take off, fly a mission, land, and fail safe.
 
-A route is a list of world-frame waypoints. The drone is led along each straight segment by a setpoint (a
-"carrot") that advances at the cruise speed and never runs more than `LOOKAHEAD_M` ahead of the drone, so it
-flies the segments themselves, not shortcuts between them, at a speed the agent chooses.
+The mission is a coroutine given the `Flight` once the drone is airborne: a scripted route (`route_mission`) or
+the exploration task, which calls `fly_path` and `face` as it decides where to go. A path is a list of
+world-frame waypoints. The drone is led along each straight segment by a setpoint (a "carrot") that advances at
+the cruise speed and never runs more than `LOOKAHEAD_M` ahead of the drone, so it flies the segments themselves,
+not shortcuts between them, at a speed the agent chooses.
+
+Separation: `neighbours()` gives the other airborne drones' positions (from their heartbeats). The lower id has
+the right of way. A drone closer than `separation_m` to a lower id stops and steps out of the way, vertically
+if it can (`is_safe` tells which points the map allows), until the other has passed; the drone with the right
+of way only pauses while a higher id is very close ahead of it.
 
 Fail safe: if position telemetry stops for `telemetry_timeout_s` while airborne, the drone is told to hold,
 then to land, and the flight ends in phase `failsafe`. A stop request (SIGINT/SIGTERM) ends the route early
@@ -14,7 +21,7 @@ from __future__ import annotations
 import asyncio
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from enum import StrEnum
 
 import numpy as np
@@ -26,6 +33,13 @@ LOOKAHEAD_M = 1.0
 SETPOINT_PERIOD_S = 0.1
 LAND_TIMEOUT_S = 60.0
 FAILSAFE_COMMAND_TIMEOUT_S = 0.6
+STEP_ASIDE_M = 0.7  # a yielding drone climbs or descends this much out of the way
+PASS_HYSTERESIS_M = 0.3  # ... and resumes once the other is this much beyond the separation distance
+PRIORITY_PAUSE_FRACTION = 0.6  # the drone with the right of way pauses for one closer than this x separation
+MAX_YIELD_S = 8.0  # yielding longer than this gives up the path (the mission replans)
+
+Neighbours = Callable[[], list[tuple[int, "tuple[float, float, float]"]]]
+Mission = Callable[["Flight", asyncio.Event], Awaitable[None]]
 
 
 class Phase(StrEnum):
@@ -49,13 +63,26 @@ class StopRequested(Exception):
 
 
 class Flight:
-    def __init__(self, autopilot: Autopilot, settings: AgentSettings, log: Callable[..., None]) -> None:
+    def __init__(
+        self,
+        autopilot: Autopilot,
+        settings: AgentSettings,
+        log: Callable[..., None],
+        *,
+        separation_m: float = 0.0,
+        neighbours: Neighbours | None = None,
+        is_safe: Callable[[Vec3], bool] | None = None,
+    ) -> None:
         self.ap = autopilot
         self.settings = settings
         self.log = log
         self.phase = Phase.CONNECTING
         self.distance_m = 0.0
         self.airborne = False
+        self.separation_m = separation_m
+        self.neighbours: Neighbours = neighbours or (lambda: [])
+        self.is_safe = is_safe or (lambda p: True)
+        self.yields = 0
         self._last_position: np.ndarray | None = None
         self._carrot: Vec3 | None = None
 
@@ -64,7 +91,7 @@ class Flight:
             self.phase = phase
             self.log("phase", phase=phase.value)
 
-    async def run(self, route: list[Vec3], stop: asyncio.Event) -> Phase:
+    async def run(self, mission: Mission, stop: asyncio.Event) -> Phase:
         """Fly the whole mission; returns the final phase (LANDED, FAILSAFE or FAILED)."""
         s = self.settings
         try:
@@ -76,8 +103,7 @@ class Flight:
             self._check(stop)
             await self._take_off(stop)
             self._set_phase(Phase.FLYING)
-            for waypoint in route:
-                await self._fly_segment_to(waypoint, stop)
+            await mission(self, stop)
             if s.hover_s > 0:
                 self._set_phase(Phase.HOVERING)
                 await self._wait(s.hover_s, stop)
@@ -105,7 +131,24 @@ class Flight:
         while not self.ap.height_above_home >= 0.9 * altitude:  # written so that an unknown (NaN) height waits
             await self._tick(stop, deadline, "take-off altitude")
 
-    async def _fly_segment_to(self, goal: Vec3, stop: asyncio.Event) -> None:
+    async def fly_path(self, path: list[Vec3], stop: asyncio.Event, interrupt: asyncio.Event | None = None) -> bool:
+        """Fly the waypoints in order; False as soon as `interrupt` is set (or a yield lasted too long)."""
+        for waypoint in path:
+            if not await self._fly_segment_to(waypoint, stop, interrupt):
+                return False
+        return True
+
+    async def face(self, point: Vec3, seconds: float, stop: asyncio.Event) -> None:
+        """Hold position, turn towards `point` and look at it for `seconds` (the camera maps while we wait)."""
+        here = self.ap.telemetry.position
+        yaw = math.degrees(math.atan2(point[1] - here[1], point[0] - here[0]))
+        hold = self._carrot if self._carrot is not None else here
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            await self.ap.set_setpoint(hold, yaw)
+            await self._tick(stop, end + 1.0, "the end of a look")
+
+    async def _fly_segment_to(self, goal: Vec3, stop: asyncio.Event, interrupt: asyncio.Event | None = None) -> bool:
         here = np.array(self.ap.telemetry.position)
         start = np.array(self._carrot) if self._carrot is not None else here
         target = np.array(goal, dtype=float)
@@ -116,16 +159,75 @@ class Flight:
         deadline = time.monotonic() + 20.0 + 3.0 * (length + float(np.linalg.norm(start - here))) / speed
         travelled = 0.0
         while True:
+            if interrupt is not None and interrupt.is_set():
+                return False
             position = np.array(self.ap.telemetry.position)
+            rival = self._rival(position, segment)
+            if rival is not None:
+                if rival[0] < self.settings.id:
+                    if not await self._step_aside(rival[0], stop, interrupt):
+                        return False
+                    # resume from where we are now: the deadline restarts and the carrot rejoins the segment
+                    start, travelled = np.array(self.ap.telemetry.position), 0.0
+                    segment = target - start
+                    length = float(np.linalg.norm(segment))
+                    deadline = time.monotonic() + 20.0 + 3.0 * length / speed
+                    continue
+                # right of way, but someone is close ahead of us: do not advance the carrot
             carrot = start + segment * (travelled / length) if length > 0 else target
-            if travelled < length and np.linalg.norm(carrot - position) < LOOKAHEAD_M:
+            if rival is None and travelled < length and np.linalg.norm(carrot - position) < LOOKAHEAD_M:
                 travelled = min(length, travelled + speed * SETPOINT_PERIOD_S)
                 carrot = start + segment * (travelled / length)
             self._carrot = tuple(float(c) for c in carrot)
             await self.ap.set_setpoint(self._carrot, yaw)
             if travelled >= length and np.linalg.norm(target - position) < self.settings.waypoint_tolerance_m:
-                return
+                return True
             await self._tick(stop, deadline, f"waypoint {tuple(round(c, 2) for c in goal)}")
+
+    def _rival(self, position: np.ndarray, heading: np.ndarray) -> tuple[int, np.ndarray] | None:
+        """The neighbour we must give way to (a lower id within the separation distance), or a higher id close
+        in front of us (we pause for it), else None."""
+        if self.separation_m <= 0:
+            return None
+        for peer_id, peer_position in sorted(self.neighbours()):
+            offset = np.asarray(peer_position) - position
+            distance = float(np.linalg.norm(offset))
+            if peer_id < self.settings.id and distance < self.separation_m:
+                return peer_id, np.asarray(peer_position)
+            if (
+                peer_id > self.settings.id
+                and distance < PRIORITY_PAUSE_FRACTION * self.separation_m
+                and float(np.dot(offset, heading)) > 0
+            ):
+                return peer_id, np.asarray(peer_position)
+        return None
+
+    async def _step_aside(self, peer_id: int, stop: asyncio.Event, interrupt: asyncio.Event | None) -> bool:
+        """Give way to `peer_id`: move up or down (or back) out of its way until it is past; False if that took
+        longer than MAX_YIELD_S or we were interrupted."""
+        self.yields += 1
+        here = np.array(self.ap.telemetry.position)
+        peer = dict(self.neighbours()).get(peer_id)
+        away = here - np.asarray(peer) if peer is not None else np.zeros(3)
+        vertical = 1.0 if away[2] > 0 else -1.0
+        candidates = [here + [0, 0, vertical * STEP_ASIDE_M], here - [0, 0, vertical * STEP_ASIDE_M]]
+        horizontal = np.array([away[0], away[1], 0.0])
+        if np.linalg.norm(horizontal) > 1e-6:
+            candidates.append(here + horizontal / np.linalg.norm(horizontal) * STEP_ASIDE_M)
+        refuge = next((c for c in candidates if self.is_safe(tuple(float(v) for v in c))), here)
+        self.log("give_way", to=peer_id, refuge=[round(float(v), 2) for v in refuge])
+        self._carrot = tuple(float(v) for v in refuge)
+        end = time.monotonic() + MAX_YIELD_S
+        while time.monotonic() < end:
+            if interrupt is not None and interrupt.is_set():
+                return False
+            await self.ap.set_setpoint(self._carrot, self.ap.telemetry.yaw_deg)
+            peer = dict(self.neighbours()).get(peer_id)
+            here = np.array(self.ap.telemetry.position)
+            if peer is None or np.linalg.norm(np.asarray(peer) - here) > self.separation_m + PASS_HYSTERESIS_M:
+                return True
+            await self._tick(stop, end + 1.0, "a peer to pass")
+        return False
 
     async def _wait(self, seconds: float, stop: asyncio.Event) -> None:
         """Wait on the ground or in the air, still watching for a stop request and for lost telemetry."""
@@ -193,3 +295,12 @@ class Flight:
         if self._last_position is not None:
             self.distance_m += float(np.linalg.norm(current - self._last_position))
         self._last_position = current
+
+
+def route_mission(route: list[Vec3]) -> Mission:
+    """A mission that flies a fixed route (the harness's scripted routes, or waypoints given in the config)."""
+
+    async def fly(flight: Flight, stop: asyncio.Event) -> None:
+        await flight.fly_path(route, stop)
+
+    return fly

@@ -24,7 +24,8 @@ from typing import Any
 from swarm.aio import wait_event
 from swarm.agent.autopilot import Autopilot
 from swarm.agent.events import EventLog
-from swarm.agent.flight import Flight, Phase
+from swarm.agent.exploration import Exploration
+from swarm.agent.flight import Flight, Mission, Phase, route_mission
 from swarm.agent.mapping import MappingTask
 from swarm.agent.sensing import make_depth_source
 from swarm.bus.bridge import AsyncBus
@@ -41,6 +42,9 @@ from swarm.sync.service import PatchSync
 EXIT_OK, EXIT_FLIGHT_FAILED, EXIT_FAILSAFE = 0, 1, 3
 LINGER_POLL_S = 0.2
 MIN_HEARTBEAT_GAP_S = 0.05
+TIMELINE_PERIOD_S = 1.0
+NEIGHBOUR_FRESH_S = 1.0  # a peer's position older than this is not used for separation
+AIRBORNE_PHASES = frozenset({"takeoff", "flying", "hovering", "landing"})
 
 
 def agent_command(config: SwarmConfig) -> int:
@@ -64,6 +68,11 @@ class Agent:
         self._announce = asyncio.Event()
         self.finished = False
         self.keys_mismatch = 0
+        self.exploration: Exploration | None = None
+        self.timeline: list[list[float]] = []  # [t since start, bytes sent, bytes received], once a second
+        self.sharing = config.explore.strategy != "frontier-only"
+        self._last_seen: dict[int, tuple[str, tuple[float, float, float]]] = {}  # peer -> (phase, position)
+        self.lost_in_air: dict[int, tuple[float, float, float]] = {}  # peers that vanished while flying
 
     async def run(self) -> int:
         loop = asyncio.get_running_loop()
@@ -73,7 +82,12 @@ class Agent:
         self.log("starting", epoch=self.epoch, autopilot=self.config.agent.autopilot, pid=os.getpid())
         bus = await AsyncBus.open(self.config.bus, self.config.mission.name)
         autopilot = Autopilot(self.config.agent.autopilot, self.config.mission.origin, self.config.agent.command_timeout_s)
-        self.flight = Flight(autopilot, self.config.agent, self.log)
+        exploring = self.config.explore.strategy != "scripted"
+        self.flight = Flight(
+            autopilot, self.config.agent, self.log,
+            separation_m=self.config.explore.separation_m if exploring else 0.0,
+            neighbours=self._neighbours, is_safe=self._is_safe,
+        )
         keys = self.keys = bus.keys
         mapping_stop = asyncio.Event()
         mapping = self._make_mapping(loop)
@@ -83,18 +97,27 @@ class Agent:
             position=self._position,
             max_patch_bytes=self.config.mapping.max_patch_bytes,
             on_holdings_changed=self._announce.set,
+            share=self.sharing,
         )
+        mission: Mission = route_mission(list(self.config.agent.waypoints))
+        if exploring and mapping is not None:
+            self.exploration = Exploration(
+                self.config, self.epoch, bus, self.peers, mapping, self._position, lambda: autopilot.home_world,
+                float(mapping.bounds[1][2]), self.log, obstacles=lambda: list(self.lost_in_air.values()),
+            )
+            self.exploration.start()
+            mission = self.exploration.fly
         bus.declare_token(keys.alive(self.id))
         bus.subscribe(keys.all_states, AgentState, self._on_state)
         bus.watch_liveliness(keys.all_alive, self._on_token_join, self._on_token_leave)
         self.sync.start()
-        background = [asyncio.create_task(self._heartbeat(bus)), asyncio.create_task(self._upkeep())]
+        background = [asyncio.create_task(self._heartbeat(bus)), asyncio.create_task(self._upkeep(bus))]
         if mapping is not None:
             self._run_mapping(mapping, autopilot, mapping_stop, background)
         final = Phase.FAILED
         released = False
         try:
-            final = await self.flight.run(list(self.config.agent.waypoints), self.stop)
+            final = await self.flight.run(mission, self.stop)
             self.log("flight_ended", phase=final.value)
         finally:
             mapping_stop.set()
@@ -103,7 +126,9 @@ class Agent:
                 await mapping.seal_last()
             self.finished = True  # the last own patch is held now: heartbeats say our holdings are final
             self._announce.set()
-            if not self.stop.is_set():
+            if self.exploration is not None:
+                await self.exploration.close()
+            if not self.stop.is_set() and self.sharing:
                 await self._linger()
             self._publish_state(bus)  # the last phase and holdings go out before we leave
             for task in background:
@@ -159,6 +184,19 @@ class Agent:
         tel = self.flight.ap.telemetry
         return tel.position if tel.samples > 0 else (0.0, 0.0, 0.0)
 
+    def _neighbours(self) -> list[tuple[int, tuple[float, float, float]]]:
+        """Other drones in the air, as their heartbeats place them (for keeping our distance)."""
+        now = time.monotonic()
+        return [
+            (p.id, p.position)
+            for p in self.peers.peers.values()
+            if p.phase in AIRBORNE_PHASES and now - p.last_heard < NEIGHBOUR_FRESH_S
+        ]
+
+    def _is_safe(self, point: tuple[float, float, float]) -> bool:
+        grid = self.exploration.grid if self.exploration is not None else None
+        return grid is not None and grid.planning_grid.is_free(point)
+
     # -- presence ----------------------------------------------------------------------------------------
 
     async def _heartbeat(self, bus: AsyncBus) -> None:
@@ -192,9 +230,14 @@ class Agent:
         )
         bus.publish(bus.keys.state(self.id), state)
 
-    async def _upkeep(self) -> None:
+    async def _upkeep(self, bus: AsyncBus) -> None:
+        next_sample = 0.0
         while True:
             self.peers.expire()
+            now = time.time() - self.started
+            if now >= next_sample:
+                self.timeline.append([round(now, 2), bus.counters.bytes_sent, bus.counters.bytes_received])
+                next_sample = now + TIMELINE_PERIOD_S
             await asyncio.sleep(0.2)
 
     def _on_state(self, key: str, state: AgentState) -> None:
@@ -202,6 +245,7 @@ class Agent:
             self.keys_mismatch += 1  # a heartbeat on another drone's key is not that drone's
             return
         self.peers.heard(state.id, state.position, state.phase, state.epoch)
+        self._last_seen[state.id] = (state.phase, state.position)
         self.sync.on_state(state)
 
     def _on_token_join(self, key: str) -> None:
@@ -217,6 +261,12 @@ class Agent:
     def _on_membership(self, event: str, peer_id: int, cause: str) -> None:
         if event == "left":
             self.sync.peer_left(peer_id)
+            phase, position = self._last_seen.get(peer_id, ("", (0.0, 0.0, 0.0)))
+            if phase in AIRBORNE_PHASES:  # its vehicle may still hover there, unseen by the camera: avoid it
+                self.lost_in_air[peer_id] = position
+                self.log("peer_lost_in_air", peer=peer_id, position=[round(c, 2) for c in position])
+        else:
+            self.lost_in_air.pop(peer_id, None)
         self.peer_events.append({"t": round(time.time(), 3), "event": event, "peer": peer_id, "cause": cause})
         self.log(f"peer_{event}", peer=peer_id, cause=cause, cluster=self.peers.cluster)
         if self.peers.leader != self._last_leader:
@@ -254,6 +304,9 @@ class Agent:
             "mavsdk_released": released,
             "sync": self.sync.stats(),
             "heartbeats_on_wrong_key": self.keys_mismatch,
+            "give_way": self.flight.yields,
+            "timeline": self.timeline,
+            **(self.exploration.summary() if self.exploration is not None else {"strategy": "scripted"}),
             **(mapping.summary() if mapping is not None else {"patches_sealed": 0}),
         }
         path = Path(out_dir) / f"agent-{self.id}.json"

@@ -10,7 +10,7 @@ pushes it), and, when the agent has an output directory, to `<out_dir>/patches/<
 and fused in the same worker thread (`receive`). At the end the open patch is sealed too, so nothing seen is
 lost, and the agent writes its own fused mesh.
 
-For the bandwidth report the task also measures, once per `sync.baseline_loop_s`, what sending its whole fused
+For the bandwidth report the task also measures, once per `explore.loop_s`, what sending its whole fused
 map would cost (`FusedMap.wire_size`): the whole-map baseline patch sharing is compared with.
 """
 
@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import asyncio
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -28,8 +28,10 @@ import numpy as np
 from swarm.aio import wait_event
 from swarm.agent.autopilot import TelemetryCache
 from swarm.agent.sensing import DepthSource
-from swarm.config import SwarmConfig
+from swarm.config import SwarmConfig, Vec3
+from swarm.explore.frontiers import ExplorationGrid, Frontier
 from swarm.files import write_atomic
+from swarm.patches.fused import OCCUPIED
 from swarm.patches.mapper import Mapper
 from swarm.patches.patch import Patch, PatchId
 
@@ -50,6 +52,7 @@ class MappingTask:
         on_sealed: SealedCallback | None = None,
     ) -> None:
         self.config = config
+        self.bounds = bounds
         self.source = source
         self.log = log
         self.mapper = Mapper(
@@ -115,10 +118,33 @@ class MappingTask:
         if self.mapper.receive_wire(data, pid, self.config.mapping.max_patch_bytes):
             self.patches_received += 1
 
+    async def explore_view(
+        self, floor_z: float, top_z: float, position: Vec3, obstacles: Sequence[Vec3] = ()
+    ) -> tuple[ExplorationGrid, list[Frontier]]:
+        """The exploration grid of the current map (the open patch included: what we saw a moment ago counts)
+        and its frontiers as seen from `position`; computed in the mapping thread, which owns the map.
+        `obstacles` are points the camera cannot see but must be avoided (a drone whose agent died in the air)."""
+        return await asyncio.get_running_loop().run_in_executor(
+            self._worker, self._explore_view, floor_z, top_z, position, obstacles
+        )
+
+    def _explore_view(
+        self, floor_z: float, top_z: float, position: Vec3, obstacles: Sequence[Vec3]
+    ) -> tuple[ExplorationGrid, list[Frontier]]:
+        resolution = self.config.mapping.planning_resolution_m
+        with self.mapper.current_map() as fused:
+            origin, states = fused.occupancy_grid(resolution, min_known=self.config.explore.seen_fraction)
+        for point in obstacles:
+            _mark_occupied(states, origin, resolution, point, self.config.sim.drone_radius_m)
+        grid = ExplorationGrid.from_states(
+            origin, resolution, states, self.config.explore, floor_z, top_z, free_points=[position]
+        )
+        return grid, grid.frontiers(position)
+
     async def measure_baseline(self, stop: asyncio.Event) -> None:
         """Once per baseline loop, add up what sending the whole fused map would cost, until `stop`."""
         loop = asyncio.get_running_loop()
-        period = self.config.sync.baseline_loop_s
+        period = self.config.explore.loop_s
         while not stop.is_set():
             await wait_event(stop, period)
             size = await loop.run_in_executor(self._worker, self.mapper.fused.wire_size)
@@ -156,8 +182,16 @@ class MappingTask:
             "patches_received": self.patches_received,
             "fused_digest": self.mapper.fused.digest(),
             "whole_map_baseline": {
-                "loop_s": self.config.sync.baseline_loop_s,
+                "loop_s": self.config.explore.loop_s,
                 "loops": self.baseline_loops,
                 "bytes": self.baseline_bytes,
             },
         }
+
+
+def _mark_occupied(states: np.ndarray, origin: np.ndarray, resolution: float, point: Vec3, radius: float) -> None:
+    """Mark the cells within `radius` (plus the cell holding it) of `point` occupied."""
+    lo = np.floor((np.asarray(point) - radius - origin) / resolution).astype(int)
+    hi = np.floor((np.asarray(point) + radius - origin) / resolution).astype(int) + 1
+    lo, hi = np.clip(lo, 0, states.shape), np.clip(hi, 0, states.shape)
+    states[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]] = OCCUPIED

@@ -11,15 +11,9 @@ swarm/<m>/alive/<id>             liveliness token      presence; vanishes when t
 swarm/<m>/agent/<id>/patch       publisher (on seal)   a sealed patch (chunks) pushed to peers
 swarm/<m>/agent/<id>/store       queryable             serves the patches this agent holds
                                                        (`AsyncBus.declare_queryable` / `get`)
-===============================  ====================  ==========================================
-
-Keys planned for later issues, to be added here and nowhere else:
-
-===============================  ====================  ==========================================
-swarm/<m>/agent/<id>/digest      publisher (periodic)  compact ranges of every patch id held
-                                                       (or a `DigestMessage` inside the heartbeat)
-swarm/<m>/agent/<id>/frontier    publisher             frontier points sent to the leader
-swarm/<m>/agent/<id>/target      publisher (leader)    the target the leader assigns to drone <id>
+swarm/<m>/agent/<id>/frontiers   publisher (per loop)  `FrontierReport`: an explorer's candidate targets
+swarm/<m>/agent/<id>/targets     publisher (leader)    `TargetAssignment`: the leader's targets for its
+                                                       cluster, or "done"
 ===============================  ====================  ==========================================
 
 Per-agent data sits under ``agent/<id>/`` so one wildcard (``agent/*/<topic>``) subscribes to everyone's.
@@ -58,9 +52,11 @@ class Keys:
         self.all_alive = f"{self.root}/alive/*"
         self.all_patches = f"{self.root}/agent/*/patch"
         self.all_stores = f"{self.root}/agent/*/store"
+        self.all_frontiers = f"{self.root}/agent/*/frontiers"
+        self.all_targets = f"{self.root}/agent/*/targets"
         root = re.escape(self.root)
         self._id_patterns = (
-            re.compile(rf"^{root}/agent/{_ID_RE}/(?:state|patch|store)$"),
+            re.compile(rf"^{root}/agent/{_ID_RE}/(?:state|patch|store|frontiers|targets)$"),
             re.compile(rf"^{root}/alive/{_ID_RE}$"),
         )
 
@@ -77,6 +73,12 @@ class Keys:
     def store(self, agent_id: int) -> str:
         """The queryable of drone `agent_id` that serves the patches it holds."""
         return f"{self.root}/agent/{check_agent_id(agent_id)}/store"
+
+    def frontiers(self, agent_id: int) -> str:
+        return f"{self.root}/agent/{check_agent_id(agent_id)}/frontiers"
+
+    def targets(self, agent_id: int) -> str:
+        return f"{self.root}/agent/{check_agent_id(agent_id)}/targets"
 
     def agent_id_of(self, key: str) -> int | None:
         """The drone id in a per-agent key (state, patch, store) or liveliness key of this mission; None for

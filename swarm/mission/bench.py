@@ -77,6 +77,7 @@ def bench_flight(config: SwarmConfig, sizes: list[int], out: Path | None) -> int
     for n in sizes:
         run_config = config.model_copy(deep=True)
         run_config.mission.drones = n
+        run_config.explore.strategy = "scripted"  # the same flights at every size: comparable figures
         run_config.mission.out = root / f"flight-{n}"
         sampler = Sampler()
         console.print(f"bench flight: {n} drone(s) in '{config.mission.world}' ...")
@@ -129,6 +130,8 @@ def bench_mapping_swarm(config: SwarmConfig, drones: int, out: Path | None) -> i
     run_config = config.model_copy(deep=True)
     run_config.mission.drones = drones
     run_config.mission.out = root / f"mapping-swarm-{drones}"
+    run_config.explore.strategy = "scripted"  # the same flights at every size: comparable figures
+
     console.print(f"bench mapping: {drones} agents mapping at {config.camera.rate_hz:g} Hz in '{config.mission.world}' ...")
     report = run_mission(run_config, live=False)
     table = Table(title=f"{drones} agents mapping at once on this machine (target {config.camera.rate_hz:g} Hz each)")

@@ -3,6 +3,10 @@
 Patches are read from the directory the agents write them to, decoded with the same validating decoder an agent
 uses on received patches (a bad file is counted and skipped, never fused), and fused into one map. Its
 `explored_fraction` is measured against the world's reachable free space (`swarm.sim.coverage`).
+
+Each producer's patches are also fused into a map of their own, so the report can tell what each drone's camera
+contributed (`explored_by_agent`) and how much of the explored space more than one drone saw
+(`overlap_fraction`: the redundancy coordination is meant to keep low).
 """
 
 from __future__ import annotations
@@ -11,12 +15,29 @@ import threading
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from swarm.config import SwarmConfig
 from swarm.patches.fused import UNKNOWN, FusedMap
 from swarm.patches.lattice import Lattice
+from swarm.patches.patch import Patch
 from swarm.patches.wire import PatchDecodeError, decode_patch
 from swarm.sim.coverage import explored_fraction, mission_reachable_space
 from swarm.sim.worlds import load_world, mission_volume
+
+
+def overlap_fraction(known: np.ndarray) -> float:
+    """Share of the cells known by at least one producer that two or more producers know.
+
+    `known` is (producers, cells) bool. A cell one drone saw and another drone saw again is redundant work,
+    whoever saw it first; 0.0 when no cell is known (nothing explored, so nothing overlaps).
+    """
+    known = np.asarray(known, dtype=bool)
+    if known.ndim != 2 or known.shape[0] == 0:
+        return 0.0
+    counts = np.count_nonzero(known, axis=0)
+    seen = int(np.count_nonzero(counts >= 1))
+    return int(np.count_nonzero(counts >= 2)) / seen if seen else 0.0
 
 
 class SwarmCoverage:
@@ -26,16 +47,22 @@ class SwarmCoverage:
         world = load_world(config.mission.world)
         self.space = mission_reachable_space(world, config)
         lo, hi = mission_volume(world, config.mission.volume)
+        self.bounds = (lo, hi)
         self.lattice = Lattice.from_settings(config.mapping)
         self.fused = FusedMap(self.lattice, (lo, hi), config.mapping.known_weight)
         self.seen: set[str] = set()
         self.rejected: dict[str, int] = {}
         self.timeline: list[tuple[float, float]] = []
         self.fraction = 0.0
+        self.by_producer: dict[int, FusedMap] = {}
+        self.producer_timeline: dict[int, list[tuple[float, float]]] = {}
+        self.overlap = 0.0
+        self._producer_known: dict[int, np.ndarray] = {}  # reachable cells each producer's map knows (cached)
+        self._changed: set[int] = set()  # producers whose map grew since their mask was computed
         self._lock = threading.Lock()
 
     def update(self, t: float) -> None:
-        """Fuse the patch files not seen yet, then measure explored_fraction."""
+        """Fuse the patch files not seen yet, then measure explored_fraction, per producer and overlap."""
         with self._lock:
             for path in sorted(self.patches_dir.glob("*.patch")):
                 if path.name in self.seen:
@@ -50,8 +77,33 @@ class SwarmCoverage:
                     self.seen.discard(path.name)  # being written: try again next time
                     continue
                 self.fused.add(patch)
+                self._add_to_producer(patch)
             self.fraction = explored_fraction(self.space, lambda points: self.fused.state_at(points) != UNKNOWN)
             self.timeline.append((round(t, 2), round(self.fraction, 4)))
+            self._measure_producers(t)
+
+    def _add_to_producer(self, patch: Patch) -> None:
+        """Fuse a patch into its producer's own map: what that drone's camera saw, whoever relayed it."""
+        producer = patch.id.producer
+        own = self.by_producer.get(producer)
+        if own is None:
+            own = FusedMap(self.lattice, self.bounds, self.config.mapping.known_weight)
+            self.by_producer[producer] = own
+        if own.add(patch):
+            self._changed.add(producer)
+
+    def _measure_producers(self, t: float) -> None:
+        """Per-producer explored fractions and the overlap; only maps that grew are queried again (the query
+        over every reachable cell is the cost, and most producers add nothing between two updates)."""
+        for producer in self._changed:
+            self._producer_known[producer] = self.by_producer[producer].state_at(self.space.centres) != UNKNOWN
+        self._changed.clear()
+        cells = len(self.space.centres)
+        for producer, known in sorted(self._producer_known.items()):
+            share = float(np.count_nonzero(known)) / cells if cells else 0.0
+            self.producer_timeline.setdefault(producer, []).append((round(t, 2), round(share, 4)))
+        masks = list(self._producer_known.values())
+        self.overlap = overlap_fraction(np.stack(masks)) if masks else 0.0
 
     def write_mesh(self, path: Path) -> None:
         with self._lock:
@@ -65,4 +117,6 @@ class SwarmCoverage:
             "patches_fused": len(self.seen) - sum(self.rejected.values()),
             "patches_rejected": self.rejected,
             "reachable_cells": int(self.space.mask.sum()),
+            "explored_by_agent": {str(k): list(v) for k, v in sorted(self.producer_timeline.items())},
+            "overlap_fraction": round(self.overlap, 4),
         }

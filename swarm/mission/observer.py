@@ -8,6 +8,10 @@ With a patch directory it also builds the swarm's map: every sealed patch the ag
 (validated like any received patch) and fused, and `explored_fraction` (see `swarm.sim.coverage`) is measured
 against the world mesh every few seconds; at the end the fused mesh is written. Until patches travel over the
 bus, the files are how the observer sees them.
+
+For the exploration report it also keeps each drone's trajectory (heartbeat positions, thinned to one sample per
+half second) and the leader timeline: the clusters as the heartbeats describe them (who follows whom), recorded
+each time they change, so splits and merges of the swarm can be seen after the run.
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ from __future__ import annotations
 import asyncio
 import signal
 import time
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +32,68 @@ from swarm.mission.coverage import SwarmCoverage
 
 SNAPSHOT_PERIOD_S = 0.5
 COVERAGE_PERIOD_S = 2.0
+TRAJECTORY_PERIOD_S = 0.5  # at most one trajectory sample per agent this often: enough for a plot, small JSON
+FRESH_S = 2.0  # a heartbeat older than this no longer says which cluster the agent is in
+INACTIVE_PHASES = frozenset({"landed", "failed"})  # on the ground for good: in no cluster
+
+Cluster = tuple[int, tuple[int, ...]]  # (leader, sorted member ids)
+
+
+def clusters_of(agents: Mapping[int, Mapping[str, Any]], now: float, fresh_s: float = FRESH_S) -> list[Cluster]:
+    """The clusters the heartbeats describe: active agents heard within fresh_s, grouped by their `leader`.
+
+    Uses what each agent says about itself rather than re-deriving membership, because the point is to see the
+    swarm's own view of who leads whom (a split shows as two leaders). Sorted by leader.
+    """
+    groups: dict[int, list[int]] = {}
+    for agent_id, entry in agents.items():
+        if "leader" not in entry or entry.get("phase") in INACTIVE_PHASES:
+            continue
+        if now - float(entry.get("last_heard", -float("inf"))) >= fresh_s:
+            continue
+        groups.setdefault(int(entry["leader"]), []).append(int(agent_id))
+    return [(leader, tuple(sorted(members))) for leader, members in sorted(groups.items())]
+
+
+class LeaderTimeline:
+    """Cluster entries {"t", "leader", "members"}, appended for every cluster whenever the clustering changes."""
+
+    def __init__(self) -> None:
+        self.entries: list[dict[str, Any]] = []
+        self._last: frozenset[Cluster] = frozenset()
+
+    def update(self, t: float, clusters: Sequence[Cluster]) -> bool:
+        """Record the new state if it differs from the last one; True when entries were appended or the swarm
+        dissolved (every agent landed or went silent, which has no cluster to write)."""
+        state = frozenset(clusters)
+        if state == self._last:
+            return False
+        self._last = state
+        for leader, members in sorted(state):
+            self.entries.append({"t": round(t, 2), "leader": leader, "members": list(members)})
+        return True
+
+
+class Trajectories:
+    """Each agent's positions [t, x, y, z], at most one every `period_s` (heartbeats come at 5 Hz or more)."""
+
+    def __init__(self, period_s: float = TRAJECTORY_PERIOD_S) -> None:
+        self.period_s = period_s
+        self.samples: dict[int, list[list[float]]] = {}
+        self._last_t: dict[int, float] = {}
+
+    def add(self, agent_id: int, t: float, position: Sequence[float]) -> bool:
+        """Keep the sample if the agent's previous one is at least period_s older; True when kept."""
+        last = self._last_t.get(agent_id)
+        if last is not None and t - last < self.period_s:
+            return False
+        self._last_t[agent_id] = t
+        x, y, z = (round(float(c), 3) for c in position)
+        self.samples.setdefault(agent_id, []).append([round(t, 2), x, y, z])
+        return True
+
+    def snapshot(self) -> dict[str, list[list[float]]]:
+        return {str(k): list(v) for k, v in sorted(self.samples.items())}
 
 
 class Observer:
@@ -40,6 +107,8 @@ class Observer:
         self.started = time.time()
         self.agents: dict[int, dict[str, Any]] = {}
         self.timeline: list[dict[str, Any]] = []
+        self.trajectories = Trajectories()
+        self.leaders = LeaderTimeline()
         self.stop = asyncio.Event()
 
     async def run(self) -> int:
@@ -53,6 +122,7 @@ class Observer:
         coverage_task = asyncio.create_task(self._follow_coverage()) if self.coverage is not None else None
         try:
             while not self.stop.is_set():
+                self._follow_leaders()
                 self._write(bus, done=False)
                 await wait_event(self.stop, SNAPSHOT_PERIOD_S)
         finally:
@@ -84,6 +154,11 @@ class Observer:
             position=list(state.position), epoch=state.epoch, last_heard=time.time(),
         )
         entry["heartbeats"] += 1
+        self.trajectories.add(state.id, time.time() - self.started, state.position)
+
+    def _follow_leaders(self) -> None:
+        now = time.time()
+        self.leaders.update(now - self.started, clusters_of(self.agents, now))
 
     def _on_join(self, key: str) -> None:
         self._presence(key, alive=True)
@@ -106,6 +181,8 @@ class Observer:
             "agents": {str(k): v for k, v in sorted(self.agents.items())},
             "timeline": self.timeline,
             "traffic": bus.counters.snapshot(),
+            "trajectories": self.trajectories.snapshot(),
+            "leaders": self.leaders.entries,
             **(self.coverage.snapshot() if self.coverage is not None else {}),
         }
         write_json_atomic(self.status_path, snapshot)

@@ -1,21 +1,30 @@
 """The mission report (`report.json`): a schema later capabilities extend; existing names never change.
 
 Truth comes from the simulator (distance flown, collisions, landed), communication figures from the agents'
-own counters, presence from the observer.
+own counters, presence, coverage and clusters from the observer. `write_report` also renders the human side of
+the report next to it: the figures (`swarm.mission.plots`) and `report.md` (`swarm.mission.report_md`).
 """
 
 from __future__ import annotations
 
 import json
+import logging
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from swarm import __version__
 from swarm.files import write_json_atomic
+from swarm.mission.plots import PLOT_NAMES, write_plots
+from swarm.mission.report_md import REPORT_PAGE, write_report_page
 from swarm.patches.digest import PatchDigest
 
 if TYPE_CHECKING:
     from swarm.mission.run import RunPlan, RunState
+
+log = logging.getLogger(__name__)
+
+TIME_TO_THRESHOLDS = (0.5, 0.9, 0.95, 0.99)
 
 
 def build_report(
@@ -53,6 +62,8 @@ def build_report(
                 "patches_rejected": sync.get("rejected", {}),
                 "duration_s": float(summary.get("duration_s", 0.0)),
                 "traffic": summary.get("traffic", {}),
+                "targets_assigned": int(summary.get("targets_assigned", 0)),
+                "targets_self_selected": int(summary.get("targets_self_selected", 0)),
             }
         )
         summaries[k] = summary
@@ -60,6 +71,8 @@ def build_report(
     if status == "complete" and not all(a["landed"] for a in agents):
         status, state.reason = "failed", "an agent exited but its vehicle is not landed and disarmed"
     lo, hi = plan.volume
+    explored_timeline = (observer or {}).get("explored_timeline", [])
+    explore = getattr(plan.config, "explore", None)
     return {
         "status": status,
         "reason": state.reason,
@@ -69,7 +82,11 @@ def build_report(
         "duration_s": round(max(0.0, state.finished - state.started), 2) if state.started else 0.0,
         "collisions": int((sim or {}).get("collisions", 0)),
         "explored_fraction": float((observer or {}).get("explored_fraction", 0.0)),
-        "explored_timeline": (observer or {}).get("explored_timeline", []),
+        "explored_timeline": explored_timeline,
+        "time_to": time_to(explored_timeline),
+        "explored_by_agent": (observer or {}).get("explored_by_agent", {}),
+        "overlap_fraction": float((observer or {}).get("overlap_fraction", 0.0)),
+        "leaders": (observer or {}).get("leaders", []),
         "map": "map.ply" if (plan.out / "map.ply").exists() else None,
         "converged": converged(summaries, sealed_patch_ids(plan.out / "agents" / "patches")),
         "bandwidth": bandwidth(summaries),
@@ -82,9 +99,26 @@ def build_report(
             "max_time_s": plan.config.mission.max_time_s,
             "volume": {"min": [round(float(v), 3) for v in lo], "max": [round(float(v), 3) for v in hi]},
             "spawns": [list(s) for s in plan.spawns],
+            "world": str(plan.config.mission.world),
+            "strategy": getattr(explore, "strategy", None)
+            or next((s["strategy"] for s in summaries.values() if "strategy" in s), None),
         },
+        "plots": [],
+        "report_page": None,
         "swarm_version": __version__,
     }
+
+
+def time_to(
+    timeline: Iterable[Sequence[float]], thresholds: Sequence[float] = TIME_TO_THRESHOLDS
+) -> dict[str, float | None]:
+    """For each threshold, the first t of the (t, fraction) timeline at which the fraction reached it, or None.
+
+    t is the observer's clock (seconds since it started, which is when the swarm started), so these are the
+    mission's times to 50/90/95/99 % coverage, the speed figures exploration strategies are compared on.
+    """
+    points = [(float(t), float(f)) for t, f in timeline]
+    return {str(th): next((t for t, f in points if f >= th), None) for th in thresholds}
 
 
 def sealed_patch_ids(patches_dir: Path) -> set[str]:
@@ -130,9 +164,46 @@ def bandwidth(summaries: dict[int, dict[str, Any]]) -> dict[str, Any]:
 
 
 def write_report(out: Path, report: dict[str, Any]) -> Path:
+    """Render the figures and report.md from the run directory's files, then write report.json.
+
+    Rendering comes first so report.json names what was written; it never stops report.json being written.
+    """
+    finish_report(out, report, read_json(out / "observer.json"), read_summaries(out, report))
     path = out / "report.json"
     write_json_atomic(path, report, indent=2)
     return path
+
+
+def finish_report(
+    out: Path, report: dict[str, Any], observer: dict[str, Any] | None, summaries: dict[int, dict[str, Any]]
+) -> None:
+    """Write the PNG figures and report.md into `out`, filling `plots` and `report_page` in the report.
+
+    A figure that cannot be drawn (a missing world mesh, a matplotlib failure) is logged and recorded as
+    `plots_error`; the page is still written, with whatever figures exist, because the numbers matter more.
+    """
+    try:
+        report["plots"] = write_plots(out, report, observer, summaries)
+    except Exception as exc:  # noqa: BLE001 - a figure must never cost the run its report
+        log.warning("plots not written: %s", exc, exc_info=True)
+        report["plots"] = [name for name in PLOT_NAMES if (out / name).exists()]  # the ones drawn before
+        report["plots_error"] = f"{type(exc).__name__}: {exc}"
+    try:
+        write_report_page(out, report)
+        report["report_page"] = REPORT_PAGE
+    except OSError as exc:
+        log.warning("report page not written: %s", exc)
+        report["report_page"] = None
+
+
+def read_summaries(out: Path, report: dict[str, Any]) -> dict[int, dict[str, Any]]:
+    """The agents' summaries (agents/agent-K.json) of the report's agents; missing ones are left out."""
+    summaries: dict[int, dict[str, Any]] = {}
+    for agent in report.get("agents", []):
+        summary = read_json(out / "agents" / f"agent-{agent['id']}.json")
+        if summary is not None:
+            summaries[int(agent["id"])] = summary
+    return summaries
 
 
 def read_json(path: Path) -> dict[str, Any] | None:

@@ -76,7 +76,9 @@ def prepare(config: SwarmConfig) -> RunPlan:
         ensure_free(host, gcs_port(config.sim, k), "udp", f"autopilot link of agent {k}")
     for k in range(0, m.drones + 1):
         ensure_free("127.0.0.1", bus_port(config.bus, k), "tcp", "observer bus" if k == 0 else f"bus of agent {k}")
-    routes = scripted_routes(world, spawns, lo, hi, config.sim.drone_radius_m, config.agent.cruise_speed_m_s)
+    routes: list[ScriptedRoute] = []
+    if config.explore.strategy == "scripted":
+        routes = scripted_routes(world, spawns, lo, hi, config.sim.drone_radius_m, config.agent.cruise_speed_m_s)
     out = m.out or Path("runs") / f"{dt.datetime.now():%Y%m%d-%H%M%S}-{world.name}"
     if out.exists() and any(out.iterdir()):
         raise SwarmError(f"output directory {out} is not empty")
@@ -161,18 +163,17 @@ def _start_swarm(plan: RunPlan, state: RunState) -> None:
         plan.out / "logs" / "observer.log",
     )
     state.started = time.monotonic()
-    for route in plan.routes:
-        k = route.drone_id
-        agent = config.agent.model_copy(
-            update={
-                "id": k,
-                "autopilot": f"udpin://{config.sim.host}:{gcs_port(config.sim, k)}",
-                "altitude_m": route.altitude_m,
-                "waypoints": route.waypoints,
-                "start_delay_s": route.start_delay_s,
-                "out_dir": plan.out / "agents",
-            }
-        )
+    routes = {route.drone_id: route for route in plan.routes}
+    for k in range(1, config.mission.drones + 1):
+        update: dict[str, Any] = {
+            "id": k,
+            "autopilot": f"udpin://{config.sim.host}:{gcs_port(config.sim, k)}",
+            "out_dir": plan.out / "agents",
+        }
+        if k in routes:
+            route = routes[k]
+            update |= {"altitude_m": route.altitude_m, "waypoints": route.waypoints, "start_delay_s": route.start_delay_s}
+        agent = config.agent.model_copy(update=update)
         agent_config = config.model_copy(
             update={"agent": agent, "bus": config.bus.model_copy(update=_bus_for(config, k))}
         )
@@ -197,7 +198,7 @@ def _supervise(plan: RunPlan, state: RunState, view: ProgressView, on_tick: Call
             state.finished = time.monotonic()
             failed = {k: c for k, c in state.exit_codes.items() if c != 0}
             state.status = "failed" if failed else "complete"
-            state.reason = f"agents exited with errors: {failed}" if failed else "every drone flew its route and landed"
+            state.reason = f"agents exited with errors: {failed}" if failed else _success_reason(plan.config)
             return
         if state.sim is not None and state.sim.poll() is not None:
             state.status, state.reason = "failed", f"simulator died: {state.sim.last_log_line()}"
@@ -209,6 +210,12 @@ def _supervise(plan: RunPlan, state: RunState, view: ProgressView, on_tick: Call
             state.finished = time.monotonic()
             return
         time.sleep(POLL_PERIOD_S)
+
+
+def _success_reason(config: SwarmConfig) -> str:
+    if config.explore.strategy == "scripted":
+        return "every drone flew its route and landed"
+    return "exploration done and every drone landed"
 
 
 def _land_agents(state: RunState) -> None:

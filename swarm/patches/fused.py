@@ -221,16 +221,22 @@ class FusedMap:
         return len(zstandard.ZstdCompressor(level=level).compress(raw))
 
     def occupancy_grid(
-        self, resolution: float, lo: Sequence[float] | None = None, hi: Sequence[float] | None = None
+        self,
+        resolution: float,
+        lo: Sequence[float] | None = None,
+        hi: Sequence[float] | None = None,
+        min_known: float = 1.0,
     ) -> tuple[np.ndarray, np.ndarray]:
         """(corner of cell (0,0,0), uint8 (nx,ny,nz) states) of a coarse grid over [lo, hi) (default: the bounds).
 
         A fine voxel belongs to the cell holding its sample point. A cell is OCCUPIED if any of its voxels is
-        occupied, FREE if all of its voxels are known and none is occupied, UNKNOWN otherwise (a cell is only
-        declared free when it was entirely seen, which keeps planned paths out of partly seen space).
+        occupied, FREE if at least `min_known` of its voxels are known (by default all: a cell is only declared
+        free when it was entirely seen) and none is occupied, UNKNOWN otherwise.
         """
         if not resolution > 0:
             raise ValueError("resolution must be positive")
+        if not 0.0 < min_known <= 1.0:
+            raise ValueError("min_known must be in (0, 1]")
         lo_ = self.bounds[0] if lo is None else np.asarray(lo, dtype=np.float64)
         hi_ = self.bounds[1] if hi is None else np.asarray(hi, dtype=np.float64)
         shape = np.maximum(np.ceil((hi_ - lo_) / resolution - _EPS).astype(np.int64), 0)
@@ -238,6 +244,10 @@ class FusedMap:
         states = np.zeros(n_cells, dtype=np.uint8)
         if n_cells == 0:
             return lo_, states.reshape(tuple(shape))
+        aligned = self._aligned_cells(resolution, lo_)
+        if aligned is not None:
+            f, offset = aligned
+            return lo_.copy(), self._occupancy_aligned(f, offset, tuple(int(s) for s in shape), min_known)
         v, o, r = self.lattice.voxel_size, self.lattice.origin_array, self.lattice.block_resolution
 
         def cell_of(index: np.ndarray, axis: int) -> np.ndarray:
@@ -275,9 +285,54 @@ class FusedMap:
         known_per_cell = np.bincount(flat[known], minlength=n_cells)
         occupied_cells = np.zeros(n_cells, dtype=bool)
         occupied_cells[flat[occupied]] = True
-        states[(known_per_cell == total) & (total > 0)] = FREE
+        states[(known_per_cell >= min_known * total - _EPS) & (total > 0)] = FREE
         states[occupied_cells] = OCCUPIED
         return lo_.copy(), states.reshape(tuple(int(s) for s in shape))
+
+    def _aligned_cells(self, resolution: float, lo: np.ndarray) -> tuple[int, np.ndarray] | None:
+        """(voxels per cell edge f, cell offset of voxel 0 per axis) when every cell is exactly f^3 voxels of one
+        block (the usual case: 0.2 m cells on a 0.1 m lattice whose origin sits on the grid); else None."""
+        f = resolution / self.lattice.voxel_size
+        offset = (self.lattice.origin_array - lo) / resolution
+        r = self.lattice.block_resolution
+        if abs(f - round(f)) > 1e-6 or round(f) < 1 or r % round(f) or np.any(np.abs(offset - np.rint(offset)) > 1e-6):
+            return None
+        return int(round(f)), np.rint(offset).astype(np.int64)
+
+    def _occupancy_aligned(
+        self, f: int, offset: np.ndarray, shape: tuple[int, int, int], min_known: float = 1.0
+    ) -> np.ndarray:
+        """`occupancy_grid` by reducing each block's voxels f x f x f at a time: the same states, ~10x faster."""
+        n, r = self._count, self.lattice.block_resolution
+        c = r // f  # cells per block edge
+        states = np.zeros(shape, dtype=np.uint8)
+        if n == 0:
+            return states
+        known = self._weight[:n] >= self.known_units
+        occupied = known & (self._sum[:n] <= 0)
+        if min_known >= 1.0:
+            enough_known = _reduce_cells(known, np.logical_and, r, f)
+        else:
+            enough_known = _reduce_cells(known.astype(np.uint16), np.add, r, f) >= min_known * f**3 - _EPS
+        any_occupied = _reduce_cells(occupied, np.logical_or, r, f)
+        cell_states = np.where(any_occupied, np.uint8(OCCUPIED), np.where(enough_known, np.uint8(FREE), np.uint8(UNKNOWN)))
+        keys = self._keys[:n].astype(np.int64)
+        steps = np.arange(c)
+        gx, gy, gz = (offset[a] + keys[:, a : a + 1] * c + steps for a in range(3))  # (n, c) cell index per axis
+        flat = (gz[:, :, None, None] * shape[1] + gy[:, None, :, None]) * shape[0] + gx[:, None, None, :]
+        inside = (
+            ((gz >= 0) & (gz < shape[2]))[:, :, None, None]
+            & ((gy >= 0) & (gy < shape[1]))[:, None, :, None]
+            & ((gx >= 0) & (gx < shape[0]))[:, None, None, :]
+        )
+        # flat indexes a [z, y, x] array, the blocks' own storage order: no transposes of the big arrays
+        out = np.zeros(shape[::-1], dtype=np.uint8).reshape(-1)
+        if inside.all():
+            out[flat.reshape(-1)] = cell_states.reshape(-1)
+        else:
+            out[flat[inside]] = cell_states[inside]
+        states[...] = out.reshape(shape[::-1]).transpose(2, 1, 0)
+        return states
 
     def mesh(self) -> tuple[np.ndarray, np.ndarray]:
         """Marching-cubes surface of the known voxels: (V,3) float64 world vertices, (F,3) int32 triangles."""
@@ -293,6 +348,25 @@ class FusedMap:
         vertices, triangles = self.mesh()
         write_ply(path, vertices, triangles)
         return len(vertices), len(triangles)
+
+
+def _reduce_cells(voxels: np.ndarray, combine: np.ufunc, r: int, f: int) -> np.ndarray:
+    """(n, c, c, c) [z, y, x] cells of (n, r^3) [z, y, x] block voxels, combining f voxels per axis.
+
+    One axis at a time with strided slices: numpy's multi-axis reductions over such shapes are ~10x slower."""
+    n, c = len(voxels), r // f
+    shapes = ((n, r, r, c, f), (n, r, c, f, c), (n, c, f, c, c))  # split x, then y, then z
+    current = voxels
+    for axis, shape in zip((4, 3, 2), shapes):
+        split = current.reshape(shape)
+        index = [slice(None)] * 5
+        index[axis] = 0
+        acc = split[tuple(index)].copy()
+        for i in range(1, f):
+            index[axis] = i
+            combine(acc, split[tuple(index)], out=acc)
+        current = acc
+    return current
 
 
 def _classify(weight: np.ndarray, total: np.ndarray, known_units: int) -> np.ndarray:

@@ -107,6 +107,8 @@ def measure_mission(config: SwarmConfig, n: int, root: Path) -> dict[str, Any]:
     run_config = config.model_copy(deep=True)
     run_config.mission.drones = n
     run_config.mission.out = root / f"mission-{n}"
+    run_config.explore.strategy = "scripted"  # the same flights at every size: comparable figures
+
     report = run_mission(run_config, live=False)
     bandwidth = report["bandwidth"]
     per_loop = bandwidth["whole_map_baseline_bytes_per_agent_s"] * (bandwidth["baseline_loop_s"] or 0.0)

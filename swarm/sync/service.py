@@ -72,8 +72,10 @@ class PatchSync:
         position: Position,
         max_patch_bytes: int,
         on_holdings_changed: Callable[[], None] | None = None,
+        share: bool = True,
     ) -> None:
         self.bus = bus
+        self.share = share  # False: hold and announce own patches only (the frontier-only strategy)
         self.keys = bus.keys
         self.settings = settings
         self.own_id = own_id
@@ -109,7 +111,10 @@ class PatchSync:
     # --- lifecycle --------------------------------------------------------------------------------------
 
     def start(self) -> None:
-        """Subscribe to pushes, serve the store, and start the pull loop (call on the event loop)."""
+        """Subscribe to pushes, serve the store, and start the pull loop (call on the event loop); without
+        sharing, nothing (own patches are still held and announced)."""
+        if not self.share:
+            return
         self.bus.subscribe(
             self.keys.all_patches, PatchChunk, self._on_push, max_bytes=self.settings.chunk_bytes + _CHUNK_OVERHEAD
         )
@@ -136,7 +141,7 @@ class PatchSync:
         """An own patch was sealed: hold it, announce it, push it."""
         if pid.producer != self.own_id:
             raise ValueError(f"patch {pid} is not produced by agent {self.own_id}")
-        if not self._hold(pid, data):
+        if not self._hold(pid, data) or not self.share:
             return
         self.counters.pushed += 1
         key = self.keys.patch(self.own_id)

@@ -74,3 +74,53 @@ def densify(path: list[Vec3], step: float) -> np.ndarray:
         n = max(1, int(np.ceil(np.linalg.norm(b - a) / step)))
         points.append(a + np.linspace(0, 1, n + 1)[1:, None] * (b - a))
     return np.concatenate(points)
+
+
+# State grids (UNKNOWN / FREE / OCCUPIED, as FusedMap.occupancy_grid exports them) for the frontier tests.
+
+
+def state_grid(size_m: Vec3, value: int, resolution: float = 0.2) -> np.ndarray:
+    shape = tuple(int(round(s / resolution)) for s in size_m)
+    return np.full(shape, value, dtype=np.uint8)
+
+
+def set_states(states: np.ndarray, lo: Vec3, hi: Vec3, value: int, resolution: float = 0.2) -> np.ndarray:
+    """Give `value` to the cells whose centre lies in the box [lo, hi] (grid origin at 0)."""
+    shaped = OccupancyGrid(np.zeros(3), resolution, np.broadcast_to(False, states.shape))
+    states[cells_in_box(shaped, lo, hi)] = value
+    return states
+
+
+def room_states(known_to_x: float = 4.0, wall_x: float | None = None, door: bool = False) -> np.ndarray:
+    """The 8 x 6 x 3 m room of `room_with_wall` as a state grid: one-cell floor, ceiling and walls, free inside,
+    and everything at x >= `known_to_x` unknown (walls included). `wall_x`: a one-cell wall across x there,
+    with `door` a 1.2 m wide, 2 m high opening at y 2.4..3.6 m."""
+    from swarm.patches.fused import FREE, OCCUPIED, UNKNOWN
+
+    states = state_grid((8.0, 6.0, 3.0), OCCUPIED)
+    set_states(states, (0.2, 0.2, 0.2), (7.8, 5.8, 2.8), FREE)
+    if wall_x is not None:
+        set_states(states, (wall_x, 0.0, 0.0), (wall_x + 0.19, 6.0, 3.0), OCCUPIED)
+        if door:
+            set_states(states, (wall_x, 2.4, 0.2), (wall_x + 0.19, 3.6, 2.0), FREE)
+    set_states(states, (known_to_x, 0.0, 0.0), (8.0, 6.0, 3.0), UNKNOWN)
+    return states
+
+
+def warehouse_states(known_to_x: float = 20.0, speckle: float = 0.01, seed: int = 0) -> np.ndarray:
+    """40 x 25 x 6.4 m warehouse at 0.2 m, half explored: floor, outer walls and a roof at 6 m; four rows of
+    10 m x 1 m x 4 m racks along x; known up to `known_to_x` except the racks' far sides above 2 m (shadows)
+    and a `speckle` share of free cells left unknown (thin spots of a real TSDF map)."""
+    from swarm.patches.fused import FREE, OCCUPIED, UNKNOWN
+
+    states = state_grid((40.0, 25.0, 6.4), UNKNOWN)
+    set_states(states, (0.0, 0.0, 0.0), (40.0, 25.0, 6.2), OCCUPIED)
+    set_states(states, (0.2, 0.2, 0.2), (39.8, 24.8, 5.8), FREE)
+    for x0 in (3.0, 16.0, 29.0):
+        for y0 in (4.0, 9.0, 14.0, 19.0):
+            set_states(states, (x0, y0, 0.0), (x0 + 10.0, y0 + 1.0, 4.0), OCCUPIED)
+            set_states(states, (x0, y0 + 1.0, 2.0), (x0 + 10.0, y0 + 1.6, 4.0), UNKNOWN)
+    rng = np.random.default_rng(seed)
+    states[(states == FREE) & (rng.random(states.shape) < speckle)] = UNKNOWN
+    set_states(states, (known_to_x, 0.0, 0.0), (40.0, 25.0, 6.4), UNKNOWN)
+    return states

@@ -41,7 +41,19 @@ def test_two_agents_fly_see_each_other_and_land(tmp_path: Path, swarm_ports: Swa
         assert (out / "agents" / f"agent-{agent['id']}.ply").stat().st_size > 0
     # the swarm's map: every sealed patch fused by the observer, checked against the world mesh
     assert report["map"] == "map.ply" and (out / "map.ply").stat().st_size > 0
-    assert 0.3 < report["explored_fraction"] <= 1.0
+    # autonomous exploration (coordinated, the default): drone 1 leads, drone 2 flies the targets it is given,
+    # and the leader ends the mission when no frontier is left
+    assert report["mission"]["strategy"] == "coordinated"
+    assert report["explored_fraction"] >= 0.95
+    assert report["time_to"]["0.5"] is not None and report["time_to"]["0.5"] <= report["time_to"]["0.95"]
+    assert report["agents"][1]["targets_assigned"] > 0 and report["agents"][1]["targets_self_selected"] == 0
+    assert report["leaders"] and report["leaders"][0]["leader"] == 1
+    summaries = {k: json.loads((out / "agents" / f"agent-{k}.json").read_text()) for k in (1, 2)}
+    assert summaries[1]["exploration_done"] and "no candidate left" in summaries[1]["exploration_done_reason"]
+    assert summaries[2]["exploration_done"] and "leader 1 declared" in summaries[2]["exploration_done_reason"]
+    assert set(report["plots"]) == {"explored.png", "trajectories.png", "leaders.png", "bytes.png"}
+    assert all((out / name).stat().st_size > 0 for name in report["plots"])
+    assert "explored" in (out / "report.md").read_text()
     sealed = sum(a["patches_sealed"] for a in report["agents"])
     assert len(list((out / "agents" / "patches").glob("*.patch"))) == sealed
     observer = json.loads((out / "observer.json").read_text())
@@ -73,6 +85,7 @@ def test_mesh_file_world_with_start(tmp_path: Path, swarm_ports: SwarmPorts) -> 
     report = json.loads((out / "report.json").read_text())
     assert report["status"] == "complete" and report["collisions"] == 0
     assert report["agents"][0]["landed"]
+    assert report["explored_fraction"] >= 0.95  # one drone explores a mesh world alone
 
 
 def _events(log: Path) -> list[dict[str, Any]]:
@@ -114,7 +127,7 @@ def test_killed_agent_is_seen_leaving_within_3_s_and_sigterm_lands(tmp_path: Pat
             ]
             procs.append(subprocess.Popen(
                 swarm_cmd("agent", "--id", str(k), "--autopilot", f"udpin://127.0.0.1:{p.gcs_base + k - 1}",
-                          "--set", "agent.hover_s=120", *bus),
+                          "--set", "agent.hover_s=120", "--set", "explore.strategy=scripted", *bus),
                 stdout=logs[f"agent-{k}"].open("w"), stderr=subprocess.STDOUT,
             ))
         sim, agent1, agent2 = procs

@@ -1,0 +1,339 @@
+"""Frontiers for 3D exploration: where known free space meets unknown space, and where to look at it from.
+
+After Mahdoui's frontier rules (research notes 2.2-2.4), adapted to a 3D grid and to drones that plan through
+known free space only. The input is the coarse state grid of the fused map (`FusedMap.occupancy_grid`):
+UNKNOWN, FREE or OCCUPIED per cell, cell (i, j, k) spanning `origin + [i, i+1) x [j, j+1) x [k, k+1) * res`.
+
+- safe cell: known FREE, no point of it closer than `clearance_m` to an OCCUPIED cell (the conservative
+  rasterisation of `OccupancyGrid.inflate`), centre inside the flight band
+  z in [floor_z + min_altitude_m, top_z - ceiling_margin_m]. UNKNOWN cells are never safe but are not inflated:
+  otherwise every frontier would sit behind a wall of blocked cells. UNKNOWN cells whose centre is within
+  `clearance_m` of a `free_points` entry (a drone's own position: space a drone occupies is free), and the cell
+  holding it, count as FREE; OCCUPIED is never overridden.
+- reachable: the safe cells 26-connected to the safe cell nearest a position (searched within 1.5 m).
+- open unknown: an UNKNOWN cell not 26-adjacent to an OCCUPIED cell (crevices next to obstacles do not count),
+  in a 26-connected component of open unknown cells of at least `min_unknown_m3` (specks inside known space do
+  not count either).
+- frontier cell: a FREE cell 6-adjacent to an open unknown cell of the grid (outside the grid is not unknown: the
+  grid is the mission volume) whose centre is within `reach_m` of a reachable cell centre. It may lie outside
+  the flight band (low space near the floor is seen from above).
+- group: a 26-connected component of frontier cells, split by `cluster_size_m` bins of the cell centres; groups
+  of fewer than 2 cells are dropped. Its `point` is the group's cell nearest the group's mean.
+- gain: open unknown cells in the (2g+1)^3 cube around a cell, g = round(gain_radius_m / res), times res^3; cells
+  outside the grid do not count. Groups with gain < `min_gain_m3` are dropped.
+- viewpoint: the reachable cell nearest `point`, provided the straight line between them crosses no OCCUPIED
+  cell (a viewpoint on the far side of a thin wall sees nothing); otherwise the nearest reachable cell within
+  `reach_m` that has that line of sight; none, and the group is dropped.
+
+Everything is array work (shifted ORs, `ndimage.label`, summed-volume tables, gathers at offsets sorted by
+distance): scipy's exact distance transform alone costs more than the whole budget on a warehouse-sized grid.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy import ndimage
+
+from swarm.config import ExploreSettings, Vec3
+from swarm.explore.grid import OccupancyGrid
+from swarm.patches.fused import FREE, OCCUPIED, UNKNOWN
+
+START_SEARCH_RADIUS_M = 1.5  # a position's reachable set starts at the safe cell nearest it, this far at most
+_LINE_OF_SIGHT_STEP = 0.25  # line of sight is sampled every quarter cell: a wall a cell thick is never skipped
+_EPS = 1e-9
+_CONNECT_26 = np.ones((3, 3, 3), dtype=bool)
+
+
+@dataclass(frozen=True)
+class Frontier:
+    point: Vec3  # centre of the frontier cell nearest to its group's mean (what is to be seen)
+    viewpoint: Vec3  # centre of a safe, reachable cell within reach_m of `point` (where the drone flies)
+    gain: float  # unknown volume (m^3) in the cube of half-width gain_radius_m around `point`
+    cells: int  # frontier cells in the group
+
+
+class ExplorationGrid:
+    """One loop's view of the fused map for exploration: what is safe to fly, what is reachable, where the
+    frontiers are."""
+
+    def __init__(self, origin: np.ndarray, resolution: float, states: np.ndarray, safe: np.ndarray,
+                 band: tuple[int, int], settings: ExploreSettings) -> None:
+        """Use `from_states`; this only stores what it computed."""
+        self.origin, self.resolution, self.settings = origin, resolution, settings
+        self._occupied = states == OCCUPIED
+        self._free = states == FREE
+        # Unknown cells touching an obstacle cell are crevices (floor corners, under furniture) that cameras rarely
+        # see and that the coverage measure mostly leaves out (it counts space a drone radius from surfaces):
+        # they neither make frontiers nor add gain, else the mission's tail is spent staring into corners.
+        self._unknown = _without_specks(
+            (states == UNKNOWN) & ~ndimage.binary_dilation(self._occupied, structure=_CONNECT_26),
+            round(settings.min_unknown_m3 / resolution**3),
+        )
+        self._band = band
+        self.planning_grid = OccupancyGrid(origin, resolution, ~safe)
+
+    @classmethod
+    def from_states(cls, origin: ArrayLike, resolution: float, states: np.ndarray, settings: ExploreSettings,
+                    floor_z: float, top_z: float, free_points: Sequence[Vec3] = ()) -> ExplorationGrid:
+        """The grid for one loop; `states` as `FusedMap.occupancy_grid` exports them (not modified)."""
+        origin_ = np.asarray(origin, dtype=float).reshape(3)
+        states = np.asarray(states, dtype=np.uint8)
+        if states.ndim != 3 or not resolution > 0:
+            raise ValueError(f"need a 3D state grid and a positive resolution, got {states.shape}, {resolution}")
+        states = _mark_free(states, origin_, resolution, free_points, settings.clearance_m)
+        blocked = _inflate(states == OCCUPIED, settings.clearance_m / resolution)
+        low = (floor_z + settings.min_altitude_m - origin_[2]) / resolution - 0.5  # in layer-centre units
+        high = (top_z - settings.ceiling_margin_m - origin_[2]) / resolution - 0.5
+        k0 = max(math.ceil(low - _EPS), 0)
+        k1 = max(min(math.floor(high + _EPS) + 1, states.shape[2]), k0)
+        safe = (states == FREE) & ~blocked
+        safe[:, :, :k0] = False
+        safe[:, :, k1:] = False
+        return cls(origin_, float(resolution), states, safe, (k0, k1), settings)
+
+    def reachable(self, position: Vec3) -> np.ndarray:
+        """Bool mask of the safe cells 26-connected to the safe cell nearest `position`; all False if none."""
+        mask = np.zeros(self._free.shape, dtype=bool)
+        start = self.planning_grid.nearest_free(position, START_SEARCH_RADIUS_M)
+        if start is None:
+            return mask
+        i, j, k = self.planning_grid.indices_of(start[None, :])[0]
+        k0, k1 = self._band
+        mask[:, :, k0:k1] = self._labels == self._labels[i, j, k - k0]
+        return mask
+
+    def frontiers(self, position: Vec3) -> list[Frontier]:
+        """The frontier groups seen from `position`'s reachable space, by gain, largest first."""
+        reach = self.reachable(position)
+        if not reach.any():
+            return []
+        offsets = _ball_offsets(self.settings.reach_m / self.resolution)
+        nearest = _first_hit(reach, self._frontier_cells, offsets)
+        cells = self._frontier_cells[nearest >= 0]
+        if len(cells) == 0:
+            return []
+        viewpoints = cells + offsets[nearest[nearest >= 0]]
+        group, counts = self._group(cells)
+        points = _nearest_to_group_mean(cells, group, len(counts))
+        gains = self.gain_at(self._centre(cells[points]))
+        keep = np.flatnonzero((counts >= 2) & (gains >= self.settings.min_gain_m3))
+        keep = keep[np.argsort(-gains[keep], kind="stable")]
+        targets, eyes = self._centre(cells[points[keep]]), self._centre(viewpoints[points[keep]])
+        seen = self._sees(eyes, targets)
+        found = []
+        for g, target, eye, ok in zip(keep, targets, eyes, seen):
+            viewpoint = eye if ok else self._seeing_viewpoint(cells[points[g]], reach, offsets)
+            if viewpoint is not None:
+                found.append(Frontier(_vec3(target), _vec3(viewpoint), float(gains[g]), int(counts[g])))
+        return found
+
+    def gain_at(self, points: np.ndarray) -> np.ndarray:
+        """(N,) unknown volume (m^3) in the gain cube around each (N, 3) world point; 0 outside the grid."""
+        idx = np.floor((np.asarray(points, dtype=float).reshape(-1, 3) - self.origin) / self.resolution)
+        shape = np.array(self._unknown.shape)
+        inside = np.all((idx >= 0) & (idx < shape), axis=1)
+        half = round(self.settings.gain_radius_m / self.resolution)
+        lo = np.clip(idx[inside] - half, 0, shape).astype(np.int64).T
+        hi = np.clip(idx[inside] + half + 1, 0, shape).astype(np.int64).T
+        table = self._unknown_table
+        total = np.zeros(len(lo[0]), dtype=np.int64)
+        for corner in range(8):  # inclusion-exclusion over the 8 corners of each box
+            pick = [(hi, lo)[(corner >> axis) & 1][axis] for axis in range(3)]
+            sign = -1 if bin(corner).count("1") % 2 else 1
+            total += sign * table[pick[0], pick[1], pick[2]]
+        gains = np.zeros(len(idx))
+        gains[inside] = total * self.resolution**3
+        return gains
+
+    def is_frontier_near(self, point: Vec3, radius: float) -> bool:
+        """Some FREE cell bordering UNKNOWN lies within `radius` of `point`, reachable or not.
+
+        No reach test: it tells whether the unknown space a target was chosen for is still unseen, whoever
+        sees it.
+        """
+        centres = self._centre(self._frontier_cells)
+        return bool(np.any(np.sum((centres - np.asarray(point, dtype=float)) ** 2, axis=1) <= radius**2))
+
+    def unknown_fraction(self) -> float:
+        """Share of the flight band's cells still unknown (0 when the band is empty)."""
+        k0, k1 = self._band
+        band = self._unknown[:, :, k0:k1]
+        return float(band.mean()) if band.size else 0.0
+
+    @cached_property
+    def _labels(self) -> np.ndarray:
+        """26-connected components of the safe cells, over the flight band's layers only (nothing else is safe)."""
+        k0, k1 = self._band
+        labels, _ = ndimage.label(~self.planning_grid.occupied[:, :, k0:k1], structure=_CONNECT_26)
+        return labels
+
+    @cached_property
+    def _frontier_cells(self) -> np.ndarray:
+        """(n, 3) indices of the FREE cells 6-adjacent to an UNKNOWN cell, before the reach test."""
+        unknown, near = self._unknown, np.zeros_like(self._unknown)
+        for axis in range(3):
+            lower, upper = (slice(None),) * axis + (slice(None, -1),), (slice(None),) * axis + (slice(1, None),)
+            near[lower] |= unknown[upper]
+            near[upper] |= unknown[lower]
+        return np.argwhere(near & self._free)
+
+    @cached_property
+    def _unknown_table(self) -> np.ndarray:
+        """Summed-volume table of the unknown cells, with a zero first plane on each axis."""
+        table = np.zeros(tuple(n + 1 for n in self._unknown.shape), dtype=np.int32)
+        inner = table[1:, 1:, 1:]
+        np.cumsum(self._unknown, axis=2, dtype=np.int32, out=inner)  # in place: half the time of chained cumsums
+        np.cumsum(inner, axis=1, out=inner)
+        np.cumsum(inner, axis=0, out=inner)
+        return table
+
+    def _group(self, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Group id per cell (26-connected component x cluster bin) and the cell count per group."""
+        lo, hi = cells.min(axis=0), cells.max(axis=0) + 1
+        crop = np.zeros(tuple(hi - lo), dtype=bool)  # labelling only the frontier's bounding box is cheaper
+        crop[tuple((cells - lo).T)] = True
+        labels, _ = ndimage.label(crop, structure=_CONNECT_26)
+        component = labels[tuple((cells - lo).T)].astype(np.int64)
+        bins = np.floor((cells + 0.5) * self.resolution / self.settings.cluster_size_m + _EPS).astype(np.int64)
+        key = component
+        for axis in range(3):
+            key = key * (int(bins[:, axis].max()) + 1) + bins[:, axis]
+        _, group, counts = np.unique(key, return_inverse=True, return_counts=True)
+        return group.reshape(-1), counts
+
+    def _seeing_viewpoint(self, cell: np.ndarray, reach: np.ndarray, offsets: np.ndarray) -> np.ndarray | None:
+        """Centre of the nearest reachable cell within reach that has a line of sight to `cell`, or None."""
+        candidates = cell + offsets
+        candidates = candidates[np.all((candidates >= 0) & (candidates < reach.shape), axis=1)]
+        candidates = candidates[reach[tuple(candidates.T)]]
+        seeing = np.flatnonzero(self._sees(self._centre(candidates), self._centre(cell)))
+        return self._centre(candidates[seeing[0]]) if len(seeing) else None
+
+    def _sees(self, eyes: np.ndarray, targets: np.ndarray) -> np.ndarray:
+        """(M,) whether each segment from eyes (M, 3) to targets (M, 3 or 3,) crosses no OCCUPIED cell (sampled)."""
+        if len(eyes) == 0:
+            return np.zeros(0, dtype=bool)
+        rays = np.broadcast_to(targets, eyes.shape) - eyes
+        longest = float(np.max(np.linalg.norm(rays, axis=1)))
+        steps = np.linspace(0.0, 1.0, max(2, math.ceil(longest / (self.resolution * _LINE_OF_SIGHT_STEP)) + 1))
+        samples = eyes[:, None, :] + steps[None, :, None] * rays[:, None, :]
+        idx = np.floor((samples - self.origin) / self.resolution).astype(np.int64)
+        idx = np.clip(idx, 0, np.array(self._occupied.shape) - 1)  # both ends are in the grid; guard rounding
+        return ~self._occupied[idx[..., 0], idx[..., 1], idx[..., 2]].any(axis=1)
+
+    def _centre(self, idx: np.ndarray) -> np.ndarray:
+        return self.origin + (np.asarray(idx, dtype=float) + 0.5) * self.resolution
+
+
+def _without_specks(unknown: np.ndarray, min_cells: int) -> np.ndarray:
+    """`unknown` minus its 26-connected components of fewer than `min_cells` cells: specks of space the camera
+    grazed but never quite covered, inside known space, which would keep a mission alive for nothing."""
+    if min_cells <= 1 or not unknown.any():
+        return unknown
+    labels, _ = ndimage.label(unknown, structure=_CONNECT_26)
+    small = np.bincount(labels.ravel()) < min_cells
+    small[0] = False
+    return unknown & ~small[labels]
+
+
+def _mark_free(states: np.ndarray, origin: np.ndarray, resolution: float, points: Sequence[Vec3],
+               radius: float) -> np.ndarray:
+    """`states` with the UNKNOWN cells around each point (centre within `radius`, or holding it) made FREE."""
+    if len(points) == 0:
+        return states
+    states = states.copy()
+    shape = np.array(states.shape)
+    offsets = _cube_offsets(math.ceil(radius / resolution) + 1)
+    for p in np.asarray(points, dtype=float).reshape(-1, 3):
+        if not np.all(np.isfinite(p)):
+            continue
+        home = np.floor((p - origin) / resolution).astype(np.int64)
+        cells = home + offsets
+        centres = origin + (cells + 0.5) * resolution
+        near = (np.sum((centres - p) ** 2, axis=1) <= radius**2) | np.all(cells == home, axis=1)
+        cells = cells[near & np.all((cells >= 0) & (cells < shape), axis=1)]
+        hit = tuple(cells.T)
+        states[hit] = np.where(states[hit] == UNKNOWN, np.uint8(FREE), states[hit])
+    return states
+
+
+def _inflate(occupied: np.ndarray, radius_cells: float) -> np.ndarray:
+    """`OccupancyGrid.inflate` without its distance transform: the cells whose cube comes closer than
+    `radius_cells` to an occupied cube, i.e. occupied dilated by (ball of centre distance < radius) + 3x3x3."""
+    if radius_cells <= 0 or not occupied.any():
+        return occupied.copy()
+    ball = _ball_offsets(radius_cells - _EPS, strict=True)
+    offsets = np.unique((ball[:, None, :] + _cube_offsets(1)[None, :, :]).reshape(-1, 3), axis=0)
+    # Every column (dx, dy) of this set is a symmetric run of dz: dilate along z once per run length, then OR
+    # shifted copies in x and y. Far cheaper than a 3D structuring element or a distance transform.
+    heights: dict[tuple[int, int], int] = {}
+    for dx, dy, dz in offsets.tolist():
+        heights[(dx, dy)] = max(heights.get((dx, dy), 0), abs(dz))
+    runs = {h: ndimage.maximum_filter1d(occupied.view(np.uint8), 2 * h + 1, axis=2, mode="constant").view(bool)
+            for h in set(heights.values())}
+    out = np.zeros_like(occupied)
+    nx, ny, _ = occupied.shape
+    for (dx, dy), h in heights.items():
+        if abs(dx) < nx and abs(dy) < ny:
+            out[max(dx, 0) : nx + min(dx, 0), max(dy, 0) : ny + min(dy, 0)] |= (
+                runs[h][max(-dx, 0) : nx - max(dx, 0), max(-dy, 0) : ny - max(dy, 0)]
+            )
+    return out
+
+
+def _ball_offsets(radius_cells: float, strict: bool = False) -> np.ndarray:
+    """(M, 3) integer offsets with length <= radius (< when strict), nearest first."""
+    offsets = _cube_offsets(max(math.floor(radius_cells + _EPS), 0))
+    length2 = np.sum(offsets**2, axis=1)
+    keep = length2 < radius_cells**2 if strict else length2 <= radius_cells**2 + _EPS
+    return offsets[keep][np.argsort(length2[keep], kind="stable")]
+
+
+def _cube_offsets(half: int) -> np.ndarray:
+    """(M, 3) every integer offset with no coordinate beyond `half`."""
+    axis = np.arange(-half, half + 1)
+    return np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), axis=-1).reshape(-1, 3)
+
+
+def _first_hit(mask: np.ndarray, cells: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """For each cell, the index of the first offset (nearest, as `offsets` is sorted) landing on `mask`; -1 if none.
+
+    Gathers at the frontier cells only, in chunks of growing size: most frontier cells are at distance 0 or 1
+    from a reachable cell, so they are settled by the first chunks and leave the rest to the few far ones.
+    """
+    found = np.full(len(cells), -1, dtype=np.int64)
+    pad = int(np.abs(offsets).max())
+    padded = np.pad(mask, pad)
+    strides = np.array([padded.shape[1] * padded.shape[2], padded.shape[2], 1])
+    base = (cells + pad) @ strides
+    flat_offsets, flat = offsets @ strides, padded.ravel()
+    pending = np.arange(len(cells))
+    start, size = 0, 1
+    while start < len(offsets) and len(pending):
+        hits = flat[base[pending, None] + flat_offsets[None, start : start + size]]
+        hit = hits.any(axis=1)
+        found[pending[hit]] = start + hits[hit].argmax(axis=1)
+        pending = pending[~hit]
+        start, size = start + size, size * 4
+    return found
+
+
+def _nearest_to_group_mean(cells: np.ndarray, group: np.ndarray, n_groups: int) -> np.ndarray:
+    """(n_groups,) row in `cells` of each group's cell nearest to the group's mean."""
+    counts = np.bincount(group, minlength=n_groups)
+    mean = np.stack([np.bincount(group, weights=cells[:, a], minlength=n_groups) for a in range(3)], axis=1)
+    mean /= np.maximum(counts, 1)[:, None]
+    distance2 = np.sum((cells - mean[group]) ** 2, axis=1)
+    order = np.lexsort((distance2, group))
+    firsts = np.flatnonzero(np.r_[True, np.diff(group[order]) != 0])
+    return order[firsts]
+
+
+def _vec3(p: np.ndarray) -> Vec3:
+    return float(p[0]), float(p[1]), float(p[2])

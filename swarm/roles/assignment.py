@@ -1,0 +1,226 @@
+"""The cluster leader's frontier processing and goal assignment (Mahdoui 2018; research notes 2.4-2.7).
+
+Pure functions over `Candidate`s, so the agent, the harness and the tests share one implementation and the
+leader's decision can be replayed from what it received. Each loop the leader turns every member's reported
+candidates into one set G, with `merge_candidates` when maps are shared or `remove_overlapped` when only frontiers
+travel, then `assign_targets` hands G out greedily, one member at a time, and lowers the gains near every target it
+hands out so the next member goes elsewhere. An empty G after processing is the thesis's stop condition (2.7);
+what to do then is the caller's business.
+
+Deviations from the thesis, all from working in 3D with viewpoints: distances are Euclidean in 3D, to the
+viewpoint a drone flies to; scheduling is isotropic in 3D and applies to every remaining candidate (r_min = 0,
+r_max = inf, notes section 6 #24); the scan-line overlap test uses a (y, z) band instead of a y row.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from swarm.config import Vec3
+
+_BLOCK = 512  # rows of a's points per overlap block: bounds the temporaries at _BLOCK x N_b x 3 floats
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A place worth flying to: a safe viewpoint, the frontier point it looks at, and what looking there gains."""
+
+    viewpoint: Vec3
+    point: Vec3
+    gain: float  # m^3 of unknown volume
+    owner: int  # the drone that reported it
+
+    def __post_init__(self) -> None:
+        # Utility is the gain times a positive factor: a negative or NaN gain would turn the argmax upside down.
+        if not (math.isfinite(self.gain) and self.gain >= 0.0):
+            raise ValueError(f"candidate gain must be finite and >= 0, got {self.gain}")
+
+
+def _order_key(c: Candidate) -> tuple[float, int, tuple[float, ...], tuple[float, ...]]:
+    """Highest gain first; the rest only makes equal gains come out in the same order on every leader."""
+    return (-c.gain, c.owner, tuple(c.viewpoint), tuple(c.point))
+
+
+def _array(vectors: Sequence[Vec3] | np.ndarray) -> np.ndarray:
+    """(N, 3) floats, also for an empty input, so the vectorised code needs no special cases."""
+    return np.asarray(vectors, dtype=float).reshape(-1, 3)
+
+
+def _pairwise(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(N_a, N_b) Euclidean distances."""
+    return np.linalg.norm(a[:, None, :] - b[None, :, :], axis=2)
+
+
+def _utilities(gain: np.ndarray, d_self: np.ndarray, d_tot: np.ndarray, n_others: int, lam: float) -> np.ndarray:
+    """Eq. 3.2 (Eq. 3.3 without others) for many targets at once; `utility` and `assign_targets` share it.
+
+    (n_c - 1) / d_tot is one over the others' mean distance: a target another member is sitting on (d_tot -> 0)
+    is worth nothing to this one, and exactly 0 there rather than a division by zero."""
+    if n_others == 0:
+        return gain * np.exp(-lam * d_self)
+    reachable = d_tot > 0.0
+    crowd = n_others / np.where(reachable, d_tot, 1.0)
+    return np.where(reachable, gain * np.exp(-lam * (d_self + crowd)), 0.0)
+
+
+def utility(gain: float, d_self: float, d_others: Sequence[float], lam: float) -> float:
+    """Mahdoui Eq. 3.2: U = I exp(-lam (d_i + (n_c - 1) / d_tot)), d_tot the sum of the other members' distances
+    to the target; with no others (n_c = 1) Eq. 3.3: U = I exp(-lam d_i). d_tot == 0 -> U = 0."""
+    u = _utilities(np.array([gain], float), np.array([d_self], float), np.array([math.fsum(d_others)]),
+                   len(d_others), lam)
+    return float(u[0])
+
+
+def schedule_gain(gain: np.ndarray, points: np.ndarray, assigned: Vec3, sigma: float) -> np.ndarray:
+    """Eq. 3.5, isotropic in 3D: gain * (1 - exp(-|p - assigned|^2 / (2 sigma^2))).
+
+    A candidate next to one already handed out mostly sees the same unknown volume, so its gain drops to near
+    zero there and recovers with distance; that is what spreads the members out."""
+    if not sigma > 0.0:
+        raise ValueError(f"sigma must be > 0, got {sigma}")
+    sq = np.sum((_array(points) - np.asarray(assigned, dtype=float)) ** 2, axis=1)
+    return np.asarray(gain, dtype=float) * -np.expm1(-sq / (2.0 * sigma * sigma))
+
+
+def _near_any(points: np.ndarray, centres: np.ndarray, radius: float) -> np.ndarray:
+    """Mask of points within radius (inclusive) of at least one centre."""
+    if len(centres) == 0 or len(points) == 0:
+        return np.zeros(len(points), dtype=bool)
+    # a k-d tree: a leader merging three drones' 512 candidates each must not stall its event loop
+    distance, _ = cKDTree(centres).query(points, distance_upper_bound=radius * (1 + 1e-12) + 1e-12)
+    return np.isfinite(distance)
+
+
+def _suppress_duplicates(ordered: Sequence[Candidate], radius: float) -> list[Candidate]:
+    """Greedy non-maximum suppression on viewpoints: in gain order, keep a candidate unless a kept one is within
+    radius. Only kept candidates suppress, so a chain of near neighbours does not wipe out its far end."""
+    if not ordered:
+        return []
+    views = _array([c.viewpoint for c in ordered])
+    neighbours = cKDTree(views).query_ball_point(views, radius * (1 + 1e-12) + 1e-12)
+    kept = np.zeros(len(ordered), dtype=bool)
+    for i, close in enumerate(neighbours):
+        kept[i] = not kept[close].any()
+    return [c for c, k in zip(ordered, kept) if k]
+
+
+def merge_candidates(own: Sequence[Candidate], received: Mapping[int, Sequence[Candidate]], *,
+                     gain_now: Callable[[np.ndarray], np.ndarray] | None, min_gain: float,
+                     exhausted: Sequence[Vec3], exhausted_radius: float, merge_radius: float) -> list[Candidate]:
+    """The leader's frontier processing with shared maps: the union of every member's candidates, minus
+    (1) candidates whose frontier point the leader's own fused map already knows (gain_now(points) < min_gain:
+        a member reported it before patches from another drone that mapped it arrived; skipped when None),
+    (2) candidates whose viewpoint is within exhausted_radius of an exhausted viewpoint (a drone already went
+        there and looked; what is still unknown is not visible from there),
+    (3) near-duplicates: of candidates whose viewpoints are within merge_radius, the highest gain is kept, since
+        two members at the same frontier report it twice.
+    Sorted by gain desc, then owner, then coordinates, so every leader produces the same list."""
+    pool = sorted([*own, *(c for k in sorted(received) for c in received[k])], key=_order_key)
+    if not pool:
+        return []
+    keep = np.ones(len(pool), dtype=bool)
+    if gain_now is not None:
+        now = np.asarray(gain_now(_array([c.point for c in pool])), dtype=float).reshape(len(pool))
+        keep &= now >= min_gain  # NaN compares False: a gain the map cannot compute is not a target
+    keep &= ~_near_any(_array([c.viewpoint for c in pool]), _array(exhausted), exhausted_radius)
+    return _suppress_duplicates([c for c, k in zip(pool, keep) if k], merge_radius)
+
+
+def _overlapped_block(a: np.ndarray, b: np.ndarray, eps: float) -> np.ndarray:
+    """Alg. 3.4's second pass for a block of a's points (its first pass is implied by the second)."""
+    d = b[None, :, :] - a[:, None, :]  # q - p, (n_a, n_b, 3)
+    band = (np.abs(d[..., 1]) < eps) & (np.abs(d[..., 2]) < eps)
+    dx = d[..., 0]
+    on = (band & (np.abs(dx) <= eps)).any(axis=1)
+    left = (band & (dx < -eps)).any(axis=1)
+    right = (band & (dx > eps)).any(axis=1)
+    return on | (left & right)
+
+
+def overlapped(points_a: np.ndarray, points_b: np.ndarray, eps: float = 0.5) -> np.ndarray:
+    """Frontier-only strategy (no shared maps): bool mask of a's points that lie inside or on the boundary of
+    b's known region, which b's frontier points outline. Mahdoui's concave scan-line test (Alg. 3.4, with the
+    notes' fixes) in 3D: among b's points within eps of p in y and z (strictly, as the thesis's row band), p is
+    overlapped when one is within eps in x too (on the outline), or when some lie more than eps to p's left in x
+    and some more than eps to its right (inside it). Assumes no obstacles inside b's region (notes section 6 #18).
+    Note the first branch also removes a frontier point that a and b share (notes section 6 #17)."""
+    a, b = _array(points_a), _array(points_b)
+    out = np.zeros(len(a), dtype=bool)
+    if len(b) == 0:
+        return out
+    for start in range(0, len(a), _BLOCK):
+        out[start:start + _BLOCK] = _overlapped_block(a[start:start + _BLOCK], b, eps)
+    return out
+
+
+def remove_overlapped(sets: Mapping[int, Sequence[Candidate]], eps: float = 0.5) -> list[Candidate]:
+    """Alg. 3.2 for n_c >= 2 without maps: the union of all sets minus, for each ordered pair (a, b), a != b,
+    a's candidates whose frontier points b's frontier points overlap (the union over pairs is the notes' reading
+    of the thesis's intersection for more than two drones). Sorted as `merge_candidates`."""
+    points = {k: _array([c.point for c in cands]) for k, cands in sets.items()}
+    kept: list[Candidate] = []
+    for a in sorted(sets):
+        hit = np.zeros(len(points[a]), dtype=bool)
+        for b in sorted(sets):
+            if b != a:
+                hit |= overlapped(points[a], points[b], eps)
+        kept.extend(c for c, h in zip(sets[a], hit) if not h)
+    return sorted(kept, key=_order_key)
+
+
+def _bonus(member: int, views: np.ndarray, owners: np.ndarray, current: Vec3 | None, current_bonus: float,
+           own_bonus: float, keep_radius: float) -> np.ndarray:
+    """Utility factors: staying on the current target avoids a U-turn every loop when a marginally better
+    candidate appears; preferring own frontiers keeps a drone's direction (thesis 3.7)."""
+    factor = np.where(owners == member, own_bonus, 1.0)
+    if current is not None:
+        factor = factor * np.where(_within(views, current, keep_radius), current_bonus, 1.0)
+    return factor
+
+
+def _within(views: np.ndarray, point: Vec3, radius: float) -> np.ndarray:
+    return np.linalg.norm(views - np.asarray(point, dtype=float), axis=1) <= radius
+
+
+def assign_targets(candidates: Sequence[Candidate], positions: Mapping[int, Vec3], *, lam: float, sigma: float,
+                   current: Mapping[int, Vec3] | None = None, current_bonus: float = 1.0, own_bonus: float = 1.0,
+                   keep_radius: float = 1.0) -> dict[int, Candidate | None]:
+    """Alg. 3.5, sequentially over members in ascending id (the leader assigns itself too): for each member, the
+    argmax over unassigned candidates of the utility (Euclidean 3D distances from positions to viewpoints;
+    d_others over the other members of `positions`, at their current positions) with the working, scheduled
+    gains, times current_bonus when the candidate's viewpoint is within keep_radius of the member's current
+    target, divided by it when the candidate is another member's current target (so drones keep their targets
+    instead of swapping them between rounds), and times own_bonus when the member reported it; then the candidate is taken out and the gains of the
+    rest are scheduled around its frontier point (Eq. 3.5: the information there overlaps). Scheduling lives
+    for this round only. Members left without a candidate get None. Exact ties go to the first candidate in
+    `merge_candidates`'s order, whatever order the input came in."""
+    members = sorted(positions)
+    result: dict[int, Candidate | None] = {m: None for m in members}
+    pool = sorted(candidates, key=_order_key)
+    if not pool or not members:
+        return result
+    views, points = _array([c.viewpoint for c in pool]), _array([c.point for c in pool])
+    owners = np.array([c.owner for c in pool])
+    work = np.array([c.gain for c in pool], dtype=float)
+    dist = _pairwise(_array([positions[m] for m in members]), views)  # (members, candidates)
+    free = np.ones(len(pool), dtype=bool)
+    for row, member in enumerate(members):
+        if not free.any():
+            break
+        d_tot = np.delete(dist, row, axis=0).sum(axis=0)
+        u = _utilities(work, dist[row], d_tot, len(members) - 1, lam)
+        target = None if current is None else current.get(member)
+        u = u * _bonus(member, views, owners, target, current_bonus, own_bonus, keep_radius)
+        for other, theirs in (current or {}).items():
+            if other != member and other in positions:  # another drone is on its way there: leave it to it
+                u = np.where(_within(views, theirs, keep_radius), u / current_bonus, u)
+        best = int(np.argmax(np.where(free, u, -np.inf)))
+        result[member] = pool[best]
+        free[best] = False
+        work = schedule_gain(work, points, pool[best].point, sigma)
+    return result

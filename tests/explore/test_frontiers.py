@@ -1,0 +1,484 @@
+import dataclasses
+import itertools
+
+import numpy as np
+import pytest
+
+from swarm.config import ExploreSettings, Vec3
+from swarm.explore.frontiers import ExplorationGrid, Frontier
+from swarm.explore.grid import OccupancyGrid
+from swarm.explore.planner import path_is_free, plan_path
+from swarm.patches.fused import FREE, OCCUPIED, UNKNOWN
+from tests.explore.synthetic import room_states, set_states, state_grid, warehouse_states
+
+RES = 0.2
+SETTINGS = ExploreSettings()
+# No speck filter: for the tests whose unknown pockets are a few cells, smaller than the default min_unknown_m3.
+POCKETS = SETTINGS.model_copy(update={"min_unknown_m3": 0.0})
+LEFT: Vec3 = (1.0, 3.0, 1.5)  # a drone in the left half of the 8 x 6 x 3 m room
+
+
+def _grid(states: np.ndarray, settings: ExploreSettings = SETTINGS, top_z: float = 3.0, **kwargs) -> ExplorationGrid:
+    return ExplorationGrid.from_states((0.0, 0.0, 0.0), RES, states, settings, floor_z=0.0, top_z=top_z, **kwargs)
+
+
+def _cell(p: Vec3) -> tuple[int, int, int]:
+    i, j, k = (int(v) for v in np.floor(np.asarray(p) / RES))
+    return i, j, k
+
+
+def _open_unknown(states: np.ndarray) -> np.ndarray:
+    """The UNKNOWN cells with no OCCUPIED cell among their 26 neighbours, written out shift by shift (no scipy)."""
+    occupied = np.pad(states == OCCUPIED, 1)
+    nx, ny, nz = states.shape
+    near = np.zeros(states.shape, dtype=bool)
+    for dx, dy, dz in itertools.product(range(3), repeat=3):
+        near |= occupied[dx : dx + nx, dy : dy + ny, dz : dz + nz]
+    return (states == UNKNOWN) & ~near
+
+
+def _free_face_neighbours(mask: np.ndarray, states: np.ndarray) -> np.ndarray:
+    """The FREE cells sharing a face with a cell of `mask`, written out axis by axis."""
+    padded = np.pad(mask, 1)
+    nx, ny, nz = states.shape
+    near = np.zeros(states.shape, dtype=bool)
+    for axis, step in itertools.product(range(3), (-1, 1)):
+        start = [1, 1, 1]
+        start[axis] += step
+        near |= padded[start[0] : start[0] + nx, start[1] : start[1] + ny, start[2] : start[2] + nz]
+    return near & (states == FREE)
+
+
+def _frontier_cell_mask(states: np.ndarray) -> np.ndarray:
+    """The frontier cells before any reach test: FREE cells 6-adjacent to an open unknown cell."""
+    return _free_face_neighbours(_open_unknown(states), states)
+
+
+def _six_neighbour_states(states: np.ndarray, cell: tuple[int, int, int]) -> list[int]:
+    found = []
+    for axis, step in itertools.product(range(3), (-1, 1)):
+        n = list(cell)
+        n[axis] += step
+        if 0 <= n[axis] < states.shape[axis]:
+            found.append(int(states[tuple(n)]))
+    return found
+
+
+def test_frontiers_lie_on_the_free_unknown_boundary() -> None:
+    states = room_states(known_to_x=4.0)
+    frontiers = _grid(states).frontiers(LEFT)
+    assert frontiers
+    open_unknown = _open_unknown(states)
+    for f in frontiers:
+        cell = _cell(f.point)
+        assert states[cell] == FREE
+        assert UNKNOWN in _six_neighbour_states(states, cell)
+        assert open_unknown[cell[0] + 1, cell[1], cell[2]]  # the unknown neighbour is open, not a crevice
+        assert f.point[0] == pytest.approx(3.9)  # the last known layer before x = 4 m
+    assert [f.gain for f in frontiers] == sorted((f.gain for f in frontiers), reverse=True)
+
+
+def test_frontier_cells_are_grouped_by_component_and_cluster_bins() -> None:
+    # The boundary is the free layer at x = 3.9 m (free cells 1..28 in y, 1..13 in z). The unknown cells across
+    # it at x = 4.1 m that touch the known walls, floor or ceiling of the layer x = 3.9 m (y cells 1 and 28, z
+    # cells 1 and 13) are crevices, not open unknown: 26 frontier cells across y (0.5..5.5 m) by 11 up z
+    # (0.5..2.5 m) remain, low and high cells outside the flight band included. Bins of 1.2 m (6 cells) cut it
+    # into 5 (y: 2-5, 6-11, 12-17, 18-23, 24-27) x 3 (z: 2-5, 6-11, 12) groups. No minimum gain: this is grouping.
+    states = room_states(known_to_x=4.0)
+    grouping = SETTINGS.model_copy(update={"min_gain_m3": 0.0})
+    frontiers = _grid(states, grouping).frontiers(LEFT)
+    assert int(_frontier_cell_mask(states).sum()) == 26 * 11
+    assert len(frontiers) == 15
+    assert sum(f.cells for f in frontiers) == 26 * 11
+    assert sorted(f.cells for f in frontiers) == sorted(y * z for y in (4, 6, 6, 6, 4) for z in (4, 6, 1))
+    assert len({f.point for f in frontiers}) == 15
+    for f in frontiers:
+        assert 0.5 - 1e-9 <= f.point[1] <= 5.5 + 1e-9 and 0.5 - 1e-9 <= f.point[2] <= 2.5 + 1e-9
+    # Every group faces half an unknown room: the default minimum gain keeps them all.
+    assert len(_grid(states).frontiers(LEFT)) == 15
+    coarse = _grid(states, grouping.model_copy(update={"cluster_size_m": 10.0}))
+    [single] = coarse.frontiers(LEFT)
+    assert single.cells == 26 * 11
+    # The cell nearest the mean: layer 7 of 2..12 in z, and one of the two middle columns of 2..27 in y.
+    assert single.point[0] == pytest.approx(3.9) and single.point[2] == pytest.approx(1.5)
+    assert single.point[1] == pytest.approx(2.9) or single.point[1] == pytest.approx(3.1)
+
+
+
+def test_frontier_components_are_separate_groups_even_in_one_bin() -> None:
+    states = room_states(known_to_x=8.0)
+    for y in (1.9, 3.3):  # two unknown cells 1.4 m apart: neither shells nor gain cubes touch
+        set_states(states, (2.1, y, 1.5), (2.1, y, 1.5), UNKNOWN)
+    settings = POCKETS.model_copy(update={"cluster_size_m": 10.0, "min_gain_m3": 0.0})
+    frontiers = _grid(states, settings).frontiers(LEFT)
+    assert [f.cells for f in frontiers] == [6, 6]
+    assert [f.gain for f in frontiers] == pytest.approx([RES**3] * 2)
+
+
+@pytest.mark.parametrize(("length", "groups"), [(1, [5]), (2, [8, 2])])
+def test_groups_of_a_single_frontier_cell_are_dropped(length: int, groups: list[int]) -> None:
+    # An unknown rod of 1 or 2 cells along y, in mid-air in a known room, in the last cell column (x = 2.3 m) of
+    # its 1.2 m cluster bin: the free cells past its +x face (x = 2.5 m) are a group of their own, `length`
+    # cells; the 3 * length + 2 cells of its other faces are one group in the rod's bin. One cell is dropped,
+    # two are kept. (A gap in a wall can no longer show this: it touches the wall, so it is a crevice.)
+    states = room_states(known_to_x=8.0)
+    set_states(states, (2.3, 2.9, 1.5), (2.3, 2.9 + 0.2 * (length - 1), 1.5), UNKNOWN)
+    assert _open_unknown(states).sum() == length
+    assert int(_frontier_cell_mask(states).sum()) == 4 * length + 2
+    frontiers = _grid(states, POCKETS.model_copy(update={"min_gain_m3": 0.0})).frontiers(LEFT)
+    assert sorted(f.cells for f in frontiers) == sorted(groups)
+    assert all(f.point[0] == pytest.approx(2.1) for f in frontiers if f.cells > 2)
+    assert all(f.point[0] == pytest.approx(2.5) for f in frontiers if f.cells <= 2)
+
+
+def test_a_fully_known_closed_room_has_no_frontiers() -> None:
+    grid = _grid(room_states(known_to_x=8.0))
+    assert grid.reachable(LEFT).any()
+    assert grid.frontiers(LEFT) == []
+    assert grid.unknown_fraction() == 0.0
+    assert not grid.is_frontier_near((4.0, 3.0, 1.5), 10.0)
+
+
+def test_unknown_fraction_counts_the_flight_band() -> None:
+    # The band is the layers k = 3..13 (z 0.6..2.7 m): 40 x 30 x 11 cells, the 20 x 30 x 11 at x >= 4 m unknown.
+    # Of the layer x = 4.1 m, the cells touching the known walls of x = 3.9 m are crevices: all 30 of k = 13
+    # (next to the ceiling, k = 14) and 4 per layer (y cells 0, 1, 28, 29) of k = 3..12.
+    states = room_states(known_to_x=4.0)
+    expected = (20 * 30 * 11 - (30 + 4 * 10)) / (40 * 30 * 11)
+    assert _grid(states).unknown_fraction() == pytest.approx(expected)
+    assert expected == pytest.approx(_open_unknown(states)[:, :, 3:14].mean())
+    # Known all through: nothing unknown, open or not.
+    assert _grid(room_states(known_to_x=8.0)).unknown_fraction() == 0.0
+
+
+@pytest.mark.parametrize(
+    ("door", "known_behind_to_x", "kept"),
+    [
+        (False, 4.2, False),  # closed wall, nothing known behind it: the wall is no frontier
+        (False, 4.6, False),  # free strip just behind the wall, within reach of the near side: no line of sight
+        (False, 6.0, False),  # a known room behind the wall whose frontier is out of reach
+        (True, 4.2, True),  # open door onto unknown space: the doorway is the frontier
+        (True, 6.0, True),  # open door onto known space: its far frontier is reachable through the door
+    ],
+)
+def test_frontiers_behind_a_closed_wall_are_dropped_and_behind_an_open_door_kept(
+    door: bool, known_behind_to_x: float, kept: bool
+) -> None:
+    states = room_states(known_to_x=known_behind_to_x, wall_x=4.0, door=door)
+    grid = _grid(states)
+    behind = [f for f in grid.frontiers(LEFT) if f.point[0] > 4.0]
+    assert bool(behind) == kept
+    assert grid.is_frontier_near((known_behind_to_x - 0.1, 3.0, 1.5), 0.2) == (known_behind_to_x > 4.2 or door)
+    for f in behind:
+        assert grid.reachable(LEFT)[_cell(f.viewpoint)]
+    if known_behind_to_x == 4.6:
+        # The strip's frontier (x = 4.5 m) is within reach_m of reachable cells: only line of sight drops it.
+        reachable_centres = (np.argwhere(grid.reachable(LEFT)) + 0.5) * RES
+        gap = np.linalg.norm(reachable_centres - np.array([4.5, 3.0, 1.5]), axis=1).min()
+        assert gap <= SETTINGS.reach_m
+
+
+def _cluttered_room() -> np.ndarray:
+    """The half-known room with a pillar and a low table near the boundary, and an unknown pocket under it."""
+    states = room_states(known_to_x=5.0)
+    set_states(states, (3.0, 1.0, 0.0), (3.4, 1.4, 3.0), OCCUPIED)
+    set_states(states, (3.4, 3.5, 0.8), (4.6, 4.8, 0.9), OCCUPIED)
+    set_states(states, (3.6, 3.7, 0.2), (4.4, 4.6, 0.6), UNKNOWN)
+    return states
+
+
+def test_viewpoints_are_safe_reachable_in_the_band_and_within_reach() -> None:
+    grid = _grid(_cluttered_room())
+    reachable = grid.reachable(LEFT)
+    frontiers = grid.frontiers(LEFT)
+    assert len(frontiers) > 5
+    for f in frontiers:
+        assert grid.planning_grid.is_free(f.viewpoint)
+        assert reachable[_cell(f.viewpoint)]
+        assert np.linalg.norm(np.subtract(f.point, f.viewpoint)) <= SETTINGS.reach_m + 1e-9
+        assert SETTINGS.min_altitude_m <= f.viewpoint[2] <= 3.0 - SETTINGS.ceiling_margin_m
+        assert _sight(_cluttered_room()).segment_is_free(f.viewpoint, f.point)
+
+
+def _sight(states: np.ndarray) -> OccupancyGrid:
+    """A grid blocking only the occupied cells: exact line-of-sight checks through `segment_is_free`."""
+    return OccupancyGrid(np.zeros(3), RES, states == OCCUPIED)
+
+
+def test_a_viewpoint_hidden_behind_an_obstacle_is_replaced_by_one_in_sight() -> None:
+    # A thin plate 0.5 m before the boundary: the nearest reachable cells to the frontier behind it are on the
+    # plate's far side; a reachable cell beside the plate, a little farther, sees it.
+    states = room_states(known_to_x=4.0)
+    set_states(states, (3.4, 2.4, 1.2), (3.59, 3.59, 2.39), OCCUPIED)
+    grid = _grid(states)
+    hidden = [f for f in grid.frontiers(LEFT) if 2.4 < f.point[1] < 3.6 and 1.2 < f.point[2] < 2.4]
+    assert len(hidden) == 1
+    point, viewpoint = np.array(hidden[0].point), np.array(hidden[0].viewpoint)
+    assert _sight(states).segment_is_free(viewpoint, point)
+    assert np.linalg.norm(viewpoint - point) <= SETTINGS.reach_m + 1e-9
+    reachable_centres = (np.argwhere(grid.reachable(LEFT)) + 0.5) * RES
+    assert np.linalg.norm(reachable_centres - point, axis=1).min() < np.linalg.norm(viewpoint - point)
+
+
+def test_the_planner_reaches_every_frontier_viewpoint() -> None:
+    grid = _grid(_cluttered_room())
+    for f in grid.frontiers(LEFT):
+        path = plan_path(grid.planning_grid, LEFT, f.viewpoint)
+        assert path[-1] == pytest.approx(f.viewpoint)
+        assert path_is_free(grid.planning_grid, path)
+
+
+def test_the_flight_band_excludes_viewpoints_below_the_minimum_altitude() -> None:
+    settings = SETTINGS.model_copy(update={"min_altitude_m": 1.2})
+    grid = _grid(room_states(known_to_x=4.0), settings)
+    frontiers = grid.frontiers(LEFT)
+    assert min(f.point[2] for f in frontiers) < 1.2  # low frontiers stay: they are seen from above
+    assert min(f.viewpoint[2] for f in frontiers) >= 1.2
+    below = np.array([(x, y, 1.1) for x in np.arange(0.5, 4.0, 0.2) for y in np.arange(0.5, 5.6, 0.2)])
+    assert not grid.planning_grid.points_are_free(below).any()
+    assert grid.planning_grid.is_free((2.0, 3.0, 1.3))
+    # The top of the band: top_z - ceiling_margin_m = 2.2 m, below the ceiling's own inflation (2.3 m is safe).
+    assert _grid(room_states(known_to_x=4.0)).planning_grid.is_free((2.0, 3.0, 2.3))
+    lowered = _grid(room_states(known_to_x=4.0), top_z=2.5)
+    assert lowered.planning_grid.is_free((2.0, 3.0, 2.1)) and not lowered.planning_grid.is_free((2.0, 3.0, 2.3))
+    assert max(f.viewpoint[2] for f in lowered.frontiers(LEFT)) == pytest.approx(2.1)
+
+
+def test_gain_is_larger_facing_a_large_unknown_region_than_a_small_pocket() -> None:
+    states = room_states(known_to_x=6.0)
+    set_states(states, (2.0, 3.0, 1.2), (2.39, 3.39, 1.59), UNKNOWN)  # a 2 x 2 x 2 cell pocket in mid-air
+    no_minimum = POCKETS.model_copy(update={"min_gain_m3": 0.0})
+    frontiers = _grid(states, no_minimum).frontiers(LEFT)
+    pocket = [f for f in frontiers if f.point[0] < 3.0]
+    large = [f for f in frontiers if f.point[0] > 5.0]
+    # The pocket's 6 faces of 4 cells, cut by the bins at x = 2.4 m and z = 1.2 m into 3 groups.
+    assert len(pocket) == 3 and sum(f.cells for f in pocket) == 24
+    assert large
+    assert all(f.gain == pytest.approx(8 * RES**3) for f in pocket)
+    assert min(f.gain for f in large) > 5 * max(f.gain for f in pocket)
+    # A minimum just above the pocket's gain drops the pocket but keeps the large region; one equal to it keeps
+    # the pocket (gain >= minimum).
+    for minimum, pocket_kept in ((8 * RES**3 + 1e-9, False), (8 * RES**3 - 1e-9, True)):
+        kept = _grid(states, POCKETS.model_copy(update={"min_gain_m3": minimum})).frontiers(LEFT)
+        assert len([f for f in kept if f.point[0] < 3.0]) == (3 if pocket_kept else 0)
+        assert len([f for f in kept if f.point[0] > 5.0]) == len(large)
+    # So does the default minimum.
+    kept = _grid(states).frontiers(LEFT)
+    assert not [f for f in kept if f.point[0] < 3.0]
+    assert len([f for f in kept if f.point[0] > 5.0]) == len(large)
+
+
+@pytest.mark.parametrize("p_occupied", [0.1, 0.01])
+def test_gain_at_counts_open_unknown_cells_in_the_cube_and_matches_the_frontiers(p_occupied: float) -> None:
+    rng = np.random.default_rng(3)
+    p = [0.3, 0.7 - p_occupied, p_occupied]
+    states = rng.choice(np.array([UNKNOWN, FREE, OCCUPIED], dtype=np.uint8), size=(24, 18, 12), p=p)
+    grid = _grid(states, POCKETS)  # open unknown cells here are mostly isolated: no speck filter
+    half = round(SETTINGS.gain_radius_m / RES)
+    cells = rng.integers(0, states.shape, size=(40, 3))
+    open_unknown = _open_unknown(states)
+    cubes = [tuple(slice(max(c - half, 0), c + half + 1) for c in cell) for cell in cells]
+    expected = np.array([np.sum(open_unknown[cube]) for cube in cubes]) * RES**3
+    every_unknown = np.array([np.sum(states[cube] == UNKNOWN) for cube in cubes]) * RES**3
+    assert np.all(expected > 0) and np.all(expected < every_unknown)  # crevices are left out, open cells are not
+    points = (cells + rng.uniform(0.01, 0.99, size=cells.shape)) * RES
+    np.testing.assert_allclose(grid.gain_at(points), expected)
+    outside = np.array([(-0.1, 1.0, 1.0), (1.0, 3.61, 1.0), (1.0, 1.0, 2.45), (np.nan, 1.0, 1.0)])
+    assert grid.gain_at(outside).tolist() == [0.0] * 4
+
+    room = _grid(_cluttered_room())
+    frontiers = room.frontiers(LEFT)
+    np.testing.assert_allclose(room.gain_at(np.array([f.point for f in frontiers])), [f.gain for f in frontiers])
+
+
+def test_free_points_make_the_drones_unknown_cell_plannable() -> None:
+    states = state_grid((4.0, 4.0, 3.0), UNKNOWN)
+    position: Vec3 = (2.05, 2.05, 1.55)
+    blind = _grid(states)
+    assert not blind.planning_grid.is_free(position)
+    assert not blind.reachable(position).any()
+    assert blind.frontiers(position) == []
+
+    grid = _grid(states, free_points=[position])
+    assert grid.planning_grid.is_free(position)
+    assert grid.reachable(position)[_cell(position)]
+    assert all(grid.planning_grid.is_free(f.viewpoint) for f in grid.frontiers(position))
+    centres = (np.indices(states.shape).reshape(3, -1).T + 0.5) * RES
+    ball = (np.linalg.norm(centres - position, axis=1) <= SETTINGS.clearance_m).reshape(states.shape)
+    freed = int(ball.sum())
+    assert blind.gain_at(np.array([position]))[0] - grid.gain_at(np.array([position]))[0] == pytest.approx(freed * RES**3)
+
+    # An occupied cell next to the drone's stays occupied, and the drone's cell is not safe. Its 26 neighbours are
+    # crevices, unknown but not open, freed or not: the gain falls by the freed cells outside them only.
+    set_states(states, (2.2, 2.0, 1.4), (2.39, 2.19, 1.59), OCCUPIED)
+    walled = _grid(states, free_points=[position])
+    crevice = np.zeros(states.shape, dtype=bool)
+    crevice[10:13, 9:12, 6:9] = True  # around the occupied cell (11, 10, 7); the drone's cell (10, 10, 7) in it
+    assert states[11, 10, 7] == OCCUPIED and crevice[_cell(position)]
+    assert np.array_equal(_open_unknown(states), ~crevice)
+    freed_open = int(np.sum(ball & ~crevice))
+    assert 0 < freed_open < freed - 1
+    cube = tuple(slice(c - 5, c + 6) for c in _cell(position))  # the gain cube, well inside the grid
+    unknown_before = _grid(states).gain_at(np.array([position]))[0]
+    assert unknown_before == pytest.approx(np.sum(~crevice[cube]) * RES**3)
+    assert walled.gain_at(np.array([position]))[0] == pytest.approx(np.sum(~crevice[cube] & ~ball[cube]) * RES**3)
+    assert unknown_before - walled.gain_at(np.array([position]))[0] == pytest.approx(freed_open * RES**3)
+    assert not walled.planning_grid.is_free(position)
+
+
+@pytest.mark.parametrize("p_occupied", [0.1, 0.01])
+def test_frontier_cells_are_the_free_cells_next_to_an_open_unknown_cell(p_occupied: float) -> None:
+    rng = np.random.default_rng(5)
+    p = [0.3, 0.7 - p_occupied, p_occupied]
+    states = rng.choice(np.array([UNKNOWN, FREE, OCCUPIED], dtype=np.uint8), size=(24, 18, 12), p=p)
+    grid = _grid(states, POCKETS)  # open unknown cells here are mostly isolated: no speck filter
+    expected = _frontier_cell_mask(states)
+    next_to_unknown = _free_face_neighbours(states == UNKNOWN, states)
+    assert expected.any() and (next_to_unknown & ~expected).any()  # some free cells border crevices only
+    found = np.array([grid.is_frontier_near(tuple((np.array(c) + 0.5) * RES), 0.01) for c in np.ndindex(states.shape)])
+    np.testing.assert_array_equal(found.reshape(states.shape), expected)
+
+
+@pytest.mark.parametrize(
+    ("offset", "is_open"),
+    [
+        ((1, 0, 0), False),  # a face
+        ((1, 1, 0), False),  # an edge
+        ((1, 1, 1), False),  # a corner
+        ((2, 0, 0), True),
+        ((2, 1, 1), True),
+        ((2, 2, 2), True),
+    ],
+)
+def test_an_unknown_cell_touching_an_occupied_cell_even_at_a_corner_is_a_crevice(
+    offset: tuple[int, int, int], is_open: bool
+) -> None:
+    # One unknown cell in mid-air in a known room, one occupied cell at `offset` cells from it: sharing a face,
+    # an edge or a corner (26-adjacent) makes it a crevice; one free cell between them leaves it open.
+    states = room_states(known_to_x=8.0)
+    unknown = (10, 15, 7)
+    states[unknown] = UNKNOWN
+    states[tuple(np.add(unknown, offset))] = OCCUPIED
+    grid = _grid(states, POCKETS.model_copy(update={"min_gain_m3": 0.0}))
+    centre = tuple((np.array(unknown) + 0.5) * RES)
+    frontiers = grid.frontiers(LEFT)
+    if is_open:
+        assert [f.cells for f in frontiers] == [6]  # its 6 free face neighbours, one group
+        assert grid.gain_at(np.array([centre]))[0] == pytest.approx(RES**3)
+    else:
+        assert frontiers == []
+        assert grid.gain_at(np.array([centre]))[0] == 0.0
+    assert grid.is_frontier_near(centre, 0.25) == is_open
+    assert grid.unknown_fraction() == pytest.approx(is_open / (40 * 30 * 11))  # the band: layers 3..13
+
+
+def _pocket_room(x0: float, thickness: int, box: bool) -> np.ndarray:
+    """The known room with an unknown pocket `thickness` x 2 x 2 cells from x = `x0` (y 2.8..3.2, z 1.4..1.8 m),
+    and with `box` an occupied box at x 0.6..0.8 m (cells i = 3), y 2.2..3.8, z 1.0..2.2 m."""
+    states = room_states(known_to_x=8.0)
+    if box:
+        set_states(states, (0.6, 2.2, 1.0), (0.79, 3.8, 2.2), OCCUPIED)
+    set_states(states, (x0, 2.8, 1.4), (x0 + 0.2 * thickness - 0.01, 3.19, 1.79), UNKNOWN)
+    return states
+
+
+@pytest.mark.parametrize(
+    ("thickness", "box"),
+    [(1, False), (2, True)],  # a patch on the wall x = 0; a pocket wedged between that wall and the box
+)
+def test_an_unknown_pocket_wedged_against_obstacles_makes_no_frontier_and_no_gain(thickness: int, box: bool) -> None:
+    settings = POCKETS.model_copy(update={"min_gain_m3": 0.0})  # any gain at all would keep a group
+    pocket_cells = thickness * 2 * 2
+    surface = 2 * 4 + 4 * 2 * thickness  # free cells sharing a face with the pocket
+    band_cells = 40 * 30 * 11
+    for x0, wedged in ((0.2, True), (1.6, False)):  # against the wall at x = 0 (and the box); in open space
+        states = _pocket_room(x0, thickness, box)
+        assert np.sum(states == UNKNOWN) == pocket_cells
+        centre = (x0 + 0.1 * thickness, 3.0, 1.6)
+        grid = _grid(states, settings)
+        # Whether wedged or not, the pocket's free face neighbours are within reach of the reachable space: only
+        # the open-unknown rule decides.
+        faces = _free_face_neighbours(states == UNKNOWN, states)
+        assert faces.sum() == surface - (4 * (1 + box) if wedged else 0)  # the wall (and the box) cover x faces
+        reachable = (np.argwhere(grid.reachable(LEFT)) + 0.5) * RES
+        for face in (np.argwhere(faces) + 0.5) * RES:
+            assert np.linalg.norm(reachable - face, axis=1).min() <= SETTINGS.reach_m
+        frontiers = grid.frontiers(LEFT)
+        if wedged:
+            assert not _open_unknown(states).any()
+            assert frontiers == []
+            assert grid.gain_at(np.array([centre]))[0] == 0.0
+            assert grid.unknown_fraction() == 0.0
+            assert not grid.is_frontier_near(centre, 0.5)
+        else:
+            assert [f.cells for f in frontiers] == [surface]
+            assert frontiers[0].gain == pytest.approx(pocket_cells * RES**3)
+            assert grid.gain_at(np.array([centre]))[0] == pytest.approx(pocket_cells * RES**3)
+            assert grid.unknown_fraction() == pytest.approx(pocket_cells / band_cells)
+            assert grid.is_frontier_near(centre, 0.5)
+
+
+def test_a_large_unknown_room_behind_an_open_door_has_frontiers_in_the_doorway() -> None:
+    # The wall is the cells i = 20 (x 4.0..4.2 m); the door the cells y 12..17 (2.4..3.6 m) by z 1..9 (0.2..2.0
+    # m), framed by occupied cells: jambs at y cells 11 and 18, the floor at z 0, the lintel at z 10. Beyond it
+    # everything from x = 4.2 m is unknown: a 3.8 x 6 x 3 m room. The unknown cells just beyond the frame are
+    # crevices, those beyond the middle of the door are open: the doorway cells facing them are frontier cells.
+    states = room_states(known_to_x=4.2, wall_x=4.0, door=True)
+    assert all(states[20, j, 5] == OCCUPIED for j in (11, 18)) and states[20, 14, 10] == OCCUPIED
+    assert states[20, 14, 0] == OCCUPIED
+    open_unknown = _open_unknown(states)
+    assert open_unknown[21, 14, 5] and not open_unknown[21, 12, 5] and not open_unknown[21, 14, 9]
+    expected = {(20, j, k) for j in range(13, 17) for k in range(2, 9)}
+    assert {tuple(int(i) for i in c) for c in np.argwhere(_frontier_cell_mask(states))} == expected
+
+    grid = _grid(states)  # default settings: the room behind clears the default minimum gain
+    frontiers = grid.frontiers(LEFT)
+    assert sorted(f.cells for f in frontiers) == [12, 16]  # z cells 6..8 and 2..5: two 1.2 m bins
+    reachable = grid.reachable(LEFT)
+    for f in frontiers:
+        assert _cell(f.point) in expected
+        assert f.gain >= SETTINGS.min_gain_m3 and f.gain > 2.0  # most of the gain cube is the room behind
+        assert reachable[_cell(f.viewpoint)]
+        path = plan_path(grid.planning_grid, LEFT, f.viewpoint)
+        assert path_is_free(grid.planning_grid, path)
+    # The same wall closed: no frontier at all.
+    assert _grid(room_states(known_to_x=4.2, wall_x=4.0)).frontiers(LEFT) == []
+
+
+def test_reachable_is_the_connected_safe_space_around_the_position() -> None:
+    grid = _grid(room_states(known_to_x=8.0, wall_x=4.0))
+    reachable = grid.reachable(LEFT)
+    assert reachable[_cell(LEFT)] and not reachable[_cell((6.0, 3.0, 1.5))]
+    assert grid.reachable((6.0, 3.0, 1.5))[_cell((6.0, 3.0, 1.5))]
+    assert not (reachable & grid.planning_grid.occupied).any()
+    assert not grid.reachable((4.1, 3.0, -5.0)).any()  # more than 1.5 m from any safe cell
+
+
+@pytest.mark.parametrize("clearance", [0.35, 0.25, 0.5, 0.4, 0.2])
+def test_safe_cells_are_the_free_cells_outside_the_inflated_obstacles(clearance: float) -> None:
+    rng = np.random.default_rng(7)
+    states = rng.choice(np.array([UNKNOWN, FREE, OCCUPIED], dtype=np.uint8), size=(30, 25, 20), p=[0.1, 0.87, 0.03])
+    settings = SETTINGS.model_copy(update={"clearance_m": clearance})
+    grid = ExplorationGrid.from_states((0.0, 0.0, 0.0), RES, states, settings, floor_z=-10.0, top_z=10.0)
+    inflated = OccupancyGrid(np.zeros(3), RES, states == OCCUPIED).inflate(clearance).occupied
+    np.testing.assert_array_equal(grid.planning_grid.occupied, inflated | (states != FREE))
+
+
+def test_a_half_explored_warehouse() -> None:
+    states = warehouse_states(speckle=0.0)
+    position: Vec3 = (2.0, 2.0, 1.5)
+    grid = ExplorationGrid.from_states((0.0, 0.0, 0.0), RES, states, SETTINGS, floor_z=0.0, top_z=6.2)
+    frontiers = grid.frontiers(position)
+    boundary = [f for f in frontiers if f.point[0] > 19.0]
+    assert len(boundary) > 50 and len(frontiers) > len(boundary)  # the rack shadows are frontiers too
+    best = frontiers[0]
+    assert best.point[0] > 19.0 and best.gain > 5.0  # facing the unexplored half
+    assert 0.4 < grid.unknown_fraction() < 0.6
+    path = plan_path(grid.planning_grid, position, best.viewpoint)
+    assert path_is_free(grid.planning_grid, path)
+
+
+def test_frontier_is_immutable() -> None:
+    f = Frontier((0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 1.0, 2)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        f.gain = 2.0  # type: ignore[misc]
