@@ -234,6 +234,10 @@ def _print_summary(report: dict[str, Any]) -> None:
     for a in agents:
         print(f"  drone {a['id']}: flew {a['distance_m']:.1f} m, {a['patches_sealed']} patches sealed, "
               f"{a['patches_held']} held, sent {a['bytes_sent']} B, received {a['bytes_received']} B, {a['phase']}")
+    t95 = report.get("time_to", {}).get("0.95")
+    print(f"exploration: {report.get('mission', {}).get('strategy', '?')}, 95 % explored "
+          f"{'at %.1f s' % t95 if t95 is not None else 'never'}, overlap {report.get('overlap_fraction', 0.0):.2f}, "
+          f"{len(report.get('leaders', []))} leader timeline entries; figures in {report.get('report_page') or 'report.json'}")
     bandwidth = report["bandwidth"]
     print(f"map sharing: converged {'yes' if report['converged'] else 'NO'}, "
           f"{bandwidth['bytes_per_agent_s'] / 1000:.1f} kB per agent-second "

@@ -323,14 +323,14 @@ class Exploration:
             self.retarget.clear()
             path = await self._plan(target.viewpoint)
             if path is None:
-                self._give_up(target)
+                self._done_with(target)
                 continue
             self.path = path[1:]
             reached = await flight.fly_path(path[1:], stop, interrupt=self.retarget)
             self.path = []
             if reached and self.target is target:
                 await flight.face(target.point, self.settings.dwell_s, stop)
-                self._arrive(target)
+                self._done_with(target)
         home = self.home()
         if self.settings.return_home and home is not None:
             await self._return(flight, stop, home)
@@ -357,15 +357,9 @@ class Exploration:
             self.log("no_path", goal=_r(goal), reason=str(exc))
             return None
 
-    def _give_up(self, target: Target) -> None:
-        """An unreachable target counts as looked at, so nobody is sent there again."""
-        self.visited.append(target.point)
-        if self.target is target:
-            self.target = None
-        self.arrived = True
-        self.wake.set()
-
-    def _arrive(self, target: Target) -> None:
+    def _done_with(self, target: Target) -> None:
+        """A target reached and looked at, or unreachable: either way nobody is sent there again, and the
+        cluster assigns again now."""
         self.visited.append(target.point)
         if self.target is target:
             self.target = None

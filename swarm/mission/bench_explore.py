@@ -30,8 +30,13 @@ def bench_explore(
     root = out or Path(tempfile.mkdtemp(prefix="swarm-bench-explore-"))
     root.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
-    for strategy in strategies or list(STRATEGIES):
+    chosen = strategies or list(STRATEGIES)
+    for strategy in chosen:
         for n in sizes:
+            if n == 1 and strategy != chosen[0]:
+                # one drone is its own leader and picks by Eq. 3.3 either way: the same mission, flown once
+                rows.append({**next(r for r in rows if r["drones"] == 1), "strategy": strategy, "same_as": chosen[0]})
+                continue
             run_config = config.model_copy(deep=True)
             run_config.mission.drones = n
             run_config.explore.strategy = strategy  # type: ignore[assignment]
@@ -73,7 +78,7 @@ def _print(console: Console, config: SwarmConfig, rows: list[dict[str, Any]]) ->
         t95, t1 = r["time_to_95_s"], single.get(r["strategy"])
         ratio = f"{t95 / t1:.2f}" if t95 is not None and t1 else "-"
         table.add_row(
-            r["strategy"], str(r["drones"]), r["status"], "-" if t95 is None else f"{t95:.1f}", ratio,
+            r["strategy"] + (f" (= {r['same_as']})" if "same_as" in r else ""), str(r["drones"]), r["status"], "-" if t95 is None else f"{t95:.1f}", ratio,
             f"{100 * r['explored_fraction']:.1f} %", f"{r['distance_per_drone_m']:.1f}",
             f"{r['overlap_fraction']:.2f}", f"{r['bytes_per_agent_s'] / 1000:.1f}", str(r["collisions"]),
         )

@@ -16,20 +16,9 @@ import pytest
 from swarm.config import load_config
 from swarm.mission.report import read_json
 from swarm.mission.run import RunState, run_mission
-from tests.helpers import SwarmPorts, processes_mentioning, swarm_cmd
+from tests.helpers import SwarmPorts, log_events, processes_mentioning
 
 pytestmark = pytest.mark.timeout(300)
-
-
-def _events(log: Path) -> list[dict[str, Any]]:
-    events = []
-    for line in log.read_text(errors="replace").splitlines():
-        if line.startswith("{"):
-            try:
-                events.append(json.loads(line))
-            except ValueError:
-                continue
-    return events
 
 
 def _config(out: Path, ports: SwarmPorts, **overrides: Any):
@@ -53,7 +42,7 @@ def test_killing_the_leader_hands_over_within_3_s_and_the_others_finish(tmp_path
     report = run_mission(config, live=False, on_tick=kill_the_leader_mid_mission)
     assert killed, "the mission ended before the leader could be killed"
     for k in (2, 3):
-        took_over = [e for e in _events(out / "logs" / f"agent-{k}.log") if e["event"] == "leader" and e["t"] > killed["t"]]
+        took_over = [e for e in log_events(out / "logs" / f"agent-{k}.log") if e["event"] == "leader" and e["t"] > killed["t"]]
         assert took_over and took_over[0]["leader"] == 2, took_over
         assert took_over[0]["t"] - killed["t"] < 3.0, f"agent {k} followed 2 after {took_over[0]['t'] - killed['t']:.2f} s"
     survivors = {a["id"]: a for a in report["agents"] if a["id"] != 1}

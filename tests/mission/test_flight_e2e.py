@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 
-from tests.helpers import SwarmPorts, kill_all, processes_mentioning, swarm_cmd
+from tests.helpers import SwarmPorts, log_events, kill_all, processes_mentioning, swarm_cmd
 
 pytestmark = pytest.mark.timeout(240)
 
@@ -88,21 +88,10 @@ def test_mesh_file_world_with_start(tmp_path: Path, swarm_ports: SwarmPorts) -> 
     assert report["explored_fraction"] >= 0.95  # one drone explores a mesh world alone
 
 
-def _events(log: Path) -> list[dict[str, Any]]:
-    events = []
-    for line in log.read_text(errors="replace").splitlines():
-        if line.startswith("{"):
-            try:
-                events.append(json.loads(line))
-            except ValueError:
-                continue
-    return events
-
-
 def _wait_for(log: Path, predicate, timeout: float) -> dict[str, Any]:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        for event in _events(log):
+        for event in log_events(log):
             if predicate(event):
                 return event
         time.sleep(0.05)
@@ -149,7 +138,7 @@ def test_killed_agent_is_seen_leaving_within_3_s_and_sigterm_lands(tmp_path: Pat
             time.sleep(1.0)
             raise AssertionError(f"agent 1 did not exit after SIGTERM:\n{logs['agent-1'].read_text()[-6000:]}")
         assert code == 0
-        events = _events(logs["agent-1"])
+        events = log_events(logs["agent-1"])
         phases = [e["phase"] for e in events if e["event"] == "phase"]
         assert phases[-2:] == ["landing", "landed"], phases
     finally:

@@ -221,3 +221,15 @@ def test_remove_overlapped_drops_a_drones_frontiers_inside_anothers_outline() ->
     assert set(got) == {outside_1, *outline}
     assert got[0] == outside_1 and len(got) == 1 + len(outline)
     assert remove_overlapped({1: [inside_1, outside_1]}) == [inside_1, outside_1]
+
+
+def test_a_drone_does_not_take_another_drones_current_target() -> None:
+    # Drone 1 is assigned first (lowest id). The candidate next to it is drone 2's current target: without the
+    # penalty drone 1 grabs it and drone 2 must turn round; with it, each keeps heading where it was going.
+    near_1 = Candidate((2.0, 0.0, 1.0), (2.5, 0.0, 1.0), 10.0, 1)
+    far = Candidate((6.0, 4.0, 1.0), (6.5, 4.0, 1.0), 10.0, 1)
+    positions = {1: (0.0, 0.0, 1.0), 2: (4.0, 0.0, 1.0)}
+    plain = assign_targets([near_1, far], positions, lam=0.2, sigma=3.0)
+    assert plain[1] == near_1
+    kept = assign_targets([near_1, far], positions, lam=0.2, sigma=3.0, current={2: near_1.viewpoint}, current_bonus=3.0)
+    assert kept[2] == near_1 and kept[1] == far
