@@ -8,7 +8,7 @@ frontiers from its fused map (`MappingTask.explore_view`). Then, by strategy (do
   merges them with its own, drops those its fused map already knows and those next to a spot a drone already
   looked at, assigns every member a target with the utility and gain scheduling (`swarm.roles.assignment`), and
   publishes the `TargetAssignment`. An explorer with no assignment from its leader for `explorer_timeout_s`
-  (tau) picks its own. A leader with no candidate left, twice in a row, declares its cluster done.
+  (tau) picks its own. A leader with no candidate left three loops in a row declares its cluster done.
 - **uncoordinated:** every drone picks the best of its own candidates (Eq. 3.3); maps are still shared.
 - **frontier-only** (the thesis's original): as coordinated, but patches are not shared, so the leader removes
   the candidates inside another member's explored region by the scan-line overlap test instead.
@@ -40,7 +40,7 @@ from swarm.roles.assignment import Candidate, assign_targets, merge_candidates, 
 from swarm.roles.membership import PeerTable
 from swarm.roles.messages import MAX_CANDIDATES, MAX_VISITED, FrontierReport, TargetAssignment, as_points
 
-EMPTY_ROUNDS_FOR_DONE = 2  # a transient empty frontier set (a map update in flight) must not end the mission
+EMPTY_ROUNDS_FOR_DONE = 3  # a transient empty frontier set (a map update in flight) must not end the mission
 KEEP_RADIUS_M = 1.0  # a new target this close to the current one is the same target: no interruption
 REPORT_FRESH_LOOPS = 3.0  # a member's report older than this many loops is ignored by the leader
 PLAN_EXPANSIONS = 150_000
