@@ -32,7 +32,8 @@ def test_telemetry_loss_holds_then_lands(tmp_path: Path) -> None:
     with running_sim(config, world) as server:
         url = f"udpin://127.0.0.1:{gcs_port(config.sim, 1)}"
         agent = subprocess.Popen(
-            swarm_cmd("agent", "--id", "1", "--autopilot", url, "--set", "agent.hover_s=60"),
+            swarm_cmd("agent", "--id", "1", "--autopilot", url, "--set", "agent.hover_s=60",
+                      "--set", "explore.strategy=scripted"),
             stdout=log.open("w"), stderr=subprocess.STDOUT,
         )
         try:
