@@ -244,8 +244,8 @@ class ExploreSettings(_Section):
         1.5, ge=1.0, le=10.0, description="utility factor for a drone's current target (fewer U-turns between loops)"
     )
     clearance_m: PositiveFloat = Field(
-        0.2, description="planned paths keep this far from mapped obstacle cells (the drone radius: obstacle cells "
-        "over-approximate surfaces; more cuts 1.1 m doorways off on a 0.2 m grid)"
+        0.25, description="planned paths keep this far from mapped obstacle cells (drone radius + 5 cm: at 0.2 m a "
+        "drone touched a wall end; at 0.35 m the 0.2 m grid cut 1.1 m doorways off)"
     )
     min_altitude_m: PositiveFloat = Field(0.6, description="lowest flight height above the mission volume's floor")
     ceiling_margin_m: PositiveFloat = Field(0.3, description="highest flight: this far below the mission volume's top")
