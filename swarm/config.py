@@ -253,7 +253,7 @@ class ExploreSettings(_Section):
         1.0, description="information gain: unknown cells within this half-width cube around a frontier point"
     )
     min_gain_m3: float = Field(
-        1.5, ge=0.0, description="frontier clusters with less unknown volume around them than this are ignored"
+        0.8, ge=0.0, description="frontier clusters with less unknown volume around them than this are ignored"
     )
     seen_fraction: float = Field(
         0.5, gt=0.0, le=1.0,
