@@ -4,29 +4,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from swarm.agent.sensing import SimulatedDepthSource
 from swarm.config import load_config
 from swarm.mission.coverage import SwarmCoverage
-from swarm.patches.mapper import Mapper
-from swarm.sim.worlds import load_world
-
-
-def _sealed_patch_bytes(config) -> list[bytes]:
-    world = load_world("box")
-    source = SimulatedDepthSource(world, config.camera)
-    lo, hi = world.bounds
-    mapper = Mapper(config.mapping, producer=1, epoch=7, bounds=(lo, hi))
-    start = world.default_start
-    for i, yaw in enumerate(range(0, 360, 30)):
-        frame = source.capture(i, float(i), (start[0], start[1], 1.2), float(yaw))
-        mapper.integrate(frame.depth, frame.K, frame.T_world_cam, frame.t, config.camera.max_range_m)
-    mapper.seal()
-    return [mapper.data(pid) for pid in mapper.held_ids()]
+from tests.mission.spin_patches import spin_patches
 
 
 def test_corrupt_patch_files_are_counted_and_never_fused(tmp_path: Path) -> None:
     config = load_config(None, {"mission.world": "box", "mapping.patch_frames": 6})
-    good = _sealed_patch_bytes(config)
+    good = spin_patches(config, producer=1, epoch=7)
     assert len(good) == 2
     (tmp_path / "a.patch").write_bytes(good[0])
     flipped = bytearray(good[1])

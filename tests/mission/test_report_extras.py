@@ -10,7 +10,6 @@ from typing import Any
 import numpy as np
 import pytest
 
-from swarm.agent.sensing import SimulatedDepthSource
 from swarm.bus.messages import AgentState
 from swarm.config import load_config
 from swarm.mission import observer as observer_module
@@ -26,8 +25,8 @@ from swarm.mission.plots import (
 )
 from swarm.mission.report import finish_report, time_to, write_report
 from swarm.mission.report_md import write_report_page
-from swarm.patches.mapper import Mapper
 from swarm.sim.worlds import load_world
+from tests.mission.spin_patches import spin_patches
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
@@ -72,24 +71,10 @@ def test_overlap_of_disjoint_or_empty_coverage() -> None:
     assert overlap_fraction(np.zeros((0, 5), dtype=bool)) == 0.0
 
 
-def _patches(config: Any, producer: int, yaws: range) -> list[bytes]:
-    """Sealed patches of one producer turning on the spot in the box world's centre."""
-    world = load_world("box")
-    source = SimulatedDepthSource(world, config.camera)
-    lo, hi = world.bounds
-    mapper = Mapper(config.mapping, producer=producer, epoch=1, bounds=(lo, hi))
-    start = world.default_start
-    for i, yaw in enumerate(yaws):
-        frame = source.capture(i, float(i), (start[0], start[1], 1.2), float(yaw))
-        mapper.integrate(frame.depth, frame.K, frame.T_world_cam, frame.t, config.camera.max_range_m)
-    mapper.seal()
-    return [mapper.data(pid) for pid in mapper.held_ids()]
-
-
 def test_coverage_keeps_one_map_per_producer_and_measures_their_overlap(tmp_path: Path) -> None:
     config = load_config(None, {"mission.world": "box", "mapping.patch_frames": 50})
     for producer, yaws in ((1, range(0, 200, 30)), (2, range(150, 360, 30))):  # views overlapping on 150-180
-        for seq, data in enumerate(_patches(config, producer, yaws)):
+        for seq, data in enumerate(spin_patches(config, producer, yaws=yaws)):
             (tmp_path / f"{producer}.1.{seq}.patch").write_bytes(data)
 
     coverage = SwarmCoverage(config, tmp_path)
