@@ -247,6 +247,10 @@ class ExploreSettings(_Section):
         0.25, description="planned paths keep this far from mapped obstacle cells (drone radius + 5 cm: at 0.2 m a "
         "drone touched a wall end; at 0.35 m the 0.2 m grid cut 1.1 m doorways off)"
     )
+    body_height_m: float = Field(
+        0.45, ge=0.0, le=2.0, description="the airframe reaches this far above the position it reports; planned "
+        "positions need clearance_m up to there (the simulator's drone: its sphere's top is 0.42 m up)"
+    )
     min_altitude_m: PositiveFloat = Field(0.6, description="lowest flight height above the mission volume's floor")
     ceiling_margin_m: PositiveFloat = Field(0.3, description="highest flight: this far below the mission volume's top")
     gain_radius_m: PositiveFloat = Field(

@@ -8,7 +8,7 @@ frontiers from its fused map (`MappingTask.explore_view`). Then, by strategy (do
   merges them with its own, drops those its fused map already knows and those next to a spot a drone already
   looked at, assigns every member a target with the utility and gain scheduling (`swarm.roles.assignment`), and
   publishes the `TargetAssignment`. An explorer with no assignment from its leader for `explorer_timeout_s`
-  (tau) picks its own. A leader with no candidate left three loops in a row declares its cluster done.
+  (tau), counted from its first report to that leader, picks its own. A leader with no candidate left three loops in a row declares its cluster done.
 - **uncoordinated:** every drone picks the best of its own candidates (Eq. 3.3); maps are still shared.
 - **frontier-only** (the thesis's original): as coordinated, but patches are not shared, so the leader removes
   the candidates inside another member's explored region by the scan-line overlap test instead.
@@ -44,6 +44,7 @@ EMPTY_ROUNDS_FOR_DONE = 3  # a transient empty frontier set (a map update in fli
 KEEP_RADIUS_M = 1.0  # a new target this close to the current one is the same target: no interruption
 REPORT_FRESH_LOOPS = 3.0  # a member's report older than this many loops is ignored by the leader
 PLAN_EXPANSIONS = 150_000
+RETURN_ATTEMPTS = 3  # a drone that had to give way too long on its way home plans again
 WAIT_FOR_TARGET_S = 0.5
 IDLE_TURN_DEG = 45.0
 
@@ -94,6 +95,7 @@ class Exploration:
         self._decisions: asyncio.Task[None] | None = None
         self.reports: dict[int, tuple[float, FrontierReport]] = {}
         self.last_assignment: dict[int, tuple[float, TargetAssignment]] = {}  # leader -> latest
+        self.following: tuple[int | None, float] = (None, 0.0)  # the leader we report to, since when
         self.assigned_current: dict[int, Vec3] = {}  # as leader: each member's current target
         self.arrived = False
         self.round = 0
@@ -207,15 +209,14 @@ class Exploration:
             visited=as_points(self.visited[-MAX_VISITED:]), arrived=self.arrived,
         )
         self.bus.publish(self.bus.keys.frontiers(self.id), report, reliable=True)
-        leader = self.peers.leader
+        leader, now = self.peers.leader, time.monotonic()
+        if self.following[0] != leader:
+            # tau runs from our first report to this leader: before it, the leader had nothing to assign us
+            self.following = (leader, now)
         heard = self.last_assignment.get(leader)
-        waited = time.monotonic() - (heard[0] if heard else self._leader_since(leader))
+        waited = now - max(self.following[1], heard[0] if heard else 0.0)
         if waited > self.settings.explorer_timeout_s and (self.target is None or self.target.source == "self"):
             self._choose_own()
-
-    def _leader_since(self, leader: int) -> float:
-        peer = self.peers.peers.get(leader)
-        return peer.first_seen if peer is not None else self.started
 
     def _lead(self, here: Vec3) -> None:
         assert self.grid is not None
@@ -368,11 +369,16 @@ class Exploration:
 
     async def _return(self, flight: Flight, stop: asyncio.Event, home: Vec3) -> None:
         above = (home[0], home[1], home[2] + self.config.agent.altitude_m)
-        if self.grid is not None:
-            path = await self._plan(above)
-            if path is not None and await flight.fly_path(path[1:], stop):
+        reason = "kept giving way"
+        for attempt in range(1, RETURN_ATTEMPTS + 1):
+            path = await self._plan(above) if self.grid is not None else None
+            if path is None:
+                reason = "no path home"
+                break
+            if await flight.fly_path(path[1:], stop):
                 return
-        self.log("return_direct", reason="no planned path home")
+            self.log("return_replan", attempt=attempt)  # gave way too long: plan again from here
+        self.log("land_in_place", reason=reason)
 
     def summary(self) -> dict[str, Any]:
         ms = sorted(self.decision_ms)

@@ -6,10 +6,13 @@ world-frame waypoints. The drone is led along each straight segment by a setpoin
 the cruise speed and never runs more than `LOOKAHEAD_M` ahead of the drone, so it flies the segments themselves,
 not shortcuts between them, at a speed the agent chooses.
 
-Separation: `neighbours()` gives the other airborne drones' positions (from their heartbeats). The lower id has
-the right of way. A drone closer than `separation_m` to a lower id stops and steps out of the way, vertically
-if it can (`is_safe` tells which points the map allows), until the other has passed; the drone with the right
-of way only pauses while a higher id is very close ahead of it.
+Separation: `neighbours()` gives the other airborne drones' positions, velocities and `heading_to` (the end of
+the segment each is flying), from their heartbeats, positions extrapolated to now. The lower id has the right
+of way. A drone closer than `separation_m` to a lower id stops and steps out of its way (up or down when the
+other hovers; else to the nearest point the map allows, `is_safe`, well off the other's segment) until the
+other has passed; the drone with the right of way holds its position while a higher id is very close and in
+its way (not one that stepped off its segment), and gives the segment up after MAX_YIELD_S. A drone about to
+land first waits for any drone under it to move off.
 
 Fail safe: if position telemetry stops for `telemetry_timeout_s` while airborne, the drone is told to hold,
 then to land, and the flight ends in phase `failsafe`. A stop request (SIGINT/SIGTERM) ends the route early
@@ -23,6 +26,7 @@ import math
 import time
 from collections.abc import Awaitable, Callable
 from enum import StrEnum
+from typing import NamedTuple
 
 import numpy as np
 
@@ -35,10 +39,24 @@ LAND_TIMEOUT_S = 60.0
 FAILSAFE_COMMAND_TIMEOUT_S = 0.6
 STEP_ASIDE_M = 0.7  # a yielding drone climbs or descends this much out of the way
 PASS_HYSTERESIS_M = 0.3  # ... and resumes once the other is this much beyond the separation distance
-PRIORITY_PAUSE_FRACTION = 0.6  # the drone with the right of way pauses for one closer than this x separation
+PRIORITY_PAUSE_FRACTION = 0.6  # the drone with the right of way holds for one closer than this x separation
+PASS_CLEARANCE_M = 0.6  # ... that is in its way: this close to the rest of its segment (a drone that stepped
+# STEP_ASIDE_M off the segment is not, and holding for it would deadlock both)
+SLOW_M_S = 0.2  # a peer slower than this, going nowhere, has no track to step off: the yielder climbs or descends
+REFUGE_CLEAR_M = PASS_CLEARANCE_M + 0.2  # a refuge this far off the other's segment lets it pass
 MAX_YIELD_S = 8.0  # yielding longer than this gives up the path (the mission replans)
 
-Neighbours = Callable[[], list[tuple[int, "tuple[float, float, float]"]]]
+TRACK_HORIZON_S = 3.0  # a yielding drone keeps away from where the other will be within this time
+
+
+class Neighbour(NamedTuple):
+    id: int
+    position: Vec3
+    velocity: Vec3
+    heading_to: Vec3 | None = None  # the end of the segment it is flying
+
+
+Neighbours = Callable[[], list[Neighbour]]
 Mission = Callable[["Flight", asyncio.Event], Awaitable[None]]
 
 
@@ -83,6 +101,7 @@ class Flight:
         self.neighbours: Neighbours = neighbours or (lambda: [])
         self.is_safe = is_safe or (lambda p: True)
         self.yields = 0
+        self.heading_to: Vec3 | None = None  # the end of the segment being flown (heartbeats carry it)
         self._last_position: np.ndarray | None = None
         self._carrot: Vec3 | None = None
 
@@ -139,12 +158,19 @@ class Flight:
         return True
 
     async def face(self, point: Vec3, seconds: float, stop: asyncio.Event) -> None:
-        """Hold position, turn towards `point` and look at it for `seconds` (the camera maps while we wait)."""
+        """Hold position, turn towards `point` and look at it for `seconds` (the camera maps while we wait); a
+        lower id coming close meanwhile is given way to, and the look ends there."""
         here = self.ap.telemetry.position
         yaw = math.degrees(math.atan2(point[1] - here[1], point[0] - here[0]))
         hold = self._carrot if self._carrot is not None else here
+        self.heading_to = None
         end = time.monotonic() + seconds
         while time.monotonic() < end:
+            position = np.array(self.ap.telemetry.position)
+            rival = self._rival(position, position)  # no segment: only a lower id counts
+            if rival is not None:
+                await self._step_aside(rival[0], stop, None)
+                return
             await self.ap.set_setpoint(hold, yaw)
             await self._tick(stop, end + 1.0, "the end of a look")
 
@@ -158,11 +184,13 @@ class Flight:
         speed = self.settings.cruise_speed_m_s
         deadline = time.monotonic() + 20.0 + 3.0 * (length + float(np.linalg.norm(start - here))) / speed
         travelled = 0.0
+        held_since: float | None = None
         while True:
             if interrupt is not None and interrupt.is_set():
                 return False
+            self.heading_to = tuple(float(c) for c in target)
             position = np.array(self.ap.telemetry.position)
-            rival = self._rival(position, segment)
+            rival = self._rival(position, target)
             if rival is not None:
                 if rival[0] < self.settings.id:
                     if not await self._step_aside(rival[0], stop, interrupt):
@@ -173,7 +201,19 @@ class Flight:
                     length = float(np.linalg.norm(segment))
                     deadline = time.monotonic() + 20.0 + 3.0 * length / speed
                     continue
-                # right of way, but someone is close ahead of us: do not advance the carrot
+                # right of way, but someone is close and in our way: hold where we are (the carrot can be a
+                # metre ahead, so merely not advancing it would carry us on into the other drone)
+                now = time.monotonic()
+                held_since = now if held_since is None else held_since
+                if now - held_since > MAX_YIELD_S:
+                    self.log("blocked_by", peer=rival[0])
+                    return False  # it is not moving off: the mission plans again
+                deadline += SETPOINT_PERIOD_S  # holding does not count against the segment's time
+                if length > 0:
+                    along = float(np.dot(position - start, segment)) / length
+                    travelled = min(travelled, max(along, 0.0))
+            else:
+                held_since = None
             carrot = start + segment * (travelled / length) if length > 0 else target
             if rival is None and travelled < length and np.linalg.norm(carrot - position) < LOOKAHEAD_M:
                 travelled = min(length, travelled + speed * SETPOINT_PERIOD_S)
@@ -181,25 +221,27 @@ class Flight:
             self._carrot = tuple(float(c) for c in carrot)
             await self.ap.set_setpoint(self._carrot, yaw)
             if travelled >= length and np.linalg.norm(target - position) < self.settings.waypoint_tolerance_m:
+                self.heading_to = None
                 return True
             await self._tick(stop, deadline, f"waypoint {tuple(round(c, 2) for c in goal)}")
 
-    def _rival(self, position: np.ndarray, heading: np.ndarray) -> tuple[int, np.ndarray] | None:
+    def _rival(self, position: np.ndarray, target: np.ndarray) -> tuple[int, np.ndarray] | None:
         """The neighbour we must give way to (a lower id within the separation distance), or a higher id close
-        in front of us (we pause for it), else None."""
+        to us and in the way of the rest of our segment to `target` (we hold for it), else None."""
         if self.separation_m <= 0:
             return None
-        for peer_id, peer_position in sorted(self.neighbours()):
-            offset = np.asarray(peer_position) - position
-            distance = float(np.linalg.norm(offset))
+        for peer_id, peer_position, *_ in sorted(self.neighbours(), key=lambda n: n.id):
+            peer = np.asarray(peer_position, dtype=float)
+            distance = float(np.linalg.norm(peer - position))
             if peer_id < self.settings.id and distance < self.separation_m:
-                return peer_id, np.asarray(peer_position)
+                return peer_id, peer
             if (
                 peer_id > self.settings.id
                 and distance < PRIORITY_PAUSE_FRACTION * self.separation_m
-                and float(np.dot(offset, heading)) > 0
+                and float(np.dot(peer - position, target - position)) > 0
+                and distance_to_segment(peer, position, target) < PASS_CLEARANCE_M
             ):
-                return peer_id, np.asarray(peer_position)
+                return peer_id, peer
         return None
 
     async def _step_aside(self, peer_id: int, stop: asyncio.Event, interrupt: asyncio.Event | None) -> bool:
@@ -207,27 +249,43 @@ class Flight:
         longer than MAX_YIELD_S or we were interrupted."""
         self.yields += 1
         here = np.array(self.ap.telemetry.position)
-        peer = dict(self.neighbours()).get(peer_id)
-        away = here - np.asarray(peer) if peer is not None else np.zeros(3)
-        vertical = 1.0 if away[2] > 0 else -1.0
-        candidates = [here + [0, 0, vertical * STEP_ASIDE_M], here - [0, 0, vertical * STEP_ASIDE_M]]
-        horizontal = np.array([away[0], away[1], 0.0])
-        if np.linalg.norm(horizontal) > 1e-6:
-            candidates.append(here + horizontal / np.linalg.norm(horizontal) * STEP_ASIDE_M)
-        refuge = next((c for c in candidates if self.is_safe(tuple(float(v) for v in c))), here)
+        peer = self._neighbour(peer_id)
+        refuge = here
+        if peer is not None:
+            safe = [c for c in refuge_candidates(here, peer) if self.is_safe(tuple(float(v) for v in c))]
+            refuge = choose_refuge(safe, peer) if safe else here
         self.log("give_way", to=peer_id, refuge=[round(float(v), 2) for v in refuge])
         self._carrot = tuple(float(v) for v in refuge)
+        self.heading_to = self._carrot
         end = time.monotonic() + MAX_YIELD_S
         while time.monotonic() < end:
             if interrupt is not None and interrupt.is_set():
                 return False
             await self.ap.set_setpoint(self._carrot, self.ap.telemetry.yaw_deg)
-            peer = dict(self.neighbours()).get(peer_id)
+            peer = self._neighbour(peer_id)
             here = np.array(self.ap.telemetry.position)
-            if peer is None or np.linalg.norm(np.asarray(peer) - here) > self.separation_m + PASS_HYSTERESIS_M:
+            if peer is None or np.linalg.norm(np.asarray(peer.position) - here) > self.separation_m + PASS_HYSTERESIS_M:
                 return True
             await self._tick(stop, end + 1.0, "a peer to pass")
         return False
+
+    async def _wait_for_room_below(self) -> None:
+        """Hold (at most MAX_YIELD_S) while another drone is under us: we are about to descend."""
+        end = time.monotonic() + MAX_YIELD_S
+        logged = False
+        while self.separation_m > 0 and time.monotonic() < end:
+            here = np.array(self.ap.telemetry.position)
+            below = [n.id for n in self.neighbours()
+                     if n.position[2] < here[2] and math.dist(n.position[:2], here[:2]) < PASS_CLEARANCE_M]
+            if not below:
+                return
+            if not logged:
+                self.log("landing_waits", below=below)
+                logged = True
+            await asyncio.sleep(SETPOINT_PERIOD_S)
+
+    def _neighbour(self, peer_id: int) -> Neighbour | None:
+        return next((n for n in self.neighbours() if n.id == peer_id), None)
 
     async def _wait(self, seconds: float, stop: asyncio.Event) -> None:
         """Wait on the ground or in the air, still watching for a stop request and for lost telemetry."""
@@ -240,10 +298,12 @@ class Flight:
             self._set_phase(Phase.LANDED)
             return self.phase
         self._set_phase(Phase.LANDING)
+        self.heading_to = None
         try:
             await self.ap.hold()
         except FlightError as exc:
             self.log("flight_error", reason=str(exc))
+        await self._wait_for_room_below()
         try:
             await self.ap.land()
             await self.ap.wait_until(
@@ -304,3 +364,43 @@ def route_mission(route: list[Vec3]) -> Mission:
         await flight.fly_path(route, stop)
 
     return fly
+
+
+def refuge_candidates(here: np.ndarray, peer: Neighbour) -> list[np.ndarray]:
+    """Points STEP_ASIDE_M, then twice that, from `here`: vertically away from the peer then towards it, straight
+    away from it horizontally, and to either side of its way (its segment, else its velocity)."""
+    away = here - np.asarray(peer.position, dtype=float)
+    up = np.array([0.0, 0.0, 1.0 if away[2] >= 0 else -1.0])
+    directions = [up, -up, np.array([away[0], away[1], 0.0])]
+    way = np.asarray(peer.velocity, dtype=float)
+    if peer.heading_to is not None:
+        way = np.asarray(peer.heading_to, dtype=float) - np.asarray(peer.position, dtype=float)
+    directions += [np.array([-way[1], way[0], 0.0]), np.array([way[1], -way[0], 0.0])]
+    units = [d / np.linalg.norm(d) for d in directions if np.linalg.norm(d) > 1e-6]
+    return [here + u * step for step in (STEP_ASIDE_M, 2 * STEP_ASIDE_M) for u in units]
+
+
+def choose_refuge(candidates: list[np.ndarray], peer: Neighbour) -> np.ndarray:
+    """The first candidate at least REFUGE_CLEAR_M off the peer's way (the nearest steps come first), else the
+    one farthest off it. A hovering peer going nowhere has no way: the first candidate (up or down) it is."""
+    going_nowhere = peer.heading_to is None and float(np.linalg.norm(peer.velocity)) < SLOW_M_S
+    if going_nowhere:
+        return candidates[0]
+    clear = [c for c in candidates if distance_to_track(c, peer) >= REFUGE_CLEAR_M]
+    return clear[0] if clear else max(candidates, key=lambda c: distance_to_track(c, peer))
+
+
+def distance_to_track(point: np.ndarray, peer: Neighbour) -> float:
+    """Distance from `point` to the peer's way: the segment it is flying (to `heading_to`), else the one it
+    covers in TRACK_HORIZON_S at its current velocity."""
+    start = np.asarray(peer.position, dtype=float)
+    if peer.heading_to is not None:
+        return distance_to_segment(point, start, np.asarray(peer.heading_to, dtype=float))
+    return distance_to_segment(point, start, start + np.asarray(peer.velocity, dtype=float) * TRACK_HORIZON_S)
+
+
+def distance_to_segment(point: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+    ab = np.asarray(b, dtype=float) - a
+    span = float(np.dot(ab, ab))
+    along = 0.0 if span < 1e-12 else min(max(float(np.dot(point - a, ab)) / span, 0.0), 1.0)
+    return float(np.linalg.norm(point - (a + along * ab)))

@@ -31,6 +31,9 @@ class AgentState(WireMessage):
     t: float = Field(ge=0.0, description="sender wall clock, seconds since the Unix epoch")
     position: Vec3 = Field(description="world frame (z up), metres")
     velocity: Vec3 = Field(description="world frame, m/s")
+    heading_to: Vec3 | None = Field(
+        default=None, description="the end of the straight segment the drone is flying, if any (for separation)"
+    )
     yaw_deg: float = Field(ge=-360.0, le=360.0)
     flight_mode: ShortText = Field(description="autopilot flight mode, e.g. OFFBOARD")
     phase: ShortText = Field(description="e.g. connecting, takeoff, flying, landing, landed, failsafe")

@@ -4,12 +4,14 @@ After Mahdoui's frontier rules (research notes 2.2-2.4), adapted to a 3D grid an
 known free space only. The input is the coarse state grid of the fused map (`FusedMap.occupancy_grid`):
 UNKNOWN, FREE or OCCUPIED per cell, cell (i, j, k) spanning `origin + [i, i+1) x [j, j+1) x [k, k+1) * res`.
 
-- safe cell: known FREE, no point of it closer than `clearance_m` to an OCCUPIED cell (the conservative
-  rasterisation of `OccupancyGrid.inflate`), centre inside the flight band
+- safe cell: a cell where the drone's reported position may be. It and the
+  ceil((body_height_m - clearance_m) / res) cells above it (the airframe stands above its position) are known
+  FREE with no point closer than `clearance_m` to an OCCUPIED cell (the conservative rasterisation of
+  `OccupancyGrid.inflate`), and its centre is inside the flight band
   z in [floor_z + min_altitude_m, top_z - ceiling_margin_m]. UNKNOWN cells are never safe but are not inflated:
   otherwise every frontier would sit behind a wall of blocked cells. UNKNOWN cells whose centre is within
-  `clearance_m` of a `free_points` entry (a drone's own position: space a drone occupies is free), and the cell
-  holding it, count as FREE; OCCUPIED is never overridden.
+  `clearance_m` of a `free_points` entry or of the column above it (a drone's own position: space a drone
+  occupies is free), and the cells holding those, count as FREE; OCCUPIED is never overridden.
 - reachable: the safe cells 26-connected to the safe cell nearest a position (searched within 1.5 m).
 - open unknown: an UNKNOWN cell not 26-adjacent to an OCCUPIED cell (crevices next to obstacles do not count),
   in a 26-connected component of open unknown cells of at least `min_unknown_m3` (specks inside known space do
@@ -86,13 +88,18 @@ class ExplorationGrid:
         states = np.asarray(states, dtype=np.uint8)
         if states.ndim != 3 or not resolution > 0:
             raise ValueError(f"need a 3D state grid and a positive resolution, got {states.shape}, {resolution}")
-        states = _mark_free(states, origin_, resolution, free_points, settings.clearance_m)
+        # The cells above a position that must be clear too: the clearance already reaches clearance_m above
+        # the top of the last one, so together they cover the airframe up to body_height_m above the cell's top.
+        body_cells = max(math.ceil((settings.body_height_m - settings.clearance_m) / resolution - _EPS), 0)
+        column = np.array([[0.0, 0.0, j * resolution] for j in range(body_cells + 1)])
+        body_points = [tuple(np.asarray(p, dtype=float) + c) for p in free_points for c in column]
+        states = _mark_free(states, origin_, resolution, body_points, settings.clearance_m)
         blocked = _inflate(states == OCCUPIED, settings.clearance_m / resolution)
         low = (floor_z + settings.min_altitude_m - origin_[2]) / resolution - 0.5  # in layer-centre units
         high = (top_z - settings.ceiling_margin_m - origin_[2]) / resolution - 0.5
         k0 = max(math.ceil(low - _EPS), 0)
         k1 = max(min(math.floor(high + _EPS) + 1, states.shape[2]), k0)
-        safe = (states == FREE) & ~blocked
+        safe = _with_room_above((states == FREE) & ~blocked, body_cells)
         safe[:, :, :k0] = False
         safe[:, :, k1:] = False
         return cls(origin_, float(resolution), states, safe, (k0, k1), settings)
@@ -261,6 +268,15 @@ def _mark_free(states: np.ndarray, origin: np.ndarray, resolution: float, points
         hit = tuple(cells.T)
         states[hit] = np.where(states[hit] == UNKNOWN, np.uint8(FREE), states[hit])
     return states
+
+
+def _with_room_above(clear: np.ndarray, cells: int) -> np.ndarray:
+    """Cells that are clear together with the `cells` cells above them (the airframe's column)."""
+    out = clear.copy()
+    for j in range(1, cells + 1):
+        out[:, :, :-j] &= clear[:, :, j:]
+        out[:, :, -j:] = False
+    return out
 
 
 def _inflate(occupied: np.ndarray, radius_cells: float) -> np.ndarray:

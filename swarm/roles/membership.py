@@ -23,6 +23,8 @@ class Peer:
     first_seen: float
     last_heard: float
     position: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    heading_to: tuple[float, float, float] | None = None
     phase: str = ""
     epoch: int = 0
     token_alive: bool = False
@@ -38,13 +40,16 @@ class PeerTable:
     peers: dict[int, Peer] = field(default_factory=dict)
     ever_seen: set[int] = field(default_factory=set)
 
-    def heard(self, peer_id: int, position: tuple[float, float, float], phase: str, epoch: int) -> None:
+    def heard(self, peer_id: int, position: tuple[float, float, float], phase: str, epoch: int,
+              velocity: tuple[float, float, float] = (0.0, 0.0, 0.0),
+              heading_to: tuple[float, float, float] | None = None) -> None:
         """A heartbeat arrived from `peer_id`."""
         if peer_id == self.own_id:
             return
         peer = self._known(peer_id, "heartbeat")
         peer.last_heard = self.clock()
-        peer.position, peer.phase, peer.epoch = position, phase, epoch
+        peer.position, peer.velocity, peer.heading_to = position, velocity, heading_to
+        peer.phase, peer.epoch = phase, epoch
         peer.heartbeats += 1
 
     def token_appeared(self, peer_id: int) -> None:

@@ -12,7 +12,8 @@ from swarm.patches.fused import FREE, OCCUPIED, UNKNOWN
 from tests.explore.synthetic import room_states, set_states, state_grid, warehouse_states
 
 RES = 0.2
-SETTINGS = ExploreSettings()
+# A point drone: these tests pin the grid's geometry cell by cell; the airframe's column has tests of its own.
+SETTINGS = ExploreSettings(body_height_m=0.0)
 # No speck filter: for the tests whose unknown pockets are a few cells, smaller than the default min_unknown_m3.
 POCKETS = SETTINGS.model_copy(update={"min_unknown_m3": 0.0})
 LEFT: Vec3 = (1.0, 3.0, 1.5)  # a drone in the left half of the 8 x 6 x 3 m room
@@ -242,6 +243,34 @@ def test_the_flight_band_excludes_viewpoints_below_the_minimum_altitude() -> Non
     lowered = _grid(room_states(known_to_x=4.0), top_z=2.5)
     assert lowered.planning_grid.is_free((2.0, 3.0, 2.1)) and not lowered.planning_grid.is_free((2.0, 3.0, 2.3))
     assert max(f.viewpoint[2] for f in lowered.frontiers(LEFT)) == pytest.approx(2.1)
+
+
+def test_a_drone_needs_room_for_its_airframe_above_its_position() -> None:
+    # The room's ceiling is cells k >= 14 (z >= 2.8 m); inflated by 0.25 m it blocks k = 12, 13 (z 2.4..2.8 m),
+    # so a point may be at k = 11 (2.2..2.4 m). A 0.45 m airframe needs the cell above its position clear too
+    # (the clearance covers 0.25 m above that one): the highest safe position is k = 10 (2.0..2.2 m), whose
+    # airframe reaches 2.65 m at most, 0.15 m under the ceiling. A 0.65 m airframe needs two cells: k = 9.
+    states = room_states(known_to_x=8.0)
+    point = SETTINGS.model_copy(update={"ceiling_margin_m": 0.01})
+    airframe = point.model_copy(update={"body_height_m": 0.45})
+    tall = point.model_copy(update={"body_height_m": 0.65})
+    assert ExploreSettings().body_height_m == 0.45
+    heights = [0.9 + 0.2 * k for k in range(8)]  # cell centres 0.9 .. 2.3 m
+    for settings, safe_layers in ((point, 8), (airframe, 7), (tall, 6)):
+        grid = _grid(states, settings)
+        assert [grid.planning_grid.is_free((2.0, 3.0, z)) for z in heights] == [True] * safe_layers + [False] * (
+            8 - safe_layers), settings.body_height_m
+    # A lintel (a slab from 2.0 to 2.2 m) over part of the room: a point may pass right under it, a drone not.
+    set_states(states, (3.0, 0.0, 2.0), (4.99, 5.99, 2.19), OCCUPIED)
+    point_grid, airframe_grid = _grid(states, point), _grid(states, airframe)
+    assert point_grid.planning_grid.is_free((4.0, 3.0, 1.5))
+    assert not airframe_grid.planning_grid.is_free((4.0, 3.0, 1.5))
+    assert airframe_grid.planning_grid.is_free((4.0, 3.0, 1.3))
+    # the drone's own position stays usable although the cells above it were never seen
+    states[10, 15, 4:9] = UNKNOWN
+    assert airframe_grid.planning_grid.is_free((2.1, 3.1, 0.9))
+    assert not _grid(states, airframe).planning_grid.is_free((2.1, 3.1, 0.9))
+    assert _grid(states, airframe, free_points=[(2.1, 3.1, 0.9)]).planning_grid.is_free((2.1, 3.1, 0.9))
 
 
 def test_gain_is_larger_facing_a_large_unknown_region_than_a_small_pocket() -> None:

@@ -1,0 +1,173 @@
+"""Separation between drones: two real MAVSDK flights against the simulator, head-on on the same line, or one
+hovering on the other's line.
+
+The drones' `neighbours()` read each other's telemetry directly (in flight, heartbeats carry the same position
+and velocity), and `is_safe` asks the world mesh: everything else (autopilot, MAVLink, simulator physics and
+collision truth) is the real thing. Without separation the two collide, which shows the scenario is a real
+conflict; with it, drone 2 steps out of drone 1's way and both arrive.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+
+import numpy as np
+import pytest
+
+from swarm.agent.autopilot import Autopilot
+from swarm.agent.flight import (
+    REFUGE_CLEAR_M,
+    STEP_ASIDE_M,
+    Flight,
+    Neighbour,
+    choose_refuge,
+    distance_to_segment,
+    distance_to_track,
+    refuge_candidates,
+)
+from swarm.config import gcs_port
+from swarm.sim.worlds import load_world
+from tests.sim.support import free_port_block, running_sim, sim_config
+
+pytestmark = pytest.mark.timeout(150)
+
+WEST, EAST = (1.0, 2.0, 0.0), (3.6, 2.0, 0.0)  # the box's open strip south of its wall stub
+ALTITUDE = 1.5
+
+
+def test_refuge_candidates_step_up_down_away_and_to_either_side_of_the_way() -> None:
+    here = np.array([2.0, 2.0, 1.5])
+    s = STEP_ASIDE_M
+    peer = Neighbour(1, (1.0, 2.0, 1.5), (1.0, 0.0, 0.0))  # coming at us along +x
+    offsets = [tuple(np.round(c - here, 6)) for c in refuge_candidates(here, peer)]
+    near = [(0.0, 0.0, s), (0.0, 0.0, -s), (s, 0.0, 0.0), (0.0, s, 0.0), (0.0, -s, 0.0)]
+    assert offsets == near + [tuple(2 * v for v in o) for o in near]
+    below = Neighbour(1, (2.0, 2.0, 2.0), (0.0, 0.0, 0.0))  # above us: we step down first
+    assert tuple(np.round(refuge_candidates(here, below)[0] - here, 6)) == (0.0, 0.0, -s)
+    # a peer holding still on its way to a point beyond us: the sides of that segment, not of its velocity
+    holding = Neighbour(1, (2.0, 1.0, 1.5), (0.0, 0.0, 0.0), heading_to=(2.0, 4.0, 1.5))
+    sides = [tuple(np.round(c - here, 6)) for c in refuge_candidates(here, holding)][3:5]
+    assert sorted(sides) == sorted([(s, 0.0, 0.0), (-s, 0.0, 0.0)])
+
+
+def test_the_refuge_is_the_nearest_step_well_off_the_other_drones_way() -> None:
+    here = np.array([2.0, 2.0, 1.5])
+    s = STEP_ASIDE_M
+    # A peer holding still, heading for a point just past us: stepping up by s is only s off its segment, enough
+    # (>= REFUGE_CLEAR_M) when s is; a side step is as good, and up comes first.
+    holding = Neighbour(1, (2.0, 1.0, 1.5), (0.0, 0.0, 0.0), heading_to=(2.0, 3.0, 1.5))
+    refuge = choose_refuge(refuge_candidates(here, holding), holding)
+    assert distance_to_track(refuge, holding) >= REFUGE_CLEAR_M
+    assert np.linalg.norm(refuge - here) == pytest.approx(s if s >= REFUGE_CLEAR_M else 2 * s)
+    # With only candidates on its way (the map forbids the others), the one farthest off it.
+    on_the_way = [here + [0.0, s, 0.0], here + [0.0, 0.0, 0.3]]
+    assert np.allclose(choose_refuge(on_the_way, holding), here + [0.0, 0.0, 0.3])
+    # A peer hovering with nowhere to go: the first candidate (vertical), whatever the distances.
+    hovering = Neighbour(1, (1.0, 2.0, 1.5), (0.0, 0.0, 0.0))
+    assert np.allclose(choose_refuge(refuge_candidates(here, hovering), hovering), here + [0.0, 0.0, s])
+
+
+def test_distance_to_segment_is_the_distance_to_its_nearest_point() -> None:
+    a, b = np.array([0.0, 0.0, 0.0]), np.array([2.0, 0.0, 0.0])
+    assert distance_to_segment(np.array([1.0, 0.5, 0.0]), a, b) == pytest.approx(0.5)
+    assert distance_to_segment(np.array([3.0, 0.0, 0.0]), a, b) == pytest.approx(1.0)
+    assert distance_to_segment(np.array([0.0, 0.0, 1.0]), a, a) == pytest.approx(1.0)  # a point segment
+
+
+def test_distance_to_track_is_measured_to_the_covered_segment() -> None:
+    peer = Neighbour(1, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0))  # covers x 0..3 m in the 3 s horizon
+    assert distance_to_track(np.array([1.5, 2.0, 0.0]), peer) == pytest.approx(2.0)
+    assert distance_to_track(np.array([-1.0, 0.0, 0.0]), peer) == pytest.approx(1.0)  # behind it
+    assert distance_to_track(np.array([5.0, 0.0, 0.0]), peer) == pytest.approx(2.0)  # beyond the horizon
+    # with a segment to fly, that segment, whatever the velocity
+    flying = Neighbour(1, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0), heading_to=(0.0, 5.0, 0.0))
+    assert distance_to_track(np.array([1.0, 4.0, 0.0]), flying) == pytest.approx(1.0)
+
+
+async def _encounter(separation_m: float, hover_in_the_way: bool = False) -> tuple[dict, list[Flight], list[bool]]:
+    """Drone 1 flies WEST -> EAST at ALTITUDE; drone 2 flies EAST -> WEST on the same line, or, with
+    `hover_in_the_way`, hovers (looking about, as a drone waiting for a target does) on drone 1's line."""
+    spawns = [WEST, (2.3, 2.0, 0.0)] if hover_in_the_way else [WEST, EAST]
+    config = sim_config(free_port_block(), **{"mission.drones": 2, "sim.spawns": spawns})
+    world = load_world("box")
+    with running_sim(config, world) as server:
+        flights: list[Flight] = []
+
+        def neighbours_of(k: int):
+            def neighbours() -> list[Neighbour]:
+                other = flights[1 - k]
+                tel = other.ap.telemetry
+                return [Neighbour(2 - k, tel.position, tel.velocity, other.heading_to)] if other.airborne else []
+            return neighbours
+
+        def is_safe(point) -> bool:
+            lowest = point[2] >= 0.6
+            return lowest and float(world.distance(np.array([point]) + [0.0, 0.0, 0.22])[0]) > 0.5
+
+        for k in range(2):
+            autopilot = Autopilot(f"udpin://127.0.0.1:{gcs_port(config.sim, k + 1)}", config.mission.origin)
+            settings = config.agent.model_copy(update={"id": k + 1, "altitude_m": ALTITUDE, "hover_s": 0.0})
+            flights.append(Flight(autopilot, settings, lambda *a, **kw: None, separation_m=separation_m,
+                                  neighbours=neighbours_of(k), is_safe=is_safe))
+        arrived = [False, False]
+        both_up = asyncio.Event()
+
+        def mission_to(k: int, goal: tuple[float, float, float]):
+            async def mission(flight: Flight, stop: asyncio.Event) -> None:
+                if all(f.airborne for f in flights):
+                    both_up.set()
+                await asyncio.wait_for(both_up.wait(), 60)
+                target = (goal[0], goal[1], ALTITUDE)
+                for _ in range(3):  # a drone that gave way too long gets its path again, as exploration replans
+                    if await flight.fly_path([target], stop):
+                        arrived[k] = True
+                        return
+            return mission
+
+        async def hover(flight: Flight, stop: asyncio.Event) -> None:
+            if all(f.airborne for f in flights):
+                both_up.set()
+            await asyncio.wait_for(both_up.wait(), 60)
+            end = asyncio.get_running_loop().time() + 12.0
+            while asyncio.get_running_loop().time() < end and not arrived[0]:
+                await flight.face((2.3, 5.0, ALTITUDE), 1.0, stop)
+            arrived[1] = True
+
+        stop = asyncio.Event()
+        missions = [mission_to(0, EAST), hover if hover_in_the_way else mission_to(1, WEST)]
+        try:
+            await asyncio.gather(*(f.run(m, stop) for f, m in zip(flights, missions)))
+        finally:
+            for flight in flights:
+                await flight.ap.close()
+        return server.status(), flights, arrived
+
+
+def _drone_collisions(status: dict) -> list[dict]:
+    return [e for e in status["collision_events"] if e["kind"] == "drone"]
+
+
+def test_without_separation_the_head_on_drones_collide() -> None:
+    status, _, arrived = asyncio.run(_encounter(separation_m=0.0))
+    assert arrived == [True, True]
+    assert _drone_collisions(status), status["collision_events"]
+
+
+def test_the_higher_id_steps_aside_and_both_drones_arrive_without_touching() -> None:
+    status, flights, arrived = asyncio.run(_encounter(separation_m=1.2))
+    assert status["collision_events"] == []
+    assert arrived == [True, True]
+    assert flights[0].yields == 0 and flights[1].yields >= 1
+    for flight, goal in zip(flights, (EAST, WEST)):
+        x, y, _ = flight.ap.telemetry.position
+        assert math.hypot(x - goal[0], y - goal[1]) < 0.6
+
+
+def test_a_hovering_higher_id_in_the_way_moves_off_the_line() -> None:
+    status, flights, arrived = asyncio.run(_encounter(separation_m=1.2, hover_in_the_way=True))
+    assert status["collision_events"] == []
+    assert arrived == [True, True]
+    assert flights[0].yields == 0 and flights[1].yields >= 1
+    x, y, _ = flights[0].ap.telemetry.position
+    assert math.hypot(x - EAST[0], y - EAST[1]) < 0.6
