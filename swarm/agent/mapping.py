@@ -131,13 +131,19 @@ class MappingTask:
     def _explore_view(
         self, floor_z: float, top_z: float, position: Vec3, obstacles: Sequence[Vec3]
     ) -> tuple[ExplorationGrid, list[Frontier]]:
-        resolution = self.config.mapping.planning_resolution_m
+        resolution, voxel = self.config.mapping.planning_resolution_m, self.config.mapping.voxel_size_m
+        refine = round(resolution / voxel)
+        occupied_fine = None
         with self.mapper.current_map() as fused:
             origin, states = fused.occupancy_grid(resolution, min_known=self.config.explore.seen_fraction)
+            if refine > 1 and abs(refine * voxel - resolution) < 1e-9:
+                top = origin + np.array(states.shape) * resolution
+                occupied_fine = fused.occupancy_grid(voxel, origin, top)[1] == OCCUPIED
         for point in obstacles:
             _mark_occupied(states, origin, resolution, point, self.config.sim.drone_radius_m)
         grid = ExplorationGrid.from_states(
-            origin, resolution, states, self.config.explore, floor_z, top_z, free_points=[position]
+            origin, resolution, states, self.config.explore, floor_z, top_z, free_points=[position],
+            occupied_fine=occupied_fine,
         )
         return grid, grid.frontiers(position)
 

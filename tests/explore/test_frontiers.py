@@ -7,7 +7,7 @@ import pytest
 from swarm.config import ExploreSettings, Vec3
 from swarm.explore.frontiers import ExplorationGrid, Frontier
 from swarm.explore.grid import OccupancyGrid
-from swarm.explore.planner import path_is_free, plan_path
+from swarm.explore.planner import NoPathError, path_is_free, plan_path
 from swarm.patches.fused import FREE, OCCUPIED, UNKNOWN
 from tests.explore.synthetic import room_states, set_states, state_grid, warehouse_states
 
@@ -511,3 +511,80 @@ def test_frontier_is_immutable() -> None:
     f = Frontier((0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 1.0, 2)
     with pytest.raises(dataclasses.FrozenInstanceError):
         f.gain = 2.0  # type: ignore[misc]
+
+
+def _door_states(first: int, last: int) -> tuple[np.ndarray, np.ndarray]:
+    """A wall one 0.1 m voxel thick across y (y = 2.0..2.1 m) of a known 4 x 4 x 3 m room, with a doorway of
+    the voxels first..last along x (no lintel): the occupied voxels, and the 0.2 m states the fused map exports
+    from them (a cell is OCCUPIED when any of its voxels is)."""
+    fine = np.zeros((40, 40, 30), dtype=bool)
+    fine[:, 20, :] = True
+    fine[first : last + 1, 20, :] = False
+    fine[:, :, :2] = fine[:, :, -2:] = True  # floor and ceiling slabs
+    coarse = fine.reshape(20, 2, 20, 2, 15, 2).any(axis=(1, 3, 5))
+    return fine, np.where(coarse, np.uint8(OCCUPIED), np.uint8(FREE))
+
+
+# (first, last door voxel), safe door cells from the 0.2 m cells, from the voxels; worked out by hand: a cell is
+# safe when no voxel of it comes within 0.25 m of an obstacle (a jamb voxel, or the jamb's whole 0.2 m cell).
+DOORS = [((15, 24), 0, 2), ((15, 25), 1, 2), ((14, 24), 1, 2), ((14, 23), 1, 1)]
+
+
+@pytest.mark.parametrize(("door", "from_cells", "from_voxels"), DOORS)
+def test_a_doorway_keeps_more_safe_cells_when_clearance_is_measured_from_the_voxels(
+    door: tuple[int, int], from_cells: int, from_voxels: int
+) -> None:
+    fine, states = _door_states(*door)
+    settings = SETTINGS.model_copy(update={"ceiling_margin_m": 0.01})
+    coarse = ExplorationGrid.from_states((0, 0, 0), RES, states, settings, floor_z=0.0, top_z=3.0)
+    voxels = ExplorationGrid.from_states((0, 0, 0), RES, states, settings, floor_z=0.0, top_z=3.0,
+                                         occupied_fine=fine)
+    in_door = np.array([(x, 2.1, 1.5) for x in np.arange(1.1, 3.0, 0.2)])
+    assert coarse.planning_grid.points_are_free(in_door).sum() == from_cells
+    passable = voxels.planning_grid.points_are_free(in_door)
+    assert passable.sum() == from_voxels
+    occupied_voxels = np.argwhere(fine) * 0.1
+    for point in in_door[passable]:  # each is 0.25 m clear of every occupied voxel, cube to cube
+        lo = np.floor(point / RES) * RES
+        gap = np.maximum(np.maximum(occupied_voxels - (lo + RES), lo - (occupied_voxels + 0.1)), 0.0)
+        assert np.linalg.norm(gap, axis=1).min() >= settings.clearance_m - 1e-9
+    start, goal = (2.0, 1.0, 1.5), (2.0, 3.2, 1.5)
+    assert path_is_free(voxels.planning_grid, plan_path(voxels.planning_grid, start, goal))
+    if from_cells == 0:
+        with pytest.raises(NoPathError):
+            plan_path(coarse.planning_grid, start, goal)
+
+
+def test_fine_occupancy_must_refine_the_grid_exactly() -> None:
+    fine, states = _door_states(15, 25)
+    with pytest.raises(ValueError, match="integer refinement"):
+        ExplorationGrid.from_states((0, 0, 0), RES, states, SETTINGS, floor_z=0.0, top_z=3.0,
+                                    occupied_fine=fine[:, :-1])
+
+
+def test_cells_marked_occupied_by_hand_stay_obstacles_with_fine_occupancy() -> None:
+    # a dead drone's last position is marked on the coarse states only: it must still be kept clear of
+    fine, states = _door_states(15, 25)
+    states[5, 5, 7] = OCCUPIED
+    grid = ExplorationGrid.from_states((0, 0, 0), RES, states, SETTINGS, floor_z=0.0, top_z=3.0,
+                                       occupied_fine=fine)
+    assert not grid.planning_grid.is_free((1.1, 1.1, 1.5))
+    assert not grid.planning_grid.is_free((1.3, 1.1, 1.5))  # within 0.25 m of the marked cell
+    assert grid.planning_grid.is_free((1.1, 0.5, 1.5))
+
+
+@pytest.mark.parametrize("shape", [(12, 9, 17), (10, 8, 64), (9, 7, 70)])  # packed columns, and taller than 64
+def test_inflation_matches_a_brute_force_dilation(shape: tuple[int, int, int]) -> None:
+    from swarm.explore.frontiers import _ball_offsets, _cube_offsets, _inflate
+
+    occupied = np.random.default_rng(3).random(shape) < 0.03
+    for radius in (0.5, 1.25, 2.5):
+        ball = _ball_offsets(radius - 1e-9, strict=True)
+        offsets = np.unique((ball[:, None, :] + _cube_offsets(1)[None, :, :]).reshape(-1, 3), axis=0)
+        expected = np.zeros_like(occupied)
+        nx, ny, nz = shape
+        for dx, dy, dz in offsets:
+            expected[max(dx, 0) : nx + min(dx, 0), max(dy, 0) : ny + min(dy, 0), max(dz, 0) : nz + min(dz, 0)] |= (
+                occupied[max(-dx, 0) : nx - max(dx, 0), max(-dy, 0) : ny - max(dy, 0), max(-dz, 0) : nz - max(dz, 0)]
+            )
+        assert np.array_equal(_inflate(occupied, radius), expected), radius
