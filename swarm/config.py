@@ -338,18 +338,21 @@ def _apply(tree: dict[str, Any], dotted: str, value: Any) -> None:
     node[leaf] = value
 
 
+def read_toml(path: str | Path, what: str = "config file") -> dict[str, Any]:
+    """The TOML file's tables; ConfigError (one line naming `what` and the path) if it cannot be read."""
+    try:
+        return tomllib.loads(Path(path).read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{what} {path} does not exist") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{what} {path} cannot be read: {exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{what} {path} is not valid TOML: {exc}") from None
+
+
 def load_config(path: Path | None = None, overrides: dict[str, Any] | None = None) -> SwarmConfig:
     """Load a configuration from an optional TOML file plus dotted overrides; raise ConfigError on bad input."""
-    tree: dict[str, Any] = {}
-    if path is not None:
-        try:
-            tree = tomllib.loads(Path(path).read_text())
-        except FileNotFoundError:
-            raise ConfigError(f"config file {path} does not exist") from None
-        except (OSError, UnicodeDecodeError) as exc:
-            raise ConfigError(f"config file {path} cannot be read: {exc}") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise ConfigError(f"config file {path} is not valid TOML: {exc}") from None
+    tree: dict[str, Any] = read_toml(path) if path is not None else {}
     for key, value in (overrides or {}).items():
         _apply(tree, key, value)
     try:

@@ -44,6 +44,7 @@ EMPTY_ROUNDS_FOR_DONE = 3  # a transient empty frontier set (a map update in fli
 KEEP_RADIUS_M = 1.0  # a new target this close to the current one is the same target: no interruption
 REPORT_FRESH_LOOPS = 3.0  # a member's report older than this many loops is ignored by the leader
 PLAN_EXPANSIONS = 150_000
+STATUS_EVERY_LOOPS = 10
 RETURN_ATTEMPTS = 3  # a drone that had to give way too long on its way home plans again
 WAIT_FOR_TARGET_S = 0.5
 IDLE_TURN_DEG = 45.0
@@ -163,6 +164,9 @@ class Exploration:
             self._explore(here)
         self.arrived = False
         self.decision_ms.append((time.perf_counter() - started) * 1000)
+        if self.loops % STATUS_EVERY_LOOPS == 0:  # a trace of quiet stretches (no new target for minutes)
+            self.log("explore_status", loops=self.loops, candidates=len(self.own), leader=self.peers.leader,
+                     target=_r(self.target.viewpoint) if self.target else None, path=len(self.path))
 
     def _candidates(self, frontiers: list[Frontier]) -> list[Candidate]:
         own = [Candidate(f.viewpoint, f.point, f.gain, self.id) for f in frontiers[:MAX_CANDIDATES]]

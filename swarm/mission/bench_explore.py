@@ -26,7 +26,7 @@ STRATEGIES = ("coordinated", "uncoordinated")
 def bench_explore(
     config: SwarmConfig, sizes: list[int], strategies: list[str] | None = None, out: Path | None = None
 ) -> int:
-    console = Console()
+    console = Console() if Console().is_terminal else Console(width=160)  # pipes and logs: never truncate
     root = out or Path(tempfile.mkdtemp(prefix="swarm-bench-explore-"))
     root.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
