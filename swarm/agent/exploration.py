@@ -296,7 +296,9 @@ class Exploration:
         """Take a new target; False when it is the current one (kept without interrupting the flight)."""
         current = self.target
         if current is not None and _distance(current.viewpoint, target.viewpoint) < KEEP_RADIUS_M:
-            self.target = Target(current.viewpoint, target.point, target.source)
+            # Update the same object: `fly` knows its target by identity, and a new object at every loop meant it
+            # never counted as reached (no dwell, never done, the same spot assigned again: a silent livelock).
+            current.point, current.source = target.point, target.source
             return False
         self.target = target
         if target.source == "self":

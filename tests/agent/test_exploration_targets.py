@@ -1,0 +1,52 @@
+"""`Exploration._set_target`: how a new assignment replaces (or keeps) the drone's current target.
+
+The flight loop knows its target by identity: reaching a target only counts (dwell, "done with it") when the
+target it set out for is still the current one. Re-assigning the same spot at every decision loop must therefore
+keep the object, or a drone whose leader repeats itself never finishes a target.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from swarm.agent.exploration import Exploration, Target
+from swarm.config import load_config
+from swarm.roles.membership import PeerTable
+
+
+def _exploration(events: list[dict[str, Any]]) -> Exploration:
+    config = load_config(overrides={"agent.id": 2})
+    return Exploration(
+        config, epoch=1, bus=None, peers=PeerTable(2), mapping=None,  # type: ignore[arg-type]  # unused here
+        position=lambda: (0.0, 0.0, 1.5), home=lambda: (0.0, 0.0, 0.0), top_z=3.0,
+        log=lambda event, **fields: events.append({"event": event, **fields}),
+    )
+
+
+def test_the_same_spot_assigned_again_keeps_the_target_object() -> None:
+    events: list[dict[str, Any]] = []
+    exploration = _exploration(events)
+    assert exploration._set_target(Target((1.0, 1.0, 1.5), (1.5, 1.0, 1.5), "self"))
+    flying_to = exploration.target
+    exploration.retarget.clear()
+    kept = exploration._set_target(Target((1.3, 1.2, 1.5), (1.9, 1.2, 1.5), "leader"))  # 0.36 m away
+    assert kept is False
+    assert exploration.target is flying_to  # the flight loop still recognises it when it arrives
+    assert flying_to.viewpoint == (1.0, 1.0, 1.5) and flying_to.point == (1.9, 1.2, 1.5)
+    assert flying_to.source == "leader"  # the leader has confirmed it: tau no longer applies
+    assert not exploration.retarget.is_set()
+    assert (exploration.targets_self_selected, exploration.targets_assigned) == (1, 0)
+    assert [e["event"] for e in events] == ["target"]
+
+
+def test_a_different_spot_replaces_the_target_and_interrupts_the_flight() -> None:
+    events: list[dict[str, Any]] = []
+    exploration = _exploration(events)
+    exploration._set_target(Target((1.0, 1.0, 1.5), (1.5, 1.0, 1.5), "leader"))
+    first = exploration.target
+    exploration.retarget.clear()
+    assert exploration._set_target(Target((4.0, 1.0, 1.5), (4.5, 1.0, 1.5), "leader"))
+    assert exploration.target is not first and exploration.target.viewpoint == (4.0, 1.0, 1.5)
+    assert exploration.retarget.is_set()
+    assert exploration.targets_assigned == 2
+    assert [e["event"] for e in events] == ["target", "target"]
