@@ -8,7 +8,8 @@ frontiers from its fused map (`MappingTask.explore_view`). Then, by strategy (do
   merges them with its own, drops those its fused map already knows and those next to a spot a drone already
   looked at, assigns every member a target with the utility and gain scheduling (`swarm.roles.assignment`), and
   publishes the `TargetAssignment`. An explorer with no assignment from its leader for `explorer_timeout_s`
-  (tau), counted from its first report to that leader, picks its own. A leader with no candidate left three loops in a row declares its cluster done.
+  (tau), counted from its first report to that leader, picks its own. A leader with no candidate left three
+  loops in a row declares its cluster done.
 - **uncoordinated:** every drone picks the best of its own candidates (Eq. 3.3); maps are still shared.
 - **frontier-only** (the thesis's original): as coordinated, but patches are not shared, so the leader removes
   the candidates inside another member's explored region by the scan-line overlap test instead.
