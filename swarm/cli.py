@@ -10,9 +10,9 @@ import argparse
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any, NoReturn, get_args
 
-from swarm.config import ConfigError, SwarmConfig, load_config, parse_override
+from swarm.config import ConfigError, Strategy, SwarmConfig, load_config, parse_override
 from swarm.errors import SwarmError
 
 EXIT_FAILED, EXIT_BAD_INPUT = 1, 2
@@ -56,7 +56,7 @@ def _int_list(text: str) -> list[int]:
     return [_positive_int(p) for p in text.split(",")]
 
 
-STRATEGIES = ("coordinated", "uncoordinated", "frontier-only", "scripted")
+STRATEGIES: tuple[str, ...] = get_args(Strategy)
 
 
 def _strategy_list(text: str) -> list[str]:

@@ -10,7 +10,6 @@ final explored fraction and the mission's end. The speed-up is T95(n) / T95(1) p
 from __future__ import annotations
 
 import json
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +17,7 @@ from rich.console import Console
 from rich.table import Table
 
 from swarm.config import SwarmConfig
+from swarm.mission.bench import _console_and_root
 from swarm.mission.run import run_mission
 
 STRATEGIES = ("coordinated", "uncoordinated")
@@ -26,8 +26,7 @@ STRATEGIES = ("coordinated", "uncoordinated")
 def bench_explore(
     config: SwarmConfig, sizes: list[int], strategies: list[str] | None = None, out: Path | None = None
 ) -> int:
-    console = Console() if Console().is_terminal else Console(width=160)  # pipes and logs: never truncate
-    root = out or Path(tempfile.mkdtemp(prefix="swarm-bench-explore-"))
+    console, root = _console_and_root(out)
     root.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
     chosen = strategies or list(STRATEGIES)

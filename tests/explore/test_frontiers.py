@@ -28,6 +28,13 @@ def _cell(p: Vec3) -> tuple[int, int, int]:
     return i, j, k
 
 
+def _random_states(rng: np.random.Generator, size: tuple[int, int, int], p_unknown: float,
+                   p_occupied: float) -> np.ndarray:
+    """Independent random cell states, FREE for the rest of the probability."""
+    p = [p_unknown, 1.0 - p_unknown - p_occupied, p_occupied]
+    return rng.choice(np.array([UNKNOWN, FREE, OCCUPIED], dtype=np.uint8), size=size, p=p)
+
+
 def _open_unknown(states: np.ndarray) -> np.ndarray:
     """The UNKNOWN cells with no OCCUPIED cell among their 26 neighbours, written out shift by shift (no scipy)."""
     occupied = np.pad(states == OCCUPIED, 1)
@@ -300,8 +307,7 @@ def test_gain_is_larger_facing_a_large_unknown_region_than_a_small_pocket() -> N
 @pytest.mark.parametrize("p_occupied", [0.1, 0.01])
 def test_gain_at_counts_open_unknown_cells_in_the_cube_and_matches_the_frontiers(p_occupied: float) -> None:
     rng = np.random.default_rng(3)
-    p = [0.3, 0.7 - p_occupied, p_occupied]
-    states = rng.choice(np.array([UNKNOWN, FREE, OCCUPIED], dtype=np.uint8), size=(24, 18, 12), p=p)
+    states = _random_states(rng, (24, 18, 12), p_unknown=0.3, p_occupied=p_occupied)
     grid = _grid(states, POCKETS)  # open unknown cells here are mostly isolated: no speck filter
     half = round(SETTINGS.gain_radius_m / RES)
     cells = rng.integers(0, states.shape, size=(40, 3))
@@ -357,9 +363,7 @@ def test_free_points_make_the_drones_unknown_cell_plannable() -> None:
 
 @pytest.mark.parametrize("p_occupied", [0.1, 0.01])
 def test_frontier_cells_are_the_free_cells_next_to_an_open_unknown_cell(p_occupied: float) -> None:
-    rng = np.random.default_rng(5)
-    p = [0.3, 0.7 - p_occupied, p_occupied]
-    states = rng.choice(np.array([UNKNOWN, FREE, OCCUPIED], dtype=np.uint8), size=(24, 18, 12), p=p)
+    states = _random_states(np.random.default_rng(5), (24, 18, 12), p_unknown=0.3, p_occupied=p_occupied)
     grid = _grid(states, POCKETS)  # open unknown cells here are mostly isolated: no speck filter
     expected = _frontier_cell_mask(states)
     next_to_unknown = _free_face_neighbours(states == UNKNOWN, states)
@@ -485,8 +489,7 @@ def test_reachable_is_the_connected_safe_space_around_the_position() -> None:
 
 @pytest.mark.parametrize("clearance", [0.35, 0.25, 0.5, 0.4, 0.2])
 def test_safe_cells_are_the_free_cells_outside_the_inflated_obstacles(clearance: float) -> None:
-    rng = np.random.default_rng(7)
-    states = rng.choice(np.array([UNKNOWN, FREE, OCCUPIED], dtype=np.uint8), size=(30, 25, 20), p=[0.1, 0.87, 0.03])
+    states = _random_states(np.random.default_rng(7), (30, 25, 20), p_unknown=0.1, p_occupied=0.03)
     settings = SETTINGS.model_copy(update={"clearance_m": clearance})
     grid = ExplorationGrid.from_states((0.0, 0.0, 0.0), RES, states, settings, floor_z=-10.0, top_z=10.0)
     inflated = OccupancyGrid(np.zeros(3), RES, states == OCCUPIED).inflate(clearance).occupied
