@@ -5,13 +5,14 @@
 #   ./bootstrap.sh test [pytest flags]      run the test suite
 #   ./bootstrap.sh env                      only set up; prints the environment's path
 #
-# Installs the system libraries Open3D links against and the tools the network experiments use, creates a
+# Installs the system libraries Open3D links against, the tools the network experiments use and the
+# docker-compose parser the deployment tests validate with (no Docker engine: --no-install-recommends), creates a
 # virtual environment in .venv (or uses the one that is active) and installs the package with its test
 # extras there. Each step is skipped when already done, so running it again costs a second.
 set -euo pipefail
 cd "$(dirname "$0")"
 
-SYSTEM_PACKAGES=(libusb-1.0-0 libgl1 libegl1 libx11-6 libgomp1 iproute2 nftables)
+SYSTEM_PACKAGES=(libusb-1.0-0 libgl1 libegl1 libx11-6 libgomp1 iproute2 nftables docker-compose)
 
 say() { printf 'bootstrap: %s\n' "$*" >&2; }
 

@@ -67,6 +67,16 @@ def _strategy_list(text: str) -> list[str]:
     return names
 
 
+def _percent_list(text: str) -> list[float]:
+    try:
+        values = [float(p) for p in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a list of percentages, e.g. 0,10,30,50") from None
+    if any(not 0.0 <= v < 100.0 for v in values):
+        raise argparse.ArgumentTypeError(f"loss levels are percentages in [0, 100) (got {text})")
+    return [v / 100.0 for v in values]
+
+
 def _add_config_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", type=Path, help="TOML file with [mission], [agent], [sim], [bus] tables")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.FIELD=VALUE",
@@ -87,6 +97,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--strategy", choices=STRATEGIES,
                      help="how drones choose where to go (default coordinated: the cluster leader assigns targets)")
     run.add_argument("--no-live", action="store_true", help="plain progress lines instead of a live table")
+    run.add_argument("--network", choices=("loopback", "netns"),
+                     help="netns: each agent in its own network namespace on a virtual radio (root)")
+    run.add_argument("--links", type=Path, help="link scenario TOML applied during the mission (needs --network netns)")
     _add_config_flags(run)
 
     sim = sub.add_parser("sim", help="run the simulated vehicles alone (MAVLink over UDP)")
@@ -104,6 +117,7 @@ def build_parser() -> argparse.ArgumentParser:
     observe.add_argument("--status", type=Path, required=True, help="status JSON to (re)write")
     observe.add_argument("--patches", type=Path, help="directory of sealed patches to fuse into the swarm's map")
     observe.add_argument("--map", type=Path, help="where to write the swarm's fused mesh (.ply) at the end")
+    observe.add_argument("--since", type=float, help="the Unix time its clock counts from (default: its start)")
     _add_config_flags(observe)
 
     node = sub.add_parser("mapnode", help="a map-sharing node without a vehicle (sync experiments and tests)")
@@ -140,6 +154,67 @@ def build_parser() -> argparse.ArgumentParser:
     explore.add_argument("--world", default="office")
     explore.add_argument("--out", type=Path, help="where to keep the runs (default a temp dir)")
     _add_config_flags(explore)
+
+    experiment = sub.add_parser("experiment", help="several missions compared, with a table and figures")
+    experiment_sub = experiment.add_subparsers(dest="experiment", required=True, parser_class=_Parser)
+    dropout = experiment_sub.add_parser(
+        "dropout", help="the same netns mission at several link loss levels and with a cut-and-heal (root)"
+    )
+    dropout.add_argument("--levels", type=_percent_list, default=[0.0, 0.1, 0.3, 0.5],
+                         help="loss on every link in %%, e.g. 0,10,30,50 (0, the baseline, is always run)")
+    dropout.add_argument("--no-cut", action="store_true", help="skip the cut-and-heal")
+    dropout.add_argument("--cut-at", type=float, default=20.0,
+                         help="seconds after take-off the highest-numbered drone is cut off (default 20)")
+    dropout.add_argument("--heal-at", type=float, default=50.0,
+                         help="seconds after take-off its links come back (default 50)")
+    dropout.add_argument("--drones", type=_positive_int, help="swarm size (default 3)")
+    dropout.add_argument("--world", default="office")
+    dropout.add_argument("--out", type=Path, help="where to keep the runs (default a temp dir)")
+    _add_config_flags(dropout)
+
+    deploy = sub.add_parser("deploy", help="the simulated swarm as Docker containers (docs/deploy.md)")
+    deploy_sub = deploy.add_subparsers(dest="deploy", required=True, parser_class=_Parser)
+    compose = deploy_sub.add_parser("compose", help="write a docker-compose file: simulator, N agents, observer")
+    compose.add_argument("--drones", type=_positive_int, help="number of agents, 1 to 16 (default 3)")
+    compose.add_argument("--loss", type=float, default=0.0,
+                         help="radio loss on every link, each way, as a fraction 0..1 (default 0)")
+    compose.add_argument("--out", type=Path, default=Path("swarm-compose"),
+                         help="directory to write, new or empty (default swarm-compose)")
+    compose.add_argument("--world", help="built-in world or a .ply/.obj/.stl mesh (copied next to the configs)")
+    compose.add_argument("--image", default="swarm-agent", help="the image built from deploy/Dockerfile")
+    compose.add_argument("--build-context", type=Path, dest="build_context",
+                         help="the swarm repository: docker compose builds the image itself")
+    _add_config_flags(compose)
+    radio = deploy_sub.add_parser("netem", help="impair this container's radio interface with tc netem")
+    radio.add_argument("--address", required=True, help="IP address of the radio interface")
+    radio.add_argument("--loss", type=float, default=0.0, help="loss fraction 0..1 on egress (default 0)")
+    radio.add_argument("--delay-ms", type=float, default=0.0, dest="delay_ms", help="added delay (default 0)")
+    radio.add_argument("--jitter-ms", type=float, default=0.0, dest="jitter_ms", help="delay jitter (default 0)")
+
+    netem = sub.add_parser("netem", help="a virtual swarm radio kept up by hand: namespaces + nftables (root)")
+    netem_sub = netem.add_subparsers(dest="netem", required=True, parser_class=_Parser)
+    n_up = netem_sub.add_parser("up", help="create a network that stays until `swarm netem down`")
+    n_up.add_argument("--nodes", type=_positive_int, required=True, help="number of nodes (1 to 200)")
+    n_up.add_argument("--name", default="default", help="network name (default: default)")
+    n_show = netem_sub.add_parser("show", help="nodes, addresses, impairments in force and nft rules")
+    n_show.add_argument("--name", default="default", help="network name (default: default)")
+    n_apply = netem_sub.add_parser("apply", help="impair or restore links, or apply a scenario's state at a time")
+    n_apply.add_argument("link", nargs="?", help='"a-b" (one pair), "k" (all links of node k) or "all"')
+    n_apply.add_argument("--name", default="default", help="network name (default: default)")
+    n_apply.add_argument("--loss", help="drop probability each way: a fraction (0.3) or a percentage (30%%)")
+    n_apply.add_argument("--cut", action="store_true", help="drop everything")
+    n_apply.add_argument("--rate-kbit", dest="rate_kbit", type=_non_negative_int,
+                         help="rate limit in kbit/s each way (a node or all; not a pair)")
+    n_apply.add_argument("--delay-ms", dest="delay_ms", type=float, help="refused: needs sch_netem")
+    n_apply.add_argument("--jitter-ms", dest="jitter_ms", type=float, help="refused: needs sch_netem")
+    n_apply.add_argument("--restore", action="store_true",
+                         help="remove LINK's own profile (all: every profile, all links clean)")
+    n_apply.add_argument("--scenario", type=Path, help="scenario TOML: make its state at --at T the whole table")
+    n_apply.add_argument("--at", type=float, metavar="T", help="seconds after take-off (with --scenario)")
+    n_down = netem_sub.add_parser("down", help="remove a network: processes inside, namespaces, links, state file")
+    n_target = n_down.add_mutually_exclusive_group()
+    n_target.add_argument("--name", default="default", help="network name (default: default)")
+    n_target.add_argument("--all", action="store_true", help="every manual network, orphans included")
     return parser
 
 
@@ -169,6 +244,7 @@ def _dispatch(args: argparse.Namespace) -> int:
             "mission.drones": args.drones, "mission.world": args.world, "mission.start": args.start,
             "mission.out": str(args.out) if args.out else None, "mission.max_time_s": args.max_time,
             "mission.seed": args.seed, "explore.strategy": args.strategy,
+            "mission.network": args.network, "mission.links": str(args.links) if args.links else None,
         })
         from swarm.mission.run import run_mission
 
@@ -190,7 +266,7 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "observe":
         from swarm.mission.observer import observe_command
 
-        return observe_command(_config_from(args, {}), args.status, args.patches, args.map)
+        return observe_command(_config_from(args, {}), args.status, args.patches, args.map, args.since)
     if args.command == "mapnode":
         if args.period <= 0 or args.delay < 0:
             raise ConfigError("--period must be positive and --delay not negative")
@@ -220,6 +296,33 @@ def _dispatch(args: argparse.Namespace) -> int:
 
         config = _config_from(args, {"mission.world": args.world})
         return bench_explore(config, args.drones, args.strategies, args.out)
+    if args.command == "experiment" and args.experiment == "dropout":
+        from swarm.mission.experiment import experiment_dropout
+
+        config = _config_from(args, {"mission.world": args.world, "mission.drones": args.drones})
+        return experiment_dropout(config, args.levels, not args.no_cut, args.out, args.cut_at, args.heal_at)
+    if args.command == "deploy" and args.deploy == "compose":
+        from swarm.deploy.compose import deploy_compose_command
+
+        config = _config_from(args, {"mission.world": args.world})
+        drones = args.drones if args.drones is not None else config.mission.drones
+        return deploy_compose_command(config, drones, args.loss, args.out, args.image, args.build_context)
+    if args.command == "deploy" and args.deploy == "netem":
+        from swarm.deploy.radio import deploy_netem_command
+
+        return deploy_netem_command(args.address, args.loss, args.delay_ms, args.jitter_ms)
+    if args.command == "netem":
+        from swarm.netem.manual import netem_apply, netem_down, netem_show, netem_up
+
+        if args.netem == "up":
+            return netem_up(args.nodes, args.name)
+        if args.netem == "show":
+            return netem_show(args.name)
+        if args.netem == "apply":
+            return netem_apply(args.name, args.link, loss=args.loss, cut=args.cut, rate_kbit=args.rate_kbit,
+                               restore=args.restore, delay_ms=args.delay_ms, jitter_ms=args.jitter_ms,
+                               scenario=args.scenario, at=args.at)
+        return netem_down(args.name, args.all)
     raise SwarmError(f"unknown command {args.command}")
 
 

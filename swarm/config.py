@@ -74,6 +74,18 @@ class MissionSettings(_Section):
     seed: int = 0
     out: Path | None = Field(None, description="run directory; runs/<timestamp>-<world> when unset")
     origin: GeoOrigin = GeoOrigin()
+    network: Literal["loopback", "netns"] = Field(
+        "loopback",
+        description="loopback: every process on 127.0.0.1; netns: each agent in its own network namespace on a "
+        "virtual radio that link-loss scenarios can impair (root, ip and nft needed)",
+    )
+    links: Path | None = Field(None, description="link scenario TOML (swarm.netem.scenario); needs network = netns")
+
+    @model_validator(mode="after")
+    def _links_need_netns(self) -> MissionSettings:
+        if self.links is not None and self.network != "netns":
+            raise ValueError("a link scenario (links) needs network = \"netns\"")
+        return self
 
     @field_validator("name")
     @classmethod

@@ -9,6 +9,10 @@ With a patch directory it also builds the swarm's map: every sealed patch the ag
 against the world mesh every few seconds; at the end the fused mesh is written. Until patches travel over the
 bus, the files are how the observer sees them.
 
+It counts leader changes: each heartbeat whose `leader` differs from the same agent's previous one (the first
+heartbeat is not a change; clusters forming at take-off are). Each agent's latest holdings digest is kept in its
+entry, so `swarm run` can time how fast patch sets converge after a link heals.
+
 For the exploration report it also keeps each drone's trajectory (heartbeat positions, thinned to one sample per
 half second) and the leader timeline: the clusters as the heartbeats describe them (who follows whom), recorded
 each time they change, so splits and merges of the swarm can be seen after the run.
@@ -98,13 +102,19 @@ class Trajectories:
 
 class Observer:
     def __init__(
-        self, config: SwarmConfig, status_path: Path, patches_dir: Path | None = None, map_path: Path | None = None
+        self,
+        config: SwarmConfig,
+        status_path: Path,
+        patches_dir: Path | None = None,
+        map_path: Path | None = None,
+        since: float | None = None,
     ) -> None:
         self.config = config
         self.status_path = status_path
         self.coverage = SwarmCoverage(config, patches_dir) if patches_dir is not None else None
         self.map_path = map_path
-        self.started = time.time()
+        self.started = time.time() if since is None else since  # `swarm run` passes its own clock's zero
+        self.leader_changes = 0
         self.agents: dict[int, dict[str, Any]] = {}
         self.timeline: list[dict[str, Any]] = []
         self.trajectories = Trajectories()
@@ -149,9 +159,12 @@ class Observer:
 
     def _on_state(self, key: str, state: AgentState) -> None:
         entry = self.agents.setdefault(state.id, {"heartbeats": 0, "alive": True})
+        if "leader" in entry and entry["leader"] != state.leader:
+            self.leader_changes += 1
         entry.update(
             phase=state.phase, role=state.role, leader=state.leader, flight_mode=state.flight_mode,
             position=list(state.position), epoch=state.epoch, last_heard=time.time(),
+            holdings=state.holdings.model_dump(mode="json"),
         )
         entry["heartbeats"] += 1
         self.trajectories.add(state.id, time.time() - self.started, state.position)
@@ -183,12 +196,17 @@ class Observer:
             "traffic": bus.counters.snapshot(),
             "trajectories": self.trajectories.snapshot(),
             "leaders": self.leaders.entries,
+            "leader_changes": self.leader_changes,
             **(self.coverage.snapshot() if self.coverage is not None else {}),
         }
         write_json_atomic(self.status_path, snapshot)
 
 
 def observe_command(
-    config: SwarmConfig, status_path: Path, patches_dir: Path | None = None, map_path: Path | None = None
+    config: SwarmConfig,
+    status_path: Path,
+    patches_dir: Path | None = None,
+    map_path: Path | None = None,
+    since: float | None = None,
 ) -> int:
-    return asyncio.run(Observer(config, status_path, patches_dir, map_path).run())
+    return asyncio.run(Observer(config, status_path, patches_dir, map_path, since).run())

@@ -73,6 +73,7 @@ def build_report(
     lo, hi = plan.volume
     explored_timeline = (observer or {}).get("explored_timeline", [])
     explore = getattr(plan.config, "explore", None)
+    links = state.links.report() if getattr(state, "links", None) is not None else {}
     return {
         "status": status,
         "reason": state.reason,
@@ -87,6 +88,12 @@ def build_report(
         "explored_by_agent": (observer or {}).get("explored_by_agent", {}),
         "overlap_fraction": float((observer or {}).get("overlap_fraction", 0.0)),
         "leaders": (observer or {}).get("leaders", []),
+        "leader_changes": int((observer or {}).get("leader_changes", 0)),
+        "network": plan.config.mission.network,
+        "scenario": links.get("scenario"),
+        "impairments": links.get("impairments", []),
+        "partitions": links.get("partitions", []),
+        "convergence_after_heal_s": links.get("convergence_after_heal_s", []),
         "map": "map.ply" if (plan.out / "map.ply").exists() else None,
         "converged": converged(summaries, sealed_patch_ids(plan.out / "agents" / "patches")),
         "bandwidth": bandwidth(summaries),

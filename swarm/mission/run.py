@@ -5,6 +5,13 @@ It is assembled from the same processes a real deployment uses: one `swarm sim` 
 (world, start point, ports), so bad input is one line and leaves no process behind; every child is stopped on
 every exit path.
 
+With `mission.network = "netns"` (`swarm run --network netns [--links scenario.toml]`) each agent runs in its own
+network namespace of a `swarm.netem.SwarmNetwork`: Zenoh between agents goes over the virtual radio only (the
+namespace's eth0), which the scenario impairs (`swarm.mission.links`); the agent's MAVLink to the simulator and
+the observer's connection to the agent use the node's control link, which is never impaired. The observer is a
+Zenoh peer there, because a router would relay between agents whose radio link is cut. The network and every
+rule are removed on every exit path.
+
 Run directory layout: config/ (the exact config each process ran with), logs/ (one log per process),
 sim.json and observer.json (live status, final at the end), agents/agent-K.json and agent-K.ply (each agent's
 summary and map), agents/patches/ (every sealed patch, wire format), map.ply (the swarm's fused map) and
@@ -26,16 +33,28 @@ import tomli_w
 
 from swarm.config import SwarmConfig, bus_port, dump_config, gcs_port, vehicle_port
 from swarm.errors import SwarmError
+from swarm.mission.links import LinkController
 from swarm.mission.ports import ensure_free
 from swarm.mission.processes import Child, start_child, stop_all, swarm_command
 from swarm.mission.progress import ProgressView
 from swarm.mission.report import build_report, read_json, write_report
 from swarm.mission.routes import ScriptedRoute, scripted_routes
+from swarm.netem.commands import NetemUnavailable, check_prerequisites
+from swarm.netem.network import SwarmNetwork
+from swarm.netem.scenario import Scenario, load_scenario
 from swarm.sim.worlds import World, load_world, mission_volume, spawn_points
 
 SIM_READY_TIMEOUT_S = 30.0
 LANDING_GRACE_S = 60.0
 POLL_PERIOD_S = 0.25
+# On the radio, best-effort messages (heartbeats) go over UDP: under loss TCP delays them by seconds (head-of-line
+# blocking and retransmission back-off; research/zenoh-netns-link-loss.md section 3), UDP only loses some.
+RADIO_PROTOCOLS = ("tcp", "udp")
+# ... and sessions get a lease of at least 3 s: with 1 s, 30 % loss closed sessions every few seconds (liveliness
+# tokens vanish, an agent thinks its peers have gone and ends its linger before the maps agree). Measured on the
+# box mission at 30 %: 2-5 peer_left events per agent and 1 run in 3 unconverged with 1 s; 0-3 and 2 of 2
+# converged with 3 s.
+RADIO_LEASE_MS = 3000
 
 
 @dataclass
@@ -46,6 +65,7 @@ class RunPlan:
     spawns: list[tuple[float, float, float]]
     routes: list[ScriptedRoute]
     volume: tuple[np.ndarray, np.ndarray]
+    scenario: Scenario | None = None
 
 
 @dataclass
@@ -54,7 +74,10 @@ class RunState:
     observer: Child | None = None
     agents: dict[int, Child] = field(default_factory=dict)
     exit_codes: dict[int, int] = field(default_factory=dict)
+    net: SwarmNetwork | None = None
+    links: LinkController | None = None
     started: float = 0.0
+    started_wall: float = 0.0
     finished: float = 0.0
     status: str = "failed"
     reason: str = ""
@@ -70,19 +93,44 @@ def prepare(config: SwarmConfig) -> RunPlan:
     world = load_world(m.world)
     lo, hi = mission_volume(world, m.volume)
     spawns = spawn_points(world, m.start, m.drones, m.spawn_spacing_m)
-    host = config.sim.host
-    for k in range(1, m.drones + 1):
-        ensure_free(host, vehicle_port(config.sim, k), "udp", f"vehicle {k}")
-        ensure_free(host, gcs_port(config.sim, k), "udp", f"autopilot link of agent {k}")
-    for k in range(0, m.drones + 1):
-        ensure_free("127.0.0.1", bus_port(config.bus, k), "tcp", "observer bus" if k == 0 else f"bus of agent {k}")
+    scenario = None
+    if m.network == "netns":
+        scenario = _netns_scenario(config)
+    else:
+        host = config.sim.host
+        for k in range(1, m.drones + 1):
+            ensure_free(host, vehicle_port(config.sim, k), "udp", f"vehicle {k}")
+            ensure_free(host, gcs_port(config.sim, k), "udp", f"autopilot link of agent {k}")
+        for k in range(0, m.drones + 1):
+            what = "observer bus" if k == 0 else f"bus of agent {k}"
+            ensure_free("127.0.0.1", bus_port(config.bus, k), "tcp", what)
     routes: list[ScriptedRoute] = []
     if config.explore.strategy == "scripted":
         routes = scripted_routes(world, spawns, lo, hi, config.sim.drone_radius_m, config.agent.cruise_speed_m_s)
     out = m.out or Path("runs") / f"{dt.datetime.now():%Y%m%d-%H%M%S}-{world.name}"
     if out.exists() and any(out.iterdir()):
         raise SwarmError(f"output directory {out} is not empty")
-    return RunPlan(config, world, out, spawns, routes, (lo, hi))
+    return RunPlan(config, world, out, spawns, routes, (lo, hi), scenario)
+
+
+def _netns_scenario(config: SwarmConfig) -> Scenario:
+    """Root and the tools, and a scenario this backend can apply in full (an empty one without --links)."""
+    check_prerequisites()
+    m = config.mission
+    if m.links is None:
+        return Scenario(name="unimpaired")
+    scenario = load_scenario(m.links)
+    scenario.check_drones(m.drones)
+    for event in scenario.events:
+        if event.delay_ms or event.jitter_ms:
+            raise NetemUnavailable(
+                f"{m.links}: the event at {event.at:g} s asks for delay/jitter, which need sch_netem (this kernel "
+                "has none); the netns backend applies loss and cuts only"
+            )
+        if event.rate_kbit:
+            raise NetemUnavailable(f"{m.links}: the event at {event.at:g} s asks for a rate limit; the netns run "
+                                   "applies loss and cuts only (rates: swarm netem apply)")
+    return scenario
 
 
 def _bus_for(config: SwarmConfig, index: int) -> dict[str, Any]:
@@ -113,6 +161,9 @@ def run_mission(
     state = RunState()
     view = ProgressView(plan, live=live)
     try:
+        if plan.scenario is not None:
+            state.net = SwarmNetwork(plan.config.mission.drones).up()
+            state.links = LinkController(state.net, plan.scenario, plan.config.mission.drones)
         _start_simulator(plan, state)
         _start_swarm(plan, state)
         with view:
@@ -126,6 +177,10 @@ def run_mission(
             state.exit_codes.setdefault(k, codes.get(child.name, -1))
         if not state.finished:
             state.finished = time.monotonic()
+        if state.net is not None:
+            state.net.down()
+        if state.links is not None:
+            state.links.finish(state.finished - state.started)
     report = build_report(plan, state, read_json(out / "sim.json"), read_json(out / "observer.json"))
     write_report(out, report)
     return report
@@ -134,6 +189,8 @@ def run_mission(
 def _start_simulator(plan: RunPlan, state: RunState) -> None:
     sim_config = plan.config.model_copy(deep=True)
     sim_config.sim.spawns = plan.spawns
+    if state.net is not None:
+        sim_config.sim.host = state.net.layout.control_host_address
     sim_config.sim.status_path = plan.out / "sim.json"
     path = _write_config(plan.out / "config" / "sim.toml", sim_config)
     state.sim = start_child("sim", swarm_command("sim", "--config", str(path)), plan.out / "logs" / "sim.log")
@@ -149,38 +206,60 @@ def _start_simulator(plan: RunPlan, state: RunState) -> None:
         time.sleep(0.1)
 
 
+def _netns_bus_for(config: SwarmConfig, net: SwarmNetwork, index: int) -> dict[str, Any]:
+    """Agent k listens on its radio (TCP and UDP) and its control link and dials lower ids over the radio only; the observer
+    (index 0) is a peer on the host that dials every agent's control link (a peer never relays)."""
+    layout = net.layout
+    if index == 0:
+        return {
+            "mode": "peer",
+            "listen": ["tcp/127.0.0.1:0"],
+            "connect": [f"tcp/{layout.control_address(k)}:{bus_port(config.bus, k)}" for k in layout.node_ids],
+        }
+    port = bus_port(config.bus, index)
+    return {
+        "lease_ms": max(config.bus.lease_ms, RADIO_LEASE_MS),
+        "listen": [f"{proto}/{net.address(index)}:{port}" for proto in RADIO_PROTOCOLS]
+        + [f"tcp/{layout.control_address(index)}:{port}"],
+        "connect": [f"{proto}/{net.address(j)}:{bus_port(config.bus, j)}" for j in range(1, index) for proto in RADIO_PROTOCOLS],
+    }
+
+
 def _start_swarm(plan: RunPlan, state: RunState) -> None:
     config = plan.config
-    observer_config = config.model_copy(update={"bus": config.bus.model_copy(update=_bus_for(config, 0))})
+    net = state.net
+    observer_bus = _netns_bus_for(config, net, 0) if net is not None else _bus_for(config, 0)
+    observer_config = config.model_copy(update={"bus": config.bus.model_copy(update=observer_bus)})
     path = _write_config(plan.out / "config" / "observer.toml", observer_config)
     (plan.out / "agents" / "patches").mkdir(parents=True, exist_ok=True)
+    state.started, state.started_wall = time.monotonic(), time.time()
     state.observer = start_child(
         "observer",
         swarm_command(
             "observe", "--config", str(path), "--status", str(plan.out / "observer.json"),
             "--patches", str(plan.out / "agents" / "patches"), "--map", str(plan.out / "map.ply"),
+            "--since", f"{state.started_wall:.3f}",
         ),
         plan.out / "logs" / "observer.log",
     )
-    state.started = time.monotonic()
     routes = {route.drone_id: route for route in plan.routes}
     for k in range(1, config.mission.drones + 1):
-        update: dict[str, Any] = {
-            "id": k,
-            "autopilot": f"udpin://{config.sim.host}:{gcs_port(config.sim, k)}",
-            "out_dir": plan.out / "agents",
-        }
+        if net is not None:
+            autopilot = f"udpout://{net.layout.control_host_address}:{vehicle_port(config.sim, k)}"
+        else:
+            autopilot = f"udpin://{config.sim.host}:{gcs_port(config.sim, k)}"
+        update: dict[str, Any] = {"id": k, "autopilot": autopilot, "out_dir": plan.out / "agents"}
         if k in routes:
             route = routes[k]
             update |= {"altitude_m": route.altitude_m, "waypoints": route.waypoints, "start_delay_s": route.start_delay_s}
         agent = config.agent.model_copy(update=update)
-        agent_config = config.model_copy(
-            update={"agent": agent, "bus": config.bus.model_copy(update=_bus_for(config, k))}
-        )
+        bus = _netns_bus_for(config, net, k) if net is not None else _bus_for(config, k)
+        agent_config = config.model_copy(update={"agent": agent, "bus": config.bus.model_copy(update=bus)})
         path = _write_config(plan.out / "config" / f"agent-{k}.toml", agent_config)
-        state.agents[k] = start_child(
-            f"agent-{k}", swarm_command("agent", "--config", str(path)), plan.out / "logs" / f"agent-{k}.log"
-        )
+        argv = swarm_command("agent", "--config", str(path))
+        if net is not None:
+            argv = net.exec_argv(k, argv)
+        state.agents[k] = start_child(f"agent-{k}", argv, plan.out / "logs" / f"agent-{k}.log")
 
 
 def _supervise(plan: RunPlan, state: RunState, view: ProgressView, on_tick: Callable[[RunState], None] | None) -> None:
@@ -191,7 +270,15 @@ def _supervise(plan: RunPlan, state: RunState, view: ProgressView, on_tick: Call
             if code is not None and k not in state.exit_codes:
                 state.exit_codes[k] = code
         elapsed = time.monotonic() - state.started
-        view.update(elapsed, read_json(plan.out / "sim.json"), read_json(plan.out / "observer.json"), state.exit_codes)
+        sim, observer = read_json(plan.out / "sim.json"), read_json(plan.out / "observer.json")
+        view.update(elapsed, sim, observer, state.exit_codes)
+        if state.links is not None:
+            try:
+                state.links.tick(elapsed, sim, observer)
+            except NetemUnavailable as exc:
+                state.status, state.reason = "failed", f"link scenario: {exc}"
+                _land_agents(state)
+                return
         if on_tick is not None:
             on_tick(state)
         if len(state.exit_codes) == len(state.agents):

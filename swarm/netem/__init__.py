@@ -22,6 +22,8 @@ How (measured in research/zenoh-netns-link-loss.md; this kernel has no sch_netem
   `NetemUnavailable`, since nothing here can apply them). An impairment is never faked or silently dropped.
 - commands.py: `ip`/`nft`/`tc` calls; not root, a missing tool or a failing command is `NetemUnavailable`,
   one line with the command's first stderr line.
+- manual.py: `swarm netem up/show/apply/down`, a network that outlives the command (`SwarmNetwork(n,
+  keep=True)`, state in /run/swarm-netem/<name>.json, taken over by `SwarmNetwork.attach`).
 
 Zenoh in the namespaces: shared memory must stay off (the project's default, `bus.shared_memory = false`). All
 namespaces share /dev/shm, so with it on, payloads above about 3 kB would bypass the emulated link entirely.
@@ -29,7 +31,8 @@ namespaces share /dev/shm, so with it on, payloads above about 3 kB would bypass
 Cleanup: `down()` (or leaving the `with` block) ends the processes left inside and deletes every namespace,
 which takes the veths, bridge, qdiscs and nft tables with it; it also runs at interpreter exit. A process killed
 before that leaves namespaces named "swn-<tag>-<pid>-..."; `remove_leftovers()` deletes those whose pid is dead,
-and nothing else.
+and nothing else. Kept networks (`swarm netem up`) have pid field 0 and are never leftovers: only
+`swarm netem down` removes them.
 """
 
 from swarm.netem.commands import NetemUnavailable, check_prerequisites
@@ -37,6 +40,7 @@ from swarm.netem.impair import Impairments
 from swarm.netem.network import SwarmNetwork
 from swarm.netem.profile import LinkProfile, kernel_has_netem
 from swarm.netem.topology import NAME_PREFIX, remove_leftovers
+from swarm.netem.manual import netem_apply, netem_down, netem_show, netem_up, open_network  # noqa: E402 (uses the above)
 
 __all__ = [
     "NAME_PREFIX",
@@ -46,5 +50,10 @@ __all__ = [
     "SwarmNetwork",
     "check_prerequisites",
     "kernel_has_netem",
+    "netem_apply",
+    "netem_down",
+    "netem_show",
+    "netem_up",
+    "open_network",
     "remove_leftovers",
 ]

@@ -3,15 +3,21 @@
 Impairments are kept as a table of profiles (all / per node / per pair); every change rebuilds the rules from
 that table (see impair.py), so `restore_*` simply removes an entry. If loading the rules fails, the table is
 rolled back to what is actually in force and the error is raised: what `applied()` reports is what runs.
+
+Outliving the process (`swarm netem up`, manual.py): `SwarmNetwork(n, keep=True).up()` names the namespaces with
+pid field 0 (see topology.py: `remove_leftovers()` never touches them) and registers no exit hook, so the network
+stays until someone removes it. Another process takes it over with `SwarmNetwork.attach(layout, impairments)`,
+which creates and checks nothing; its `down()` removes the network.
 """
 
 from __future__ import annotations
 
 import atexit
+from collections.abc import Mapping
 from types import TracebackType
 
 from swarm.netem import impair, topology
-from swarm.netem.commands import NetemUnavailable, check_prerequisites
+from swarm.netem.commands import NetemUnavailable, check_prerequisites, tool
 from swarm.netem.impair import Impairments
 from swarm.netem.profile import LinkProfile, refuse_delay
 from swarm.netem.topology import Layout
@@ -24,13 +30,15 @@ class SwarmNetwork:
 
     Use it as a context manager (`with SwarmNetwork(3) as net:`), or call `up()` and `down()` yourself;
     `down()` also runs at interpreter exit if it was forgotten. Impairments set before `up()` are applied by
-    `up()`; `down()` forgets them.
+    `up()`; `down()` forgets them. With `keep=True` the network outlives this process: no exit hook, and names
+    that `remove_leftovers()` leaves alone (see the module docstring).
     """
 
-    def __init__(self, nodes: int) -> None:
+    def __init__(self, nodes: int, keep: bool = False) -> None:
         if not 1 <= nodes <= topology.MAX_NODES:
             raise ValueError(f"a swarm network has 1 to {topology.MAX_NODES} nodes, not {nodes}")
         self.nodes = nodes
+        self.keep = keep
         self._layout: Layout | None = None
         self._is_up = False
         self._imp = Impairments()
@@ -42,8 +50,21 @@ class SwarmNetwork:
     def layout(self) -> Layout:
         """Names and addresses (chosen on first use: the tag must not clash with existing namespaces)."""
         if self._layout is None:
-            self._layout = topology.new_layout(self.nodes)
+            self._layout = topology.new_layout(self.nodes, keep=self.keep)
         return self._layout
+
+    @classmethod
+    def attach(cls, layout: Layout, impairments: Impairments | None = None) -> SwarmNetwork:
+        """An instance for a network that is already up (made by another process, e.g. `swarm netem up`), with
+        `impairments` as the profiles in force (node rate limits are taken to be the ones they imply). Nothing is
+        created, checked or registered: no exit hook, so the network outlives this instance unless `down()` is
+        called, which removes it."""
+        net = cls(layout.nodes, keep=layout.kept)
+        net._layout = layout
+        net._is_up = True
+        net._imp = impairments.copy() if impairments is not None else Impairments()
+        net._rates = impair.node_rates(layout, net._imp)
+        return net
 
     @property
     def prefix(self) -> str:
@@ -61,7 +82,8 @@ class SwarmNetwork:
             return self
         check_prerequisites()
         layout = self.layout
-        atexit.register(self.down)
+        if not self.keep:
+            atexit.register(self.down)
         try:
             topology.create_hub(layout)
             for k in layout.node_ids:
@@ -83,6 +105,7 @@ class SwarmNetwork:
         self._rates = {}
         if self._layout is not None:
             topology.destroy(self._layout.all_namespaces())
+            topology.remove_control_links(self._layout)
 
     def __enter__(self) -> SwarmNetwork:
         return self.up()
@@ -101,7 +124,7 @@ class SwarmNetwork:
 
     def exec_argv(self, k: int, argv: list[str]) -> list[str]:
         """The command line that runs `argv` inside node k's namespace (for subprocess.Popen)."""
-        return ["ip", "netns", "exec", self.namespace(k), *argv]
+        return [tool("ip"), "netns", "exec", self.namespace(k), *argv]
 
     # ----- impairments -----
 
@@ -125,6 +148,35 @@ class SwarmNetwork:
         imp = self._imp.copy()
         imp.all = profile
         self._change(imp, profile)
+
+    def set_pairs(self, profiles: Mapping[tuple[int, int], LinkProfile]) -> None:
+        """Make `profiles` the per-pair profiles, all at once (one rule load): pairs not given, or given a clean
+        profile, have no pair profile afterwards. Node and all-links profiles are kept."""
+        imp = self._imp.copy()
+        imp.pairs = {}
+        for (a, b), profile in profiles.items():
+            if profile.rate_kbit:
+                raise NetemUnavailable(f"a per-pair rate limit ({a}-{b}) is not implemented; use impair_node")
+            refuse_delay(profile)
+            if not profile.is_clean:
+                imp.pairs[self._pair(a, b)] = profile
+        self._change(imp)
+
+    def set_impairments(self, imp: Impairments) -> None:
+        """Make `imp` (all-links, per-node and per-pair profiles) the whole table in force, in one rule load;
+        refused as a whole (nothing changes) if a profile asks for delay/jitter, a pair has a rate limit, or a node
+        does not exist."""
+        for profile in [imp.all, *imp.nodes.values(), *imp.pairs.values()]:
+            if profile is not None:
+                refuse_delay(profile)
+        for k in imp.nodes:
+            self._node(k)
+        pairs = {}
+        for (a, b), profile in imp.pairs.items():
+            if profile.rate_kbit:
+                raise NetemUnavailable(f"a per-pair rate limit ({a}-{b}) is not implemented; use a node's profile")
+            pairs[self._pair(a, b)] = profile
+        self._change(Impairments(imp.all, dict(imp.nodes), pairs))
 
     def cut_pair(self, a: int, b: int) -> None:
         self.impair_pair(a, b, CUT)

@@ -9,7 +9,7 @@ import sys
 import pytest
 
 from swarm.netem import NetemUnavailable, SwarmNetwork, remove_leftovers, topology
-from swarm.netem.commands import namespaces, run
+from swarm.netem.commands import namespaces, run, tool
 from tests.netem.measure import netem_problem
 
 pytestmark = pytest.mark.skipif(netem_problem() is not None, reason=netem_problem() or "")
@@ -23,7 +23,7 @@ def test_up_creates_and_down_removes_the_namespaces() -> None:
     with SwarmNetwork(nodes=3) as net:
         assert sorted(with_prefix(net.prefix)) == sorted([f"{net.prefix}-hub", *(net.namespace(k) for k in (1, 2, 3))])
         assert net.is_up
-        assert net.exec_argv(2, ["true"]) == ["ip", "netns", "exec", net.namespace(2), "true"]
+        assert net.exec_argv(2, ["true"]) == [tool("ip"), "netns", "exec", net.namespace(2), "true"]
         eth0 = run(["ip", "-n", net.namespace(2), "-d", "addr", "show", "dev", "eth0"])
         assert f"inet {net.address(2)}/24" in eth0
         assert "gso_max_size 1500 gso_max_segs 1" in eth0

@@ -1,0 +1,288 @@
+"""`swarm deploy compose`: the simulated swarm of `swarm run` as a docker-compose file, one container a process.
+
+What it writes into OUT (which must be empty or new):
+
+    docker-compose.yml        the simulator, the observer and agent-1..N; the networks below
+    config/sim.toml, observer.toml, agent-K.toml
+                              each process's exact configuration, as `swarm run` writes it (mounted read-only
+                              at /etc/swarm); a world given as a mesh file is copied to config/worlds/
+    results/                  mounted at /results: sim.json, observer.json, map.ply, agents/agent-K.json|ply,
+                              agents/patches/ (the same files a `swarm run` directory holds)
+
+Networks (fixed subnets, static addresses, both `internal`: nothing reaches outside, so nothing goes around):
+- `radio` RADIO_SUBNET: Zenoh between agents, and the only impaired network. Agent k's command first runs
+  `swarm deploy netem --address <its radio address> --loss P` (NET_ADMIN, see swarm/deploy/radio.py), then
+  execs the agent under `timeout` (mission.max_time_s, as `swarm run --max-time`: SIGTERM lands the drone).
+- `control` CONTROL_SUBNET: never impaired. MAVLink between the simulator and each agent, and the observer's
+  measurement path. Agent k's Zenoh session listens on its radio AND its control address, connects to the
+  radio addresses of lower ids only (one connection per pair, as `swarm run`), and the observer connects to
+  every agent's control address in `peer` mode: a peer never relays, so the observer cannot bridge a broken
+  radio link, while it still hears every agent whatever the radio does.
+
+MAVLink: the simulator binds 0.0.0.0 in its container; agent k uses `udpout://<sim>:<vehicle_port(k)>` (the
+simulated vehicle answers whoever last sent it MAVLink), so no agent address needs to be known in advance.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import re
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import tomli_w
+from pydantic import ValidationError
+
+from swarm.config import ConfigError, SwarmConfig, dump_config, vehicle_port
+from swarm.deploy import yamltext
+from swarm.errors import SwarmError
+from swarm.sim.worlds import BUILTIN_WORLDS, load_world, mission_volume, spawn_points
+
+RADIO_SUBNET = ipaddress.ip_network("10.77.1.0/24")
+CONTROL_SUBNET = ipaddress.ip_network("10.77.2.0/24")
+ZENOH_PORT = 7447
+HOST_OFFSET = 10  # agent k is .10+k on both networks; .1 is Docker's bridge, .2 the simulator, .3 the observer
+MAX_DRONES = 16  # as mission.drones
+CONFIG_DIR = "/etc/swarm"
+RESULTS_DIR = "/results"
+DEFAULT_IMAGE = "swarm-agent"  # not "swarm": Docker Hub has an unrelated official image of that name
+DOCKERFILE = "deploy/Dockerfile"
+AGENT_STOP_GRACE_S = 60  # SIGTERM makes an airborne agent land first (as swarm run's LANDING_GRACE_S)
+_IMAGE_RE = re.compile(  # [registry[:port]/]name[/name...][:tag], as `docker build -t` takes it
+    r"[a-z0-9][a-z0-9._-]*(:[0-9]+)?(/[a-z0-9][a-z0-9._-]*)*(:[A-Za-z0-9_][A-Za-z0-9._-]{0,127})?"
+)
+
+_SIM_HEALTH = (
+    "import json, os, sys, time; p = '/results/sim.json'; s = json.load(open(p)); "
+    "sys.exit(0 if s.get('ready') and not s.get('done') and time.time() - os.path.getmtime(p) < 5 else 1)"
+)
+
+
+def sim_address() -> str:
+    return str(CONTROL_SUBNET[2])
+
+
+def observer_address() -> str:
+    return str(CONTROL_SUBNET[3])
+
+
+def radio_address(k: int) -> str:
+    return str(RADIO_SUBNET[HOST_OFFSET + k])
+
+
+def control_address(k: int) -> str:
+    return str(CONTROL_SUBNET[HOST_OFFSET + k])
+
+
+def _zenoh(address: str) -> str:
+    return f"tcp/{address}:{ZENOH_PORT}"
+
+
+@dataclass
+class Deployment:
+    """Everything `write()` puts on disk: the compose document, each process's config, world files to copy."""
+
+    compose: dict[str, Any]
+    configs: dict[str, SwarmConfig]
+    worlds: list[Path] = field(default_factory=list)
+    header: str = ""
+
+    def write(self, out: Path) -> list[Path]:
+        """Write every file under `out`; returns the files written (worlds and results dirs included)."""
+        written: list[Path] = []
+        config_dir = out / "config"
+        config_dir.mkdir(parents=True, exist_ok=True)
+        for name, config in self.configs.items():
+            path = config_dir / f"{name}.toml"
+            path.write_text(tomli_w.dumps(dump_config(config)))
+            written.append(path)
+        for world in self.worlds:
+            (config_dir / "worlds").mkdir(exist_ok=True)
+            written.append(Path(shutil.copy2(world, config_dir / "worlds" / world.name)))
+        patches = out / "results" / "agents" / "patches"
+        patches.mkdir(parents=True, exist_ok=True)  # the observer reads it from the start
+        path = out / "docker-compose.yml"
+        path.write_text(yamltext.dumps(self.compose, self.header))
+        written.append(path)
+        return written
+
+
+def check_inputs(drones: int, loss: float, out: Path, image: str, build_context: Path | None) -> None:
+    """ConfigError / SwarmError (one line) for anything that would make a file that cannot run."""
+    if not 1 <= drones <= MAX_DRONES:
+        raise ConfigError(f"--drones must be between 1 and {MAX_DRONES} (got {drones})")
+    if not 0.0 <= loss <= 1.0:
+        raise ConfigError(f"--loss must be a fraction between 0 and 1 (got {loss:g})")
+    if not _IMAGE_RE.fullmatch(image):
+        raise ConfigError(f"--image '{image}' is not a Docker image name (lower case, e.g. swarm-agent:latest)")
+    if build_context is not None and not (build_context / DOCKERFILE).is_file():
+        raise ConfigError(f"--build-context {build_context} has no {DOCKERFILE} (give the swarm repository)")
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise SwarmError(f"output directory {out} is not empty")
+
+
+def plan(
+    config: SwarmConfig, drones: int, loss: float, image: str = DEFAULT_IMAGE, build_context: Path | None = None
+) -> Deployment:
+    """The deployment of `drones` agents; raises WorldError (one line) for an unusable world or start point."""
+    m = config.mission
+    if getattr(m, "links", None) is not None:
+        raise ConfigError(
+            f"mission.links ({m.links}) is a link scenario for swarm run --network netns; the compose deployment "
+            "impairs every link alike (--loss, or edit each agent's netem command)"
+        )
+    world = load_world(m.world)
+    spawns = spawn_points(world, m.start, drones, m.spawn_spacing_m)
+    routes: dict[int, Any] = {}
+    if config.explore.strategy == "scripted":
+        from swarm.mission.routes import scripted_routes
+
+        lo, hi = mission_volume(world, m.volume)
+        planned = scripted_routes(world, spawns, lo, hi, config.sim.drone_radius_m, config.agent.cruise_speed_m_s)
+        routes = {route.drone_id: route for route in planned}
+
+    worlds: list[Path] = []
+    world_ref = m.world
+    if m.world not in BUILTIN_WORLDS:  # a mesh file: the containers read their copy
+        worlds.append(Path(m.world))
+        world_ref = f"{CONFIG_DIR}/worlds/{Path(m.world).name}"
+    base = config.model_copy(
+        update={"mission": m.model_copy(update={"drones": drones, "world": world_ref, "out": None})}, deep=True
+    )
+
+    configs: dict[str, SwarmConfig] = {}
+    sim = base.model_copy(deep=True)
+    sim.sim = base.sim.model_copy(
+        update={"host": "0.0.0.0", "spawns": spawns, "status_path": f"{RESULTS_DIR}/sim.json"}
+    )
+    configs["sim"] = sim
+    configs["observer"] = base.model_copy(update={"bus": base.bus.model_copy(update={
+        "mode": "peer",
+        "listen": [_zenoh(observer_address())],
+        "connect": [_zenoh(control_address(k)) for k in range(1, drones + 1)],
+    })})
+    for k in range(1, drones + 1):
+        agent_update: dict[str, Any] = {
+            "id": k,
+            "autopilot": f"udpout://{sim_address()}:{vehicle_port(base.sim, k)}",
+            "out_dir": f"{RESULTS_DIR}/agents",
+        }
+        if k in routes:
+            route = routes[k]
+            agent_update |= {
+                "altitude_m": route.altitude_m, "waypoints": route.waypoints, "start_delay_s": route.start_delay_s,
+            }
+        configs[f"agent-{k}"] = base.model_copy(update={
+            "agent": base.agent.model_copy(update=agent_update),
+            "bus": base.bus.model_copy(update={
+                "listen": [_zenoh(radio_address(k)), _zenoh(control_address(k))],
+                "connect": [_zenoh(radio_address(j)) for j in range(1, k)],
+            }),
+        })
+    # the configs are checked as the processes will load them (validators run on load, not on model_copy)
+    configs = {name: _revalidate(name, c) for name, c in configs.items()}
+
+    compose = _compose(base, drones, loss, image, build_context)
+    build = (
+        f"Build the image first, from the swarm repository: docker build -t {image} -f {DOCKERFILE} ."
+        if build_context is None else f"`docker compose build` builds the image from {build_context.resolve()}"
+    )
+    header = "\n".join([
+        f"Generated by `swarm deploy compose --drones {drones} --loss {loss:g}`: see docs/deploy.md.",
+        build,
+        "Start each run with an empty results/ (the observer would fuse an earlier run's patches).",
+        f"radio {RADIO_SUBNET}: Zenoh between agents, tc netem loss {loss:g} on each agent's egress; "
+        f"control {CONTROL_SUBNET}: MAVLink and the observer, never impaired",
+    ])
+    return Deployment(compose, configs, worlds, header)
+
+
+def _revalidate(name: str, config: SwarmConfig) -> SwarmConfig:
+    try:
+        return SwarmConfig.model_validate(dump_config(config))
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(p) for p in first["loc"])
+        raise ConfigError(f"the generated {name}.toml does not validate: {where}: {first['msg']}") from None
+
+
+def _service(image: str, build_context: Path | None) -> dict[str, Any]:
+    service: dict[str, Any] = {"image": image}
+    if build_context is None:
+        service["pull_policy"] = "never"  # a missing image is an error, never a download of someone else's
+    else:
+        service["build"] = {"context": str(build_context.resolve()), "dockerfile": DOCKERFILE}
+    service |= {
+        "init": True,  # a real PID 1 that forwards SIGTERM: `docker compose stop` lands the drones
+        "volumes": [f"./config:{CONFIG_DIR}:ro", f"./results:{RESULTS_DIR}"],
+    }
+    return service
+
+
+def _compose(config: SwarmConfig, drones: int, loss: float, image: str, build_context: Path | None) -> dict[str, Any]:
+    services: dict[str, Any] = {}
+    services["sim"] = _service(image, build_context) | {
+        "command": ["sim", "--config", f"{CONFIG_DIR}/sim.toml"],
+        "networks": {"control": {"ipv4_address": sim_address()}},
+        "healthcheck": {
+            "test": ["CMD", "python", "-c", _SIM_HEALTH],
+            "interval": "1s", "timeout": "5s", "retries": 120,
+        },
+        "stop_grace_period": "10s",
+    }
+    services["observer"] = _service(image, build_context) | {
+        "command": [
+            "observe", "--config", f"{CONFIG_DIR}/observer.toml", "--status", f"{RESULTS_DIR}/observer.json",
+            "--patches", f"{RESULTS_DIR}/agents/patches", "--map", f"{RESULTS_DIR}/map.ply",
+        ],
+        "networks": {"control": {"ipv4_address": observer_address()}},
+        "stop_grace_period": "30s",
+    }
+    max_time = f"{config.mission.max_time_s:g}"
+    for k in range(1, drones + 1):
+        script = (
+            f"swarm deploy netem --address {radio_address(k)} --loss {loss:g}"
+            f" && exec timeout --signal=TERM --kill-after={AGENT_STOP_GRACE_S} {max_time}"
+            f" swarm agent --config {CONFIG_DIR}/agent-{k}.toml"
+        )
+        services[f"agent-{k}"] = _service(image, build_context) | {
+            "cap_add": ["NET_ADMIN"],
+            "entrypoint": ["/bin/sh", "-c"],
+            "command": [script],
+            "depends_on": {"sim": {"condition": "service_healthy"}, "observer": {"condition": "service_started"}},
+            "networks": {
+                "radio": {"ipv4_address": radio_address(k)},
+                "control": {"ipv4_address": control_address(k)},
+            },
+            "stop_grace_period": f"{AGENT_STOP_GRACE_S}s",
+        }
+    networks = {
+        name: {"driver": "bridge", "internal": True, "ipam": {"config": [{"subnet": str(subnet)}]}}
+        for name, subnet in (("radio", RADIO_SUBNET), ("control", CONTROL_SUBNET))
+    }
+    return {"services": services, "networks": networks}
+
+
+def deploy_compose_command(
+    config: SwarmConfig, drones: int, loss: float, out: Path, image: str = DEFAULT_IMAGE,
+    build_context: Path | None = None,
+) -> int:
+    """`swarm deploy compose`: validate, write OUT/docker-compose.yml, OUT/config/, OUT/results/; say what."""
+    check_inputs(drones, loss, out, image, build_context)
+    deployment = plan(config, drones, loss, image, build_context)
+    deployment.write(out)
+    compose = out / "docker-compose.yml"
+    print(f"wrote {compose}: sim, observer and agent-1..{drones} ('{image}' image), "
+          f"world {config.mission.world}, strategy {config.explore.strategy}")
+    print(f"  radio {RADIO_SUBNET}: agents at {radio_address(1)}..{radio_address(drones)}, "
+          f"loss {loss:g} on every link each way (tc netem in each agent)")
+    print(f"  control {CONTROL_SUBNET}: simulator {sim_address()}, observer {observer_address()}, "
+          f"agents at {control_address(1)}..{control_address(drones)} (never impaired)")
+    print(f"wrote {out / 'config'}: {', '.join(f'{name}.toml' for name in deployment.configs)}"
+          + (f", worlds/{deployment.worlds[0].name}" if deployment.worlds else ""))
+    print(f"results will appear in {out / 'results'}")
+    build = "docker compose build" if build_context else f"docker build -t {image} -f {DOCKERFILE} <swarm repository>"
+    print(f"next: {build}; then cd {out} && docker compose up")
+    return 0
