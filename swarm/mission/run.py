@@ -50,11 +50,6 @@ POLL_PERIOD_S = 0.25
 # On the radio, best-effort messages (heartbeats) go over UDP: under loss TCP delays them by seconds (head-of-line
 # blocking and retransmission back-off; research/zenoh-netns-link-loss.md section 3), UDP only loses some.
 RADIO_PROTOCOLS = ("tcp", "udp")
-# ... and sessions get a lease of at least 3 s: with 1 s, 30 % loss closed sessions every few seconds (liveliness
-# tokens vanish, an agent thinks its peers have gone and ends its linger before the maps agree). Measured on the
-# box mission at 30 %: 2-5 peer_left events per agent and 1 run in 3 unconverged with 1 s; 0-3 and 2 of 2
-# converged with 3 s.
-RADIO_LEASE_MS = 3000
 
 
 @dataclass
@@ -218,7 +213,6 @@ def _netns_bus_for(config: SwarmConfig, net: SwarmNetwork, index: int) -> dict[s
         }
     port = bus_port(config.bus, index)
     return {
-        "lease_ms": max(config.bus.lease_ms, RADIO_LEASE_MS),
         "listen": [f"{proto}/{net.address(index)}:{port}" for proto in RADIO_PROTOCOLS]
         + [f"tcp/{layout.control_address(index)}:{port}"],
         "connect": [f"{proto}/{net.address(j)}:{bus_port(config.bus, j)}" for j in range(1, index) for proto in RADIO_PROTOCOLS],
