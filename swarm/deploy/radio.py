@@ -22,15 +22,13 @@ from __future__ import annotations
 
 import ipaddress
 import json
-import subprocess
 from collections.abc import Iterable, Mapping
 from typing import Any
 
 from swarm.config import ConfigError
-from swarm.netem.commands import NetemUnavailable, tool
+from swarm.netem.commands import NetemUnavailable, run
 from swarm.netem.profile import kernel_has_netem
 
-_TIMEOUT_S = 20.0
 NETEM_BAND = "1:4"  # a fourth prio band: the default priomap never sends anything there, only the filter does
 
 
@@ -114,32 +112,23 @@ def apply_radio_netem(
 
 
 def _run(argv: list[str], doing: str) -> str:
-    """Run one command; NetemUnavailable naming what we were doing and why it failed, in one line."""
-    shown = " ".join(argv)
+    """Run one command (`swarm.netem.commands.run`); NetemUnavailable naming what we were doing, in one line."""
     try:
-        done = subprocess.run(
-            [tool(argv[0]), *argv[1:]], check=False, capture_output=True, text=True, timeout=_TIMEOUT_S
-        )
-    except subprocess.TimeoutExpired:
-        raise NetemUnavailable(f"cannot {doing}: '{shown}' did not finish within {_TIMEOUT_S:.0f} s") from None
-    except OSError as exc:
-        raise NetemUnavailable(f"cannot {doing}: '{shown}' could not start: {exc.strerror}") from None
-    if done.returncode != 0:
-        raise NetemUnavailable(f"cannot {doing}: '{shown}' failed: {_reason(done.stderr or done.stdout)}")
-    return done.stdout
+        return run(argv)
+    except NetemUnavailable as exc:
+        raise NetemUnavailable(f"cannot {doing}: {_with_hint(str(exc))}") from None
 
 
-def _reason(output: str) -> str:
-    lines = [line.strip() for line in output.splitlines() if line.strip()]
-    first = lines[0] if lines else "no error output"
-    if "Operation not permitted" in first:
-        return f"{first} (the container needs cap_add: NET_ADMIN)"
-    if "qdisc kind is unknown" in first:
+def _with_hint(message: str) -> str:
+    """The command's one-line failure, with what to do about the two failures a container meets."""
+    if "Operation not permitted" in message:
+        return f"{message} (the container needs cap_add: NET_ADMIN)"
+    if "qdisc kind is unknown" in message:
         # checked only after a failure: inside a container /lib/modules is not the host's, so "no module file"
         # is no proof that the kernel cannot load sch_netem on demand
         missing = "sch_netem" if kernel_has_netem() is False else "sch_prio or sch_netem"
-        return f"{first} (this kernel lacks {missing}; on the Docker host: modprobe sch_prio sch_netem)"
-    return first
+        return f"{message} (this kernel lacks {missing}; on the Docker host: modprobe sch_prio sch_netem)"
+    return message
 
 
 def deploy_netem_command(address: str, loss: float, delay_ms: float, jitter_ms: float) -> int:

@@ -25,6 +25,10 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+from scipy.sparse.csgraph import connected_components
+
+from swarm.mission.observer import INACTIVE_PHASES
 from swarm.netem.network import SwarmNetwork
 from swarm.netem.profile import LinkProfile
 from swarm.netem.scenario import CLEAN, Pair, Profiles, Scenario, combine, radio_profile, timeline
@@ -32,25 +36,17 @@ from swarm.patches.digest import PatchDigest
 
 RADIO_PERIOD_S = 1.0
 BACKEND = "nftables (bridge table in the hub: random drop, cut = drop all)"
-INACTIVE_PHASES = frozenset({"landed", "failed"})
 
 
 def components(drones: int, profiles: Mapping[Pair, LinkProfile]) -> list[list[int]]:
     """Connected components of the drones 1..`drones` over the pairs that are not cut, each sorted, in order."""
-    parent = list(range(drones + 1))
-
-    def root(k: int) -> int:
-        while parent[k] != k:
-            parent[k] = parent[parent[k]]
-            k = parent[k]
-        return k
-
+    linked = np.zeros((drones, drones), dtype=bool)
     for a, b in itertools.combinations(range(1, drones + 1), 2):
-        if not profiles.get((a, b), CLEAN).cut:
-            parent[root(a)] = root(b)
+        linked[a - 1, b - 1] = not profiles.get((a, b), CLEAN).cut
+    _, labels = connected_components(linked, directed=False)
     groups: dict[int, list[int]] = {}
-    for k in range(1, drones + 1):
-        groups.setdefault(root(k), []).append(k)
+    for k, label in enumerate(labels, start=1):
+        groups.setdefault(int(label), []).append(k)
     return sorted(groups.values())
 
 
@@ -172,7 +168,8 @@ class LinkController:
     def _open_partition(self, t: float) -> None:
         if self.partitions and self.partitions[-1]["end"] is None:
             self.partitions[-1]["end"] = round(t, 2)
-        self.partitions.append({"start": round(t, 2), "end": None, "components": components(self.drones, self._in_force)})
+        split = components(self.drones, self._in_force)
+        self.partitions.append({"start": round(t, 2), "end": None, "components": split})
 
     def _watch_heal(self, t: float, healed: list[Pair], observer: Mapping[str, Any] | None) -> None:
         joined = {k for pair in healed for k in pair}

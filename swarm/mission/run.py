@@ -41,6 +41,7 @@ from swarm.mission.report import build_report, read_json, write_report
 from swarm.mission.routes import ScriptedRoute, scripted_routes
 from swarm.netem.commands import NetemUnavailable, check_prerequisites
 from swarm.netem.network import SwarmNetwork
+from swarm.netem.profile import refuse_delay
 from swarm.netem.scenario import Scenario, load_scenario
 from swarm.sim.worlds import World, load_world, mission_volume, spawn_points
 
@@ -117,11 +118,10 @@ def _netns_scenario(config: SwarmConfig) -> Scenario:
     scenario = load_scenario(m.links)
     scenario.check_drones(m.drones)
     for event in scenario.events:
-        if event.delay_ms or event.jitter_ms:
-            raise NetemUnavailable(
-                f"{m.links}: the event at {event.at:g} s asks for delay/jitter, which need sch_netem (this kernel "
-                "has none); the netns backend applies loss and cuts only"
-            )
+        try:
+            refuse_delay(event.profile())
+        except NetemUnavailable as exc:
+            raise NetemUnavailable(f"{m.links}: the event at {event.at:g} s: {exc}") from None
         if event.rate_kbit:
             raise NetemUnavailable(f"{m.links}: the event at {event.at:g} s asks for a rate limit; the netns run "
                                    "applies loss and cuts only (rates: swarm netem apply)")
@@ -202,8 +202,8 @@ def _start_simulator(plan: RunPlan, state: RunState) -> None:
 
 
 def _netns_bus_for(config: SwarmConfig, net: SwarmNetwork, index: int) -> dict[str, Any]:
-    """Agent k listens on its radio (TCP and UDP) and its control link and dials lower ids over the radio only; the observer
-    (index 0) is a peer on the host that dials every agent's control link (a peer never relays)."""
+    """Agent k listens on its radio (TCP and UDP) and its control link and dials lower ids over the radio only;
+    the observer (index 0) is a peer on the host that dials every agent's control link (a peer never relays)."""
     layout = net.layout
     if index == 0:
         return {
@@ -215,7 +215,9 @@ def _netns_bus_for(config: SwarmConfig, net: SwarmNetwork, index: int) -> dict[s
     return {
         "listen": [f"{proto}/{net.address(index)}:{port}" for proto in RADIO_PROTOCOLS]
         + [f"tcp/{layout.control_address(index)}:{port}"],
-        "connect": [f"{proto}/{net.address(j)}:{bus_port(config.bus, j)}" for j in range(1, index) for proto in RADIO_PROTOCOLS],
+        "connect": [
+            f"{proto}/{net.address(j)}:{bus_port(config.bus, j)}" for j in range(1, index) for proto in RADIO_PROTOCOLS
+        ],
     }
 
 

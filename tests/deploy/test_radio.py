@@ -16,6 +16,7 @@ import pytest
 
 from swarm.config import ConfigError
 from swarm.deploy import radio
+from swarm.netem import commands
 from swarm.deploy.radio import apply_radio_netem, check_values, find_interface, netem_commands
 from swarm.netem.commands import NetemUnavailable, tool
 from swarm.netem.profile import kernel_has_netem
@@ -92,7 +93,7 @@ def test_loss_zero_runs_nothing(monkeypatch: pytest.MonkeyPatch, capsys: pytest.
     def no_commands(*args: object, **kwargs: object) -> None:
         raise AssertionError("a clean radio must not run any command")
 
-    monkeypatch.setattr(radio.subprocess, "run", no_commands)
+    monkeypatch.setattr(commands.subprocess, "run", no_commands)  # every command goes through commands.run
     assert apply_radio_netem("10.77.1.99", 0.0) == ("", [])  # not even looked up: no such address here
     assert radio.deploy_netem_command("10.77.1.99", 0.0, 0.0, 0.0) == 0
     assert "nothing applied" in capsys.readouterr().out

@@ -3,12 +3,14 @@
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 
 import pytest
 
 from swarm.config import ConfigError
 from swarm.netem import LinkProfile
+from swarm.netem import scenario as scenario_module
 from swarm.netem.scenario import (
     LinkState,
     RadioModel,
@@ -21,23 +23,13 @@ from swarm.netem.scenario import (
     timeline,
 )
 
-CUT_AND_HEAL = """\
-name = "cut-and-heal"
-[[event]]
-at = 30            # seconds after take-off
-link = "1-2"       # a pair, one drone ("2": all its links) or "all"
-loss = 0.3
-[[event]]
-at = 60
-link = "3"
-cut = true
-[[event]]
-at = 100
-link = "3"
-restore = true
-[radio]            # optional: links degrade with distance and break beyond range_m
-range_m = 15
-"""
+def _docstring_example() -> str:
+    """The example at the top of swarm.netem.scenario's docstring (so the documented file is the tested one)."""
+    block = scenario_module.__doc__.split("\n\n")[1]
+    return textwrap.dedent(block) + "\n"
+
+
+CUT_AND_HEAL = _docstring_example()
 
 CLEAN = LinkProfile()
 CUT = LinkProfile(cut=True)
