@@ -100,6 +100,11 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--network", choices=("loopback", "netns"),
                      help="netns: each agent in its own network namespace on a virtual radio (root)")
     run.add_argument("--links", type=Path, help="link scenario TOML applied during the mission (needs --network netns)")
+    run.add_argument("--fault", action="append", metavar="SPEC",
+                     help="inject a fault (repeatable): kill:agent=K@T, restart:agent=K@T[+D], freeze:agent=K@T+D, "
+                     "telemetry-loss:agent=K@T+D (T: seconds after take-off; D: seconds)")
+    run.add_argument("--tls", action="store_true", default=None,
+                     help="mutual TLS with access control on every Zenoh session (certificates in OUT/certs)")
     _add_config_flags(run)
 
     sim = sub.add_parser("sim", help="run the simulated vehicles alone (MAVLink over UDP)")
@@ -172,6 +177,14 @@ def build_parser() -> argparse.ArgumentParser:
     dropout.add_argument("--out", type=Path, help="where to keep the runs (default a temp dir)")
     _add_config_flags(dropout)
 
+    soak = sub.add_parser("soak", help="missions back to back with random faults and loss: memory, fds, patches lost")
+    soak.add_argument("--minutes", type=float, required=True, help="wall time to keep starting missions")
+    soak.add_argument("--drones", type=_positive_int, help="drones per mission (default 3)")
+    soak.add_argument("--world", default="box", help="built-in world or mesh (default box)")
+    soak.add_argument("--out", type=Path, help="where to keep the missions and soak.json (default runs/soak-<time>)")
+    soak.add_argument("--seed", type=int, default=0, help="seed of the random faults and loss levels")
+    _add_config_flags(soak)
+
     deploy = sub.add_parser("deploy", help="the simulated swarm as Docker containers (docs/deploy.md)")
     deploy_sub = deploy.add_subparsers(dest="deploy", required=True, parser_class=_Parser)
     compose = deploy_sub.add_parser("compose", help="write a docker-compose file: simulator, N agents, observer")
@@ -185,6 +198,11 @@ def build_parser() -> argparse.ArgumentParser:
     compose.add_argument("--build-context", type=Path, dest="build_context",
                          help="the swarm repository: docker compose builds the image itself")
     _add_config_flags(compose)
+    certs = deploy_sub.add_parser("certs", help="a CA and per-drone certificates for mutual TLS (bus.tls_dir)")
+    certs.add_argument("--drones", type=_positive_int, required=True, help="certificates for drones 1..N")
+    certs.add_argument("--out", type=Path, default=Path("swarm-certs"),
+                       help="directory to write; must not hold a CA yet (default swarm-certs)")
+    certs.add_argument("--days", type=_positive_int, default=365, help="validity in days (default 365)")
     radio = deploy_sub.add_parser("netem", help="impair this container's radio interface with tc netem")
     radio.add_argument("--address", required=True, help="IP address of the radio interface")
     radio.add_argument("--loss", type=float, default=0.0, help="loss fraction 0..1 on egress (default 0)")
@@ -245,6 +263,7 @@ def _dispatch(args: argparse.Namespace) -> int:
             "mission.out": str(args.out) if args.out else None, "mission.max_time_s": args.max_time,
             "mission.seed": args.seed, "explore.strategy": args.strategy,
             "mission.network": args.network, "mission.links": str(args.links) if args.links else None,
+            "mission.faults": args.fault, "mission.tls": args.tls,
         })
         from swarm.mission.run import run_mission
 
@@ -301,12 +320,21 @@ def _dispatch(args: argparse.Namespace) -> int:
 
         config = _config_from(args, {"mission.world": args.world, "mission.drones": args.drones})
         return experiment_dropout(config, args.levels, not args.no_cut, args.out, args.cut_at, args.heal_at)
+    if args.command == "soak":
+        from swarm.mission.soak import soak_command
+
+        config = _config_from(args, {"mission.world": args.world, "mission.drones": args.drones})
+        return soak_command(config, args.minutes, args.out, args.seed)
     if args.command == "deploy" and args.deploy == "compose":
         from swarm.deploy.compose import deploy_compose_command
 
         config = _config_from(args, {"mission.world": args.world})
         drones = args.drones if args.drones is not None else config.mission.drones
         return deploy_compose_command(config, drones, args.loss, args.out, args.image, args.build_context)
+    if args.command == "deploy" and args.deploy == "certs":
+        from swarm.deploy.certs import certs_command
+
+        return certs_command(args.out, args.drones, args.days)
     if args.command == "deploy" and args.deploy == "netem":
         from swarm.deploy.radio import deploy_netem_command
 

@@ -61,6 +61,46 @@ class Box(_Section):
         return self
 
 
+FaultKind = Literal["kill", "restart", "freeze", "telemetry-loss"]
+_FAULT_RE = re.compile(r"^(?P<kind>[a-z-]+):agent=(?P<agent>\d+)@(?P<at>\d+(\.\d*)?)(\+(?P<duration>\d+(\.\d*)?))?$")
+FAULT_SYNTAX = "KIND:agent=K@T[+D], KIND one of kill, restart, freeze, telemetry-loss (e.g. freeze:agent=3@40+10)"
+
+
+class FaultSpec(_Section):
+    """One fault injected into a `swarm run` mission `at` seconds after take-off (`swarm.mission.faults`).
+
+    kill: SIGKILL the agent. restart: SIGKILL it and start it again `duration` s later (0 when unset).
+    freeze: SIGSTOP it for `duration` s. telemetry-loss: the simulated vehicle sends nothing for `duration` s.
+    """
+
+    kind: FaultKind
+    agent: int = Field(ge=1, le=16)
+    at: float = Field(ge=0.0, le=86400.0)
+    duration: float | None = Field(None, ge=0.0, le=3600.0)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _from_text(cls, value: Any) -> Any:
+        if not isinstance(value, str):
+            return value
+        match = _FAULT_RE.match(value.strip())
+        if match is None:
+            raise ValueError(f"fault {value!r} is not {FAULT_SYNTAX}")
+        return {k: v for k, v in match.groupdict().items() if v is not None}
+
+    @model_validator(mode="after")
+    def _duration_fits_kind(self) -> FaultSpec:
+        if self.kind in ("freeze", "telemetry-loss") and not self.duration:
+            raise ValueError(f"a {self.kind} fault needs a duration: {self.kind}:agent={self.agent}@{self.at:g}+D")
+        if self.kind == "kill" and self.duration is not None:
+            raise ValueError("a kill fault has no duration (restart:agent=K@T+D kills and starts again)")
+        return self
+
+    def __str__(self) -> str:
+        tail = f"+{self.duration:g}" if self.duration is not None else ""
+        return f"{self.kind}:agent={self.agent}@{self.at:g}{tail}"
+
+
 class MissionSettings(_Section):
     """What the swarm is asked to do, and where."""
 
@@ -80,11 +120,25 @@ class MissionSettings(_Section):
         "virtual radio that link-loss scenarios can impair (root, ip and nft needed)",
     )
     links: Path | None = Field(None, description="link scenario TOML (swarm.netem.scenario); needs network = netns")
+    faults: list[FaultSpec] = Field(
+        default_factory=list, max_length=64, description=f"faults injected during the mission: {FAULT_SYNTAX}"
+    )
+    tls: bool = Field(
+        False, description="swarm run: a fresh CA and certificates in OUT/certs; every session on mutual TLS with "
+        "access control (a drone publishes only under its own id)"
+    )
 
     @model_validator(mode="after")
     def _links_need_netns(self) -> MissionSettings:
         if self.links is not None and self.network != "netns":
             raise ValueError("a link scenario (links) needs network = \"netns\"")
+        return self
+
+    @model_validator(mode="after")
+    def _faults_name_drones(self) -> MissionSettings:
+        for fault in self.faults:
+            if fault.agent > self.drones:
+                raise ValueError(f"fault {fault} names agent {fault.agent} but the mission has {self.drones} drones")
         return self
 
     @field_validator("name")
@@ -115,6 +169,10 @@ class AgentSettings(_Section):
     hover_s: float = Field(0.0, ge=0.0, description="hold at the end of the route before landing")
     start_delay_s: float = Field(0.0, ge=0.0, description="wait on the ground this long once healthy before arming")
     out_dir: Path | None = Field(None, description="where the agent writes its summary and logs")
+    state_dir: Path | None = Field(
+        None, description="the agent keeps its own sealed patches here; started again, it reloads those of its "
+        "earlier runs (other epochs) before it asks its peers"
+    )
     mavsdk_threads: int = Field(8, ge=2, le=64)
 
     @field_validator("autopilot")
@@ -146,6 +204,17 @@ class SimSettings(_Section):
     offboard_timeout_s: PositiveFloat = Field(1.0, description="no setpoint for this long: hold (as PX4)")
     spawns: list[Vec3] = Field(default_factory=list, description="vehicle home positions; set by swarm run")
     status_path: Path | None = Field(None, description="where the simulator writes its status JSON")
+    control_path: Path | None = Field(
+        None, description="fault injection: a JSON file the simulator polls, {\"telemetry_off\": [drone ids]}"
+    )
+
+
+TLS_OBSERVER_NAME = "observer"
+
+
+def tls_drone_name(agent_id: int) -> str:
+    """The certificate name (TLS common name) of drone `agent_id`: what access control keys on."""
+    return f"drone-{agent_id}"
 
 
 class BusSettings(_Section):
@@ -161,6 +230,22 @@ class BusSettings(_Section):
     keep_alive: int = Field(4, ge=1, le=20)
     shared_memory: bool = False
     base_port: int = Field(DEFAULT_BUS_BASE_PORT, ge=1024, le=65000, description="loopback ports for swarm run")
+    tls_dir: Path | None = Field(
+        None, description="mutual TLS and access control: the directory `swarm deploy certs` wrote (ca.pem and "
+        "this process's certificate); every endpoint must then be tls/"
+    )
+    tls_name: str | None = Field(
+        None, pattern=r"^(drone-[1-9][0-9]{0,2}|observer)$",
+        description="which certificate in tls_dir: drone-<id> (an agent's default) or observer",
+    )
+
+    @model_validator(mode="after")
+    def _tls_endpoints_only(self) -> BusSettings:
+        if self.tls_dir is not None:
+            plain = [e for e in self.listen + self.connect if not e.startswith("tls/")]
+            if plain:
+                raise ValueError(f"with tls_dir set every endpoint must be tls/..., not {plain[0]}")
+        return self
 
 
 class CameraSettings(_Section):
@@ -219,6 +304,11 @@ class SyncSettings(_Section):
     linger_max_s: float = Field(
         60.0, ge=0.0, le=3600.0,
         description="after landing, stay on the bus until every peer has finished and holds what we hold, or this long",
+    )
+    linger_wait_departed_s: float = Field(
+        20.0, ge=0.0, le=600.0,
+        description="while lingering, a peer that left before it was in step is waited for this long (a lossy "
+        "link's lease expiry is often a flap)",
     )
     push_drop_fraction: float = Field(
         0.0, ge=0.0, le=1.0, description="experiments only: drop this fraction of outgoing push chunks on purpose"
@@ -303,6 +393,12 @@ class SwarmConfig(_Section):
     mapping: MappingSettings = MappingSettings()
     sync: SyncSettings = SyncSettings()
     explore: ExploreSettings = ExploreSettings()
+
+    def agent_bus(self) -> BusSettings:
+        """The bus settings of drone `agent.id`: with TLS on and no certificate named, its own (drone-<id>)."""
+        if self.bus.tls_dir is not None and self.bus.tls_name is None:
+            return self.bus.model_copy(update={"tls_name": tls_drone_name(self.agent.id)})
+        return self.bus
 
     @model_validator(mode="after")
     def _explorers_see(self) -> SwarmConfig:

@@ -34,6 +34,7 @@ from swarm.errors import SwarmError
 from swarm.geo import enu_to_ned, geo_to_world, ned_to_enu, yaw_enu_to_ned_deg, yaw_ned_to_enu_deg
 
 _logs_silenced = False
+OFFBOARD_MODE_SETTLE_S = 2.0  # after entering offboard, the reported mode may lag this long
 
 
 def silence_mavsdk_logs() -> None:
@@ -76,6 +77,7 @@ class Autopilot:
         self._stragglers: set[asyncio.Task[Any]] = set()
         self._streams: list[asyncio.Task[None]] = []
         self.offboard_active = False
+        self._offboard_started = 0.0
 
     # -- connection ---------------------------------------------------------------------------------------
 
@@ -145,9 +147,17 @@ class Autopilot:
         n, e, d = self.world_to_local(target_world)
         setpoint = PositionNedYaw(n, e, d, yaw_enu_to_ned_deg(yaw_enu_deg))
         await self._call("offboard setpoint", lambda: self._offboard.set_position_ned(setpoint))
+        if self.offboard_active and self._dropped_out_of_offboard():
+            self.offboard_active = False  # setpoints stopped for a while (this process was frozen): enter again
         if not self.offboard_active:
             await self._call("offboard start", self._offboard.start)
             self.offboard_active = True
+            self._offboard_started = time.monotonic()
+
+    def _dropped_out_of_offboard(self) -> bool:
+        """The vehicle reports HOLD, its failsafe when offboard setpoints stop, well after we entered offboard."""
+        settled = time.monotonic() - self._offboard_started > OFFBOARD_MODE_SETTLE_S
+        return settled and self.telemetry.flight_mode == "HOLD"
 
     async def hold(self, timeout_s: float | None = None) -> None:
         assert self._action is not None and self._offboard is not None

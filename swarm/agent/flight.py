@@ -36,6 +36,8 @@ from swarm.config import AgentSettings, Vec3
 LOOKAHEAD_M = 1.0
 SETPOINT_PERIOD_S = 0.1
 LAND_TIMEOUT_S = 60.0
+STALL_S = 2.0  # a gap this long between two flight checks means this process was not running
+LANDED_STATE_WAIT_S = 3.0  # after connecting, how long the landed state may stay unknown
 FAILSAFE_COMMAND_TIMEOUT_S = 0.6
 STEP_ASIDE_M = 0.7  # a yielding drone climbs or descends this much out of the way
 PASS_HYSTERESIS_M = 0.3  # ... and resumes once the other is this much beyond the separation distance
@@ -105,6 +107,8 @@ class Flight:
         self.heading_to: Vec3 | None = None  # the end of the segment being flown (heartbeats carry it)
         self._last_position: np.ndarray | None = None
         self._carrot: Vec3 | None = None
+        self._last_check = time.monotonic()
+        self._judge_telemetry_after = 0.0
 
     def _set_phase(self, phase: Phase) -> None:
         if phase != self.phase:
@@ -144,12 +148,25 @@ class Flight:
 
     async def _take_off(self, stop: asyncio.Event) -> None:
         self._set_phase(Phase.TAKEOFF)
+        self._last_check = time.monotonic()
+        if await self._already_flying():
+            self.airborne = True  # a restarted agent takes over its drone where it hovers (offboard-loss hold)
+            self.log("resumed_in_air", position=[round(v, 2) for v in self.ap.telemetry.position])
+            return
         altitude = self.settings.altitude_m
         await self.ap.arm_and_takeoff(altitude)
         self.airborne = True
         deadline = time.monotonic() + 15.0 + altitude / 0.3
         while not self.ap.height_above_home >= 0.9 * altitude:  # written so that an unknown (NaN) height waits
             await self._tick(stop, deadline, "take-off altitude")
+
+    async def _already_flying(self) -> bool:
+        """Armed and in the air: this process was restarted mid-mission (waits briefly for the landed state)."""
+        deadline = time.monotonic() + LANDED_STATE_WAIT_S
+        while self.ap.telemetry.landed_state == "UNKNOWN" and time.monotonic() < deadline:
+            await asyncio.sleep(0.05)
+        tel = self.ap.telemetry
+        return tel.armed and tel.landed_state == "IN_AIR"
 
     async def fly_path(self, path: list[Vec3], stop: asyncio.Event, interrupt: asyncio.Event | None = None) -> bool:
         """Fly the waypoints in order; False as soon as `interrupt` is set (or a yield lasted too long)."""
@@ -344,6 +361,15 @@ class Flight:
     def _check(self, stop: asyncio.Event) -> None:
         if stop.is_set():
             raise StopRequested
+        now = time.monotonic()
+        if now - self._last_check > STALL_S:
+            # This process did not run for a while (SIGSTOP, or starved): telemetry that queued up meanwhile has
+            # not been read yet, so its age says nothing about the link until the timeout has passed again.
+            self.log("stalled", seconds=round(now - self._last_check, 2))
+            self._judge_telemetry_after = now + self.settings.telemetry_timeout_s
+        self._last_check = now
+        if now < self._judge_telemetry_after:
+            return
         if self.airborne and self.ap.telemetry_age_s > self.settings.telemetry_timeout_s:
             raise TelemetryLost(f"no position telemetry for {self.ap.telemetry_age_s:.1f} s")
 

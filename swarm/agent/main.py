@@ -22,6 +22,8 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, NoReturn
 
+import zenoh
+
 from swarm.aio import wait_event
 from swarm.agent.autopilot import Autopilot
 from swarm.agent.events import EventLog
@@ -50,6 +52,7 @@ AIRBORNE_PHASES = frozenset({"takeoff", "flying", "hovering", "landing"})
 
 def agent_command(config: SwarmConfig) -> NoReturn:
     faulthandler.register(signal.SIGUSR1, all_threads=True)  # `kill -USR1 <pid>`: every thread's stack to the log
+    zenoh.init_log_from_env_or("error")  # Zenoh's own errors to the log; RUST_LOG=zenoh=debug for more
     code = asyncio.run(Agent(config).run())
     # Everything is written and every session closed by now. Leave without the interpreter's teardown: about one
     # agent in eight office runs exited 1 after a clean landing and a logged `exit`, with no Python traceback,
@@ -87,7 +90,7 @@ class Agent:
         loop.set_default_executor(ThreadPoolExecutor(self.config.agent.mavsdk_threads, thread_name_prefix="mavsdk"))
         self._install_signal_handlers(loop)
         self.log("starting", epoch=self.epoch, autopilot=self.config.agent.autopilot, pid=os.getpid())
-        bus = await AsyncBus.open(self.config.bus, self.config.mission.name)
+        bus = await AsyncBus.open(self.config.agent_bus(), self.config.mission.name)
         autopilot = Autopilot(self.config.agent.autopilot, self.config.mission.origin, self.config.agent.command_timeout_s)
         exploring = self.config.explore.strategy != "scripted"
         self.flight = Flight(
@@ -114,6 +117,12 @@ class Agent:
             )
             self.exploration.start()
             mission = self.exploration.fly
+        if mapping is not None:
+            recovered, rejected = await mapping.recover()
+            for pid, data in recovered:
+                self.sync.add_recovered(pid, data)
+            if recovered or rejected:
+                self.log("recovered", patches=len(recovered), rejected=rejected, state_dir=str(mapping.state_dir))
         bus.declare_token(keys.alive(self.id))
         bus.subscribe(keys.all_states, AgentState, self._on_state)
         bus.watch_liveliness(keys.all_alive, self._on_token_join, self._on_token_leave)

@@ -6,7 +6,8 @@ is late is skipped rather than bunched, so a loaded machine lowers the frame rat
 
 Every sealed patch goes to the private store and to the agent's fused map, to `on_sealed` (the patch sync, which
 pushes it), and, when the agent has an output directory, to `<out_dir>/patches/<id>.patch` in the wire format
-(the mission observer's referee view of what was mapped). Patches received from peers are decoded, validated
+(the mission observer's referee view of what was mapped), and with `agent.state_dir` there too: an agent
+started again reloads its own patches of earlier runs from it (`recover`). Patches received from peers are decoded, validated
 and fused in the same worker thread (`receive`). At the end the open patch is sealed too, so nothing seen is
 lost, and the agent writes its own fused mesh.
 
@@ -34,10 +35,33 @@ from swarm.files import write_atomic
 from swarm.patches.fused import OCCUPIED
 from swarm.patches.mapper import Mapper
 from swarm.patches.patch import Patch, PatchId
+from swarm.patches.wire import PatchDecodeError
 
 SealedCallback = Callable[[PatchId, bytes], None]
-
 MIN_HEIGHT_M = 0.3  # below this the camera mostly sees the floor it stands on
+
+
+def recover_patches(state_dir: Path, mapper: Mapper, max_bytes: int) -> tuple[list[tuple[PatchId, bytes]], int]:
+    """Fuse the patches of `mapper`'s producer from earlier epochs kept in `state_dir`; returns them and how many
+    files were rejected (a name that is no patch id, unreadable, or bytes that do not decode as that patch)."""
+    recovered: list[tuple[PatchId, bytes]] = []
+    rejected = 0
+    for path in sorted(state_dir.glob("*.patch")):
+        try:
+            pid = PatchId.parse(path.stem)
+        except ValueError:
+            rejected += 1
+            continue
+        if pid.producer != mapper.producer or pid.epoch == mapper.epoch or mapper.holds(pid):
+            continue
+        try:
+            data = path.read_bytes()
+            mapper.receive_wire(data, pid, max_bytes)
+        except (OSError, PatchDecodeError):
+            rejected += 1
+            continue
+        recovered.append((pid, data))
+    return recovered, rejected
 
 
 class MappingTask:
@@ -61,6 +85,9 @@ class MappingTask:
         self.patches_dir = out_dir / "patches" if out_dir is not None else None
         if self.patches_dir is not None:
             self.patches_dir.mkdir(parents=True, exist_ok=True)
+        self.state_dir = config.agent.state_dir
+        if self.state_dir is not None:
+            self.state_dir.mkdir(parents=True, exist_ok=True)
         self.out_dir = out_dir
         self.frames = 0
         self.frames_skipped = 0
@@ -107,8 +134,18 @@ class MappingTask:
         assert data is not None  # a sealed patch is in the private store
         if self.patches_dir is not None:
             write_atomic(self.patches_dir / f"{patch.id}.patch", data)
+        if self.state_dir is not None:
+            write_atomic(self.state_dir / f"{patch.id}.patch", data)
         if self.on_sealed is not None:
             self.on_sealed(patch.id, data)
+
+    async def recover(self) -> tuple[list[tuple[PatchId, bytes]], int]:
+        """This drone's patches from earlier runs in `agent.state_dir`, fused into the map: (recovered, rejected)."""
+        if self.state_dir is None:
+            return [], 0
+        return await asyncio.get_running_loop().run_in_executor(
+            self._worker, recover_patches, self.state_dir, self.mapper, self.config.mapping.max_patch_bytes
+        )
 
     async def receive(self, data: bytes, pid: PatchId) -> None:
         """Decode, validate and fuse a peer's patch (the sync's sink); PatchDecodeError if unusable."""

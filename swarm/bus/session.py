@@ -27,7 +27,8 @@ from typing import Any
 
 import zenoh
 
-from swarm.config import BusSettings
+from swarm.bus.keys import MAX_AGENT_ID
+from swarm.config import TLS_OBSERVER_NAME, BusSettings, tls_drone_name
 from swarm.errors import BusError
 
 ROUTER_DEFAULT_LISTEN = ["tcp/[::]:0"]  # as a peer's default: Zenoh's router default is the fixed port 7447
@@ -73,7 +74,58 @@ def _settings(bus: BusSettings) -> dict[str, Any]:
     if bus.mode == "router":
         settings["scouting/multicast/autoconnect"] = _AUTOCONNECT_ALL
         settings["scouting/gossip/autoconnect"] = _AUTOCONNECT_ALL
+    if bus.tls_dir is not None:
+        settings.update(_tls_settings(bus))
     return settings
+
+
+# Access control (Zenoh ACL; subjects are the common names of the peers' TLS certificates). Every authenticated
+# session may subscribe and query, and is sent everything; a session may only publish, serve, reply or hold a
+# liveliness token under its own drone id. The observer certificate grants listening only.
+_LISTEN_MESSAGES = ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query", "query"]
+_SPEAK_MESSAGES = ["put", "delete", "declare_queryable", "reply", "liveliness_token"]
+_ALL_MESSAGES = _LISTEN_MESSAGES + _SPEAK_MESSAGES
+
+
+def access_control(max_id: int = MAX_AGENT_ID) -> dict[str, Any]:
+    """The ACL of a swarm session: drone-<k> speaks only under agent/<k>/ and alive/<k>, for every k."""
+    rules: list[dict[str, Any]] = [
+        {"id": "listen", "permission": "allow", "flows": ["ingress"], "messages": _LISTEN_MESSAGES,
+         "key_exprs": ["swarm/**"]},
+        {"id": "send", "permission": "allow", "flows": ["egress"], "messages": _ALL_MESSAGES,
+         "key_exprs": ["swarm/**"]},
+    ]
+    subjects: list[dict[str, Any]] = [{"id": TLS_OBSERVER_NAME, "cert_common_names": [TLS_OBSERVER_NAME]}]
+    policies: list[dict[str, Any]] = [{"rules": ["listen", "send"], "subjects": [TLS_OBSERVER_NAME]}]
+    for k in range(1, max_id + 1):
+        name = tls_drone_name(k)
+        rules.append({"id": f"speak-{k}", "permission": "allow", "flows": ["ingress"], "messages": _SPEAK_MESSAGES,
+                      "key_exprs": [f"swarm/*/agent/{k}/**", f"swarm/*/alive/{k}"]})
+        subjects.append({"id": name, "cert_common_names": [name]})
+        policies.append({"rules": ["listen", "send", f"speak-{k}"], "subjects": [name]})
+    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
+            "policies": policies}
+
+
+def _tls_settings(bus: BusSettings) -> dict[str, Any]:
+    assert bus.tls_dir is not None
+    if bus.tls_name is None:
+        raise BusError("bus.tls_name is not set: which certificate in bus.tls_dir (drone-<id> or observer)")
+    files = {"ca": bus.tls_dir / "ca.pem", "certificate": bus.tls_dir / f"{bus.tls_name}.pem",
+             "key": bus.tls_dir / f"{bus.tls_name}.key"}
+    for what, path in files.items():
+        if not path.is_file():
+            raise BusError(f"TLS {what} {path} not found (write them with `swarm deploy certs`)")
+    ca, cert, key = (str(files[k].resolve()) for k in ("ca", "certificate", "key"))
+    return {
+        "transport/link/tls": {
+            "root_ca_certificate": ca, "enable_mtls": True,
+            "listen_certificate": cert, "listen_private_key": key,
+            "connect_certificate": cert, "connect_private_key": key,
+            "verify_name_on_connect": False,  # identity is the CA signature and the common name, not the address
+        },
+        "access_control": access_control(),
+    }
 
 
 def zenoh_config(bus: BusSettings) -> zenoh.Config:

@@ -82,6 +82,11 @@ class HealWatch:
                 "s": None if self.s is None else round(self.s, 2)}
 
 
+def any_vehicle_airborne(sim: Mapping[str, Any] | None) -> bool:
+    """Whether the simulator's status shows a vehicle off the ground: time 0 of scenarios and faults."""
+    return any(v.get("landed_state") not in (None, "on_ground") for v in (sim or {}).get("vehicles") or [])
+
+
 @dataclass
 class LinkController:
     net: SwarmNetwork
@@ -105,7 +110,7 @@ class LinkController:
         """Apply whatever is due at mission time t; follow heals. Cheap when nothing changes."""
         vehicles = (sim or {}).get("vehicles") or []
         if self.takeoff_t is None:
-            if not any(v.get("landed_state") not in (None, "on_ground") for v in vehicles):
+            if not any_vehicle_airborne(sim):
                 return
             self.takeoff_t = t
             self._open_partition(t)

@@ -68,7 +68,9 @@ def build_report(
         )
         summaries[k] = summary
     status = state.status
-    if status == "complete" and not all(a["landed"] for a in agents):
+    faults = getattr(state, "faults", None)
+    must_land = [a for a in agents if faults is None or not faults.killed_for_good(a["id"])]
+    if status == "complete" and not all(a["landed"] for a in must_land):
         status, state.reason = "failed", "an agent exited but its vehicle is not landed and disarmed"
     lo, hi = plan.volume
     explored_timeline = (observer or {}).get("explored_timeline", [])
@@ -88,6 +90,7 @@ def build_report(
         "explored_by_agent": (observer or {}).get("explored_by_agent", {}),
         "overlap_fraction": float((observer or {}).get("overlap_fraction", 0.0)),
         "leaders": (observer or {}).get("leaders", []),
+        "faults": faults.report() if faults is not None else [],
         "leader_changes": int((observer or {}).get("leader_changes", 0)),
         "network": plan.config.mission.network,
         "scenario": links.get("scenario"),

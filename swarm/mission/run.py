@@ -31,8 +31,10 @@ from typing import Any
 import numpy as np
 import tomli_w
 
-from swarm.config import SwarmConfig, bus_port, dump_config, gcs_port, vehicle_port
+from swarm.config import TLS_OBSERVER_NAME, SwarmConfig, bus_port, dump_config, gcs_port, tls_drone_name, vehicle_port
+from swarm.deploy.certs import make_certs
 from swarm.errors import SwarmError
+from swarm.mission.faults import FaultInjector
 from swarm.mission.links import LinkController
 from swarm.mission.ports import ensure_free
 from swarm.mission.processes import Child, start_child, stop_all, swarm_command
@@ -48,9 +50,12 @@ from swarm.sim.worlds import World, load_world, mission_volume, spawn_points
 SIM_READY_TIMEOUT_S = 30.0
 LANDING_GRACE_S = 60.0
 POLL_PERIOD_S = 0.25
-# On the radio, best-effort messages (heartbeats) go over UDP: under loss TCP delays them by seconds (head-of-line
-# blocking and retransmission back-off; research/zenoh-netns-link-loss.md section 3), UDP only loses some.
-RADIO_PROTOCOLS = ("tcp", "udp")
+# The radio carries one TCP link per pair of drones. A second, UDP link per pair (`max_links=2`, so heartbeats
+# skip TCP's head-of-line blocking) broke reconnection after a cut heals: Zenoh 1.10.2 re-establishes the two
+# links of a router pair inconsistently ("Received router declaration with unknown routing context id", Zenoh
+# issues #1886 and #2130), and the healed drone stayed deaf to a peer for the rest of the mission in about one
+# cut-and-heal run in four. TCP alone rejoined every time; with the 20 ms rto_min it also holds up at 30 % loss.
+RADIO_PROTOCOLS = ("tcp",)
 
 
 @dataclass
@@ -72,6 +77,8 @@ class RunState:
     exit_codes: dict[int, int] = field(default_factory=dict)
     net: SwarmNetwork | None = None
     links: LinkController | None = None
+    faults: FaultInjector | None = None
+    agent_argv: dict[int, list[str]] = field(default_factory=dict)
     started: float = 0.0
     started_wall: float = 0.0
     finished: float = 0.0
@@ -136,6 +143,16 @@ def _bus_for(config: SwarmConfig, index: int) -> dict[str, Any]:
     }
 
 
+def _with_tls(plan: RunPlan, bus: dict[str, Any], name: str) -> dict[str, Any]:
+    """With mission.tls, the same endpoints over mutual TLS, with certificate `name` from OUT/certs."""
+    if not plan.config.mission.tls:
+        return bus
+    def secure(endpoints: list[str]) -> list[str]:
+        return ["tls/" + e.removeprefix("tcp/") if e.startswith("tcp/") else e for e in endpoints]
+    return {**bus, "listen": secure(bus["listen"]), "connect": secure(bus["connect"]),
+            "tls_dir": plan.out / "certs", "tls_name": name}
+
+
 def _write_config(path: Path, config: SwarmConfig) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(tomli_w.dumps(dump_config(config)))
@@ -161,12 +178,18 @@ def run_mission(
             state.links = LinkController(state.net, plan.scenario, plan.config.mission.drones)
         _start_simulator(plan, state)
         _start_swarm(plan, state)
+        if plan.config.mission.faults:
+            state.faults = FaultInjector(
+                plan.config.mission.faults, _control_path(plan), lambda k, n: _restart_agent(plan, state, k, n)
+            )
         with view:
             _supervise(plan, state, view, on_tick)
     except KeyboardInterrupt:
         state.status, state.reason = "failed", "interrupted"
         _land_agents(state)
     finally:
+        if state.faults is not None:
+            state.faults.finish()
         codes = stop_all(state.children, grace_s=10.0)
         for k, child in state.agents.items():
             state.exit_codes.setdefault(k, codes.get(child.name, -1))
@@ -187,6 +210,8 @@ def _start_simulator(plan: RunPlan, state: RunState) -> None:
     if state.net is not None:
         sim_config.sim.host = state.net.layout.control_host_address
     sim_config.sim.status_path = plan.out / "sim.json"
+    if plan.config.mission.faults:
+        sim_config.sim.control_path = _control_path(plan)
     path = _write_config(plan.out / "config" / "sim.toml", sim_config)
     state.sim = start_child("sim", swarm_command("sim", "--config", str(path)), plan.out / "logs" / "sim.log")
     deadline = time.monotonic() + SIM_READY_TIMEOUT_S
@@ -202,7 +227,7 @@ def _start_simulator(plan: RunPlan, state: RunState) -> None:
 
 
 def _netns_bus_for(config: SwarmConfig, net: SwarmNetwork, index: int) -> dict[str, Any]:
-    """Agent k listens on its radio (TCP and UDP) and its control link and dials lower ids over the radio only;
+    """Agent k listens on its radio and its control link and dials lower ids over the radio only;
     the observer (index 0) is a peer on the host that dials every agent's control link (a peer never relays)."""
     layout = net.layout
     if index == 0:
@@ -224,7 +249,10 @@ def _netns_bus_for(config: SwarmConfig, net: SwarmNetwork, index: int) -> dict[s
 def _start_swarm(plan: RunPlan, state: RunState) -> None:
     config = plan.config
     net = state.net
+    if config.mission.tls:
+        make_certs(plan.out / "certs", config.mission.drones)
     observer_bus = _netns_bus_for(config, net, 0) if net is not None else _bus_for(config, 0)
+    observer_bus = _with_tls(plan, observer_bus, TLS_OBSERVER_NAME)
     observer_config = config.model_copy(update={"bus": config.bus.model_copy(update=observer_bus)})
     path = _write_config(plan.out / "config" / "observer.toml", observer_config)
     (plan.out / "agents" / "patches").mkdir(parents=True, exist_ok=True)
@@ -244,26 +272,40 @@ def _start_swarm(plan: RunPlan, state: RunState) -> None:
             autopilot = f"udpout://{net.layout.control_host_address}:{vehicle_port(config.sim, k)}"
         else:
             autopilot = f"udpin://{config.sim.host}:{gcs_port(config.sim, k)}"
-        update: dict[str, Any] = {"id": k, "autopilot": autopilot, "out_dir": plan.out / "agents"}
+        update: dict[str, Any] = {"id": k, "autopilot": autopilot, "out_dir": plan.out / "agents",
+                                  "state_dir": plan.out / "agents" / "state" / f"agent-{k}"}
         if k in routes:
             route = routes[k]
             update |= {"altitude_m": route.altitude_m, "waypoints": route.waypoints, "start_delay_s": route.start_delay_s}
         agent = config.agent.model_copy(update=update)
         bus = _netns_bus_for(config, net, k) if net is not None else _bus_for(config, k)
+        bus = _with_tls(plan, bus, tls_drone_name(k))
         agent_config = config.model_copy(update={"agent": agent, "bus": config.bus.model_copy(update=bus)})
         path = _write_config(plan.out / "config" / f"agent-{k}.toml", agent_config)
         argv = swarm_command("agent", "--config", str(path))
         if net is not None:
             argv = net.exec_argv(k, argv)
+        state.agent_argv[k] = argv
         state.agents[k] = start_child(f"agent-{k}", argv, plan.out / "logs" / f"agent-{k}.log")
+
+
+def _control_path(plan: RunPlan) -> Path:
+    return plan.out / "sim-control.json"
+
+
+def _restart_agent(plan: RunPlan, state: RunState, k: int, restart: int) -> Child:
+    """A restart fault: agent k again, with the same config and a log of its own (the new process takes a new
+    epoch and takes its drone over in the air)."""
+    return start_child(f"agent-{k}", state.agent_argv[k], plan.out / "logs" / f"agent-{k}.restart{restart}.log")
 
 
 def _supervise(plan: RunPlan, state: RunState, view: ProgressView, on_tick: Callable[[RunState], None] | None) -> None:
     max_time = plan.config.mission.max_time_s
     while True:
+        restarting = state.faults.restarting if state.faults is not None else set()
         for k, child in state.agents.items():
             code = child.poll()
-            if code is not None and k not in state.exit_codes:
+            if code is not None and k not in state.exit_codes and k not in restarting:
                 state.exit_codes[k] = code
         elapsed = time.monotonic() - state.started
         sim, observer = read_json(plan.out / "sim.json"), read_json(plan.out / "observer.json")
@@ -275,11 +317,13 @@ def _supervise(plan: RunPlan, state: RunState, view: ProgressView, on_tick: Call
                 state.status, state.reason = "failed", f"link scenario: {exc}"
                 _land_agents(state)
                 return
+        if state.faults is not None:
+            state.faults.tick(elapsed, sim, state.agents)
         if on_tick is not None:
             on_tick(state)
-        if len(state.exit_codes) == len(state.agents):
+        if len(state.exit_codes) == len(state.agents) and not (state.faults and state.faults.restarting):
             state.finished = time.monotonic()
-            failed = {k: c for k, c in state.exit_codes.items() if c != 0}
+            failed = {k: c for k, c in state.exit_codes.items() if c != 0 and not _excused(state, k, c)}
             state.status = "failed" if failed else "complete"
             state.reason = f"agents exited with errors: {failed}" if failed else _success_reason(plan.config)
             return
@@ -295,6 +339,10 @@ def _supervise(plan: RunPlan, state: RunState, view: ProgressView, on_tick: Call
         time.sleep(POLL_PERIOD_S)
 
 
+def _excused(state: RunState, k: int, code: int) -> bool:
+    return state.faults is not None and state.faults.excuses(k, code)
+
+
 def _success_reason(config: SwarmConfig) -> str:
     if config.explore.strategy == "scripted":
         return "every drone flew its route and landed"
@@ -303,6 +351,8 @@ def _success_reason(config: SwarmConfig) -> str:
 
 def _land_agents(state: RunState) -> None:
     """SIGTERM makes every agent land and exit; give them time to do it."""
+    if state.faults is not None:
+        state.faults.finish()  # a frozen agent cannot land
     for child in state.agents.values():
         child.signal(signal.SIGTERM)
     deadline = time.monotonic() + LANDING_GRACE_S

@@ -49,6 +49,10 @@ from swarm.netem.commands import NetemUnavailable, delete_namespace, ip_batch, n
 NAME_PREFIX = "swn-"
 BRIDGE = "br0"
 MAX_NODES = 200
+# TCP's retransmission timeout floor on the radio (Linux's default is 200 ms). On a lossy link the same segment
+# is often lost three times in a row; at 200 ms doubling that stalls the link past Zenoh's 1 s lease and the
+# peers flap. A radio a few hops wide has RTTs of milliseconds, so a low floor is what its hosts should use too.
+RADIO_RTO_MIN = "20ms"
 KEPT_PID = 0  # the pid field of networks that outlive their creator (swarm netem up); see the module docstring
 _NAME_RE = re.compile(r"^swn-(?P<tag>[0-9a-f]{4})-(?P<pid>\d+)-(?P<role>hub|n\d+)$")
 _reserved_tags: set[str] = set()  # tags handed out by this process, even to instances not up yet
@@ -149,6 +153,7 @@ def add_node(layout: Layout, k: int) -> None:
         f"link set dev eth0 address {layout.mac(k)} gso_max_segs 1 gso_max_size 1500",
         f"addr add {layout.address(k)}/24 dev eth0",
         "link set eth0 up",
+        f"route replace {layout.subnet} dev eth0 proto kernel scope link src {layout.address(k)} rto_min {RADIO_RTO_MIN}",
         *(f"neigh replace {layout.address(j)} lladdr {layout.mac(j)} dev eth0 nud permanent"
           for j in layout.node_ids if j != k),
     ])

@@ -8,6 +8,7 @@ collision checks run at sim.physics_hz; telemetry streams at their own rates (at
 from __future__ import annotations
 
 import errno
+import json
 import selectors
 import signal
 import socket
@@ -51,6 +52,7 @@ class SimServer:
         self._lock = threading.Lock()
         self._t = 0.0
         self._ready = False
+        self._control_mtime: int | None = None
         self._done = False
 
     # --- life cycle --------------------------------------------------------------------------------------------
@@ -123,6 +125,27 @@ class SimServer:
         with self._lock:
             self.vehicles[drone_id].telemetry_enabled = enabled
 
+    def _read_control(self) -> None:
+        """Fault injection from `swarm run`: `sim.control_path` holds {"telemetry_off": [drone ids]}. A missing
+        file means no fault; an unreadable one is reported once and changes nothing."""
+        path = self.config.sim.control_path
+        if path is None:
+            return
+        try:
+            stat = path.stat()
+        except FileNotFoundError:
+            return
+        if stat.st_mtime_ns == self._control_mtime:
+            return
+        self._control_mtime = stat.st_mtime_ns
+        try:
+            off = {int(v) for v in json.loads(path.read_text())["telemetry_off"]}
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            print(f"swarm sim: ignoring control file {path}: {exc}", file=sys.stderr, flush=True)
+            return
+        for vid in self.ids:
+            self.set_telemetry_enabled(vid, vid not in off)
+
     # --- the loop ----------------------------------------------------------------------------------------------
 
     def run(self, stop: threading.Event, on_ready: Callable[[list[dict]], None] | None = None) -> dict:
@@ -158,6 +181,7 @@ class SimServer:
                 if status_path is not None and now >= next_status:
                     self.write_status(status_path)
                     next_status = max(next_status + STATUS_PERIOD_S, now)
+                    self._read_control()
         self._done = True
         if status_path is not None:
             self.write_status(status_path)

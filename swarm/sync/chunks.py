@@ -7,9 +7,11 @@ the patch's total size and CRC-32, so the `Reassembler` can mix chunks of the sa
 (a push that lost chunks, then a pull reply from another holder: every holder serves the exact bytes it
 received) and tell when they cannot belong together.
 
-The reassembler is bounded: at most `max_bytes` of incomplete patches (the oldest is dropped to make room), and
-an assembly that gets no chunk for `timeout_s` is dropped. Either way the digests show the patch missing and it
-is pulled again. A chunk that contradicts its assembly (another size, CRC or count) restarts it.
+The reassembler is bounded: at most `max_bytes` of incomplete patches (the oldest is dropped to make room; a
+single one may reach `max_patch_bytes`), and an assembly that gets no chunk for `timeout_s` is dropped. Either
+way the digests show the patch missing and it is pulled again. A chunk that contradicts its assembly (another
+size, CRC or count, or more bytes than the size leaves room for) restarts it, so no assembly holds more than its
+patch's size.
 """
 
 from __future__ import annotations
@@ -83,15 +85,18 @@ class _Assembly:
     touched: float = 0.0
 
     def matches(self, chunk: PatchChunk) -> bool:
-        return (chunk.count, chunk.total_bytes, chunk.crc32) == (self.count, self.total_bytes, self.crc32)
+        if (chunk.count, chunk.total_bytes, chunk.crc32) != (self.count, self.total_bytes, self.crc32):
+            return False
+        return chunk.index in self.parts or self.received_bytes + len(chunk.data) <= self.total_bytes
 
 
 class Reassembler:
     """Collects chunks into whole patches; `add` returns the patch's bytes once the last chunk arrives.
 
     Counts what it throws away in `dropped` (reason -> chunks or assemblies): "mismatch" (a chunk contradicting
-    its assembly, which restarts it), "overflow" (an assembly evicted for room), "expired", "corrupt" (all
-    chunks arrived but the CRC-32 or size is wrong), "oversize" (a patch larger than `max_patch_bytes`).
+    or overfilling its assembly, which restarts it), "overflow" (an assembly evicted for room), "expired",
+    "corrupt" (all chunks arrived but the CRC-32 or size is wrong), "oversize" (a patch larger than
+    `max_patch_bytes`).
     """
 
     def __init__(

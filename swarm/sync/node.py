@@ -82,7 +82,7 @@ class MapNode:
         loop = asyncio.get_running_loop()
         for signum in (signal.SIGINT, signal.SIGTERM):
             loop.add_signal_handler(signum, self.stop.set)
-        bus = await AsyncBus.open(self.config.bus, self.config.mission.name)
+        bus = await AsyncBus.open(self.config.agent_bus(), self.config.mission.name)
         self.bus = bus
         self.sync = PatchSync(
             bus, self.config.sync, self.id, self._receive, self.position, self.config.mapping.max_patch_bytes,

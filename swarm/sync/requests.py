@@ -35,7 +35,7 @@ def parse_request(parameters: Mapping[str, str]) -> tuple[list[PatchId], int | N
         raise ValueError(f"more than {MAX_IDS_PER_REQUEST} ids")
     ids: list[PatchId] = []
     for part in parts:
-        match = _ID_RE.match(part)
+        match = _ID_RE.fullmatch(part)  # (match: `$` also matches before a trailing newline)
         if match is None:
             raise ValueError(f"bad patch id {part[:40]!r}")
         producer, epoch, seq = (int(g) for g in match.groups())

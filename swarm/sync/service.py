@@ -103,6 +103,7 @@ class PatchSync:
         self._digest = PatchDigest()
         self._holdings: DigestWire = EMPTY_DIGEST
         self._peers: dict[int, tuple[PatchDigest, bool]] = {}  # peer -> (holdings, finished), from heartbeats
+        self._departed_unsettled: dict[int, float] = {}  # peer -> monotonic time it left while not in step
         self._accepting: set[PatchId] = set()
         self._tasks: set[asyncio.Task[Any]] = set()
         self._loop_task: asyncio.Task[None] | None = None
@@ -151,6 +152,12 @@ class PatchSync:
                 continue
             self.bus.publish(key, chunk, reliable=True)
 
+    def add_recovered(self, pid: PatchId, data: bytes) -> None:
+        """An own patch of an earlier run, reloaded from disk: hold and announce it (peers pull what they lack)."""
+        if pid.producer != self.own_id:
+            raise ValueError(f"patch {pid} is not produced by agent {self.own_id}")
+        self._hold(pid, data)
+
     def _hold(self, pid: PatchId, data: bytes) -> bool:
         if pid in self._held:
             return False
@@ -175,16 +182,29 @@ class PatchSync:
             return
         digest = PatchDigest.from_wire_model(state.holdings)
         self._peers[state.id] = (digest, state.finished)
+        self._departed_unsettled.pop(state.id, None)
         self.scheduler.update_peer(state.id, state.position, digest)
 
-    def peer_left(self, peer_id: int) -> None:
-        self._peers.pop(peer_id, None)
+    def peer_left(self, peer_id: int, now: float | None = None) -> None:
+        last = self._peers.pop(peer_id, None)
         self.scheduler.remove_peer(peer_id)
+        unsettled = peer_id in self._departed_unsettled if last is None else not self._in_step(*last)
+        if unsettled:  # (a peer back by its token alone and gone again is still the one we were waiting for)
+            self._departed_unsettled[peer_id] = time.monotonic() if now is None else now
 
-    def settled(self) -> bool:
+    def _in_step(self, digest: PatchDigest, finished: bool) -> bool:
+        return finished and digest == self._digest
+
+    def settled(self, now: float | None = None) -> bool:
         """Every peer heard from has finished (sealed its last patch) and holds exactly what this agent holds:
-        nothing more will come, so the swarm has one map."""
-        return all(finished and digest == self._digest for digest, finished in self._peers.values())
+        nothing more will come, so the swarm has one map.
+
+        A peer that left while it was not in step holds this back for `linger_wait_departed_s`: on a lossy
+        radio a lease expiry is often a flap, and the peer's next heartbeat brings it back."""
+        now = time.monotonic() if now is None else now
+        if any(now - left < self.settings.linger_wait_departed_s for left in self._departed_unsettled.values()):
+            return False
+        return all(self._in_step(digest, finished) for digest, finished in self._peers.values())
 
     def heard_from(self) -> set[int]:
         """The peers whose heartbeat (holdings) has arrived and who have not left since."""

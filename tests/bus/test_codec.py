@@ -22,6 +22,7 @@ from swarm.bus.codec import (
     encode,
 )
 from swarm.bus.messages import AgentState
+from tests.bus.fuzz_inputs import structures
 from tests.bus.helpers import make_state
 
 
@@ -282,19 +283,6 @@ def test_array_ndim_is_enforced() -> None:
 
 # --- properties ------------------------------------------------------------------------------------------
 
-scalars = (
-    st.none()
-    | st.booleans()
-    | st.integers(min_value=-(2**63), max_value=2**64 - 1)
-    | st.floats()
-    | st.text(max_size=20)
-    | st.binary(max_size=40)
-)
-structures = st.recursive(
-    scalars,
-    lambda children: st.lists(children, max_size=4) | st.dictionaries(st.text(max_size=8), children, max_size=4),
-    max_leaves=10,
-)
 state_like = st.dictionaries(st.sampled_from([*AgentState.model_fields, "extra"]), structures, max_size=12)
 array_like = st.fixed_dictionaries(
     {

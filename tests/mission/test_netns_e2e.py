@@ -8,6 +8,7 @@ logs. After each mission no namespace, control link or rule of it may be left, a
 
 from __future__ import annotations
 
+import re
 import subprocess
 from collections.abc import Iterator
 from pathlib import Path
@@ -120,3 +121,12 @@ def test_a_cut_splits_the_swarm_into_two_clusters_and_the_heal_merges_them_and_t
     assert heal["members"] == [1, 2, 3] and heal["patches"] > 0
     assert heal["s"] is not None and heal["s"] < 10.0, heal
     assert report["converged"]
+    # Zenoh logs a routing error when it re-establishes a healed link inconsistently (see RADIO_PROTOCOLS).
+    zenoh_errors = [line for k in (1, 2, 3) for line in (tmp_path / "run" / "logs" / f"agent-{k}.log")
+                    .read_text(errors="replace").splitlines() if " ERROR " in _plain(line)]
+    assert not zenoh_errors, zenoh_errors[:3]
+
+
+def _plain(line: str) -> str:
+    """A log line without terminal colour codes."""
+    return re.sub(r"\x1b\[[0-9;]*m", "", line)

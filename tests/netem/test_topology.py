@@ -28,6 +28,8 @@ def test_up_creates_and_down_removes_the_namespaces() -> None:
         assert f"inet {net.address(2)}/24" in eth0
         assert "gso_max_size 1500 gso_max_segs 1" in eth0
         assert "PERMANENT" in run(["ip", "-n", net.namespace(2), "neigh", "show", net.address(1)])
+        radio_route = run(["ip", "-n", net.namespace(2), "route", "show", "dev", "eth0"])
+        assert f"rto_min lock {topology.RADIO_RTO_MIN}" in radio_route, radio_route
     assert with_prefix(net.prefix) == []
     assert not net.is_up
 

@@ -1,0 +1,74 @@
+"""`swarm soak` (issue 7): missions back to back with random faults and loss, memory and fd growth per agent,
+patches lost. The 20-minute soak itself is run by hand (README); here one real mission goes through it."""
+
+from __future__ import annotations
+
+import random
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from rich.console import Console
+
+from swarm.config import FaultSpec, load_config
+from swarm.mission.soak import MAX_GROWTH, random_fault, soak, summarise
+from tests.helpers import SwarmPorts
+
+
+def test_random_faults_are_valid_specs_of_every_kind() -> None:
+    rng = random.Random(1)
+    specs = [FaultSpec.model_validate(random_fault(rng, 3)) for _ in range(200)]
+    assert {s.kind for s in specs} == {"kill", "restart", "freeze", "telemetry-loss"}
+    assert {s.agent for s in specs} == {1, 2, 3}
+
+
+def _mission(status: str = "complete", lost: int = 0, growth: float | None = 0.05) -> dict:
+    agent = {"agent": "agent-1", "pid": 1, "warm_rss_mb": 100.0, "peak_rss_mb": 105.0, "rss_growth": growth,
+             "warm_fds": 30, "peak_fds": 32}
+    return {"status": status, "patches_sealed": 10, "patches_lost": lost, "agents": [agent]}
+
+
+@pytest.mark.parametrize(("missions", "passed"), [
+    ([_mission(), _mission(growth=MAX_GROWTH)], True),
+    ([_mission(), _mission(status="failed")], False),
+    ([_mission(lost=1)], False),
+    ([_mission(growth=MAX_GROWTH + 0.01)], False),
+    ([_mission(growth=None)], False),  # nothing measured is not a pass
+    ([], False),
+])
+def test_the_soak_passes_only_when_every_mission_completes_nothing_is_lost_and_memory_holds(
+    missions: list[dict], passed: bool
+) -> None:
+    assert summarise(missions)["passed"] is passed
+
+
+def test_a_one_mission_soak_flies_a_real_mission_and_measures_every_agent(
+    tmp_path: Path, swarm_ports: SwarmPorts
+) -> None:
+    config = load_config(overrides={
+        "mission.world": "box", "mission.drones": 3, "mission.max_time_s": 150.0,
+        "sim.vehicle_base_port": swarm_ports.vehicle_base, "sim.gcs_base_port": swarm_ports.gcs_base,
+        "bus.base_port": swarm_ports.bus_base,
+    })
+    result = soak(config, minutes=0.01, out=tmp_path / "soak", seed=4, console=Console(stderr=True))
+
+    [mission] = result["missions"]
+    assert mission["status"] == "complete", mission["reason"]
+    FaultSpec.model_validate(mission["fault"])
+    assert mission["patches_sealed"] > 0 and mission["patches_lost"] == 0
+    sampled = [a for a in mission["agents"] if a["rss_growth"] is not None]
+    assert sampled, "no agent lived past its warm-up"
+    for agent in sampled:
+        assert 50 < agent["warm_rss_mb"] <= agent["peak_rss_mb"] < 2000
+        assert 3 <= agent["warm_fds"] <= agent["peak_fds"]
+    assert (tmp_path / "soak" / "soak.json").is_file()
+    assert result["summary"]["missions"] == 1 and result["summary"]["patches_lost"] == 0
+
+
+def test_bad_minutes_is_one_line_and_exit_2(tmp_path: Path) -> None:
+    done = subprocess.run([sys.executable, "-m", "swarm", "soak", "--minutes", "0"], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=120, check=False)
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == ["swarm soak: config error: --minutes must be more than 0 and at most "
+                                                "1440, got 0.0"]
