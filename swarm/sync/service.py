@@ -103,7 +103,9 @@ class PatchSync:
         self._digest = PatchDigest()
         self._holdings: DigestWire = EMPTY_DIGEST
         self._peers: dict[int, tuple[PatchDigest, bool]] = {}  # peer -> (holdings, finished), from heartbeats
-        self._departed_unsettled: dict[int, float] = {}  # peer -> monotonic time it left while not in step
+        # peer -> (monotonic time it left, its last holdings and finished flag); judged against what we hold
+        # when asked, so a peer that left in step and missed a patch we sealed after is waited for too
+        self._departed: dict[int, tuple[float, PatchDigest, bool]] = {}
         self._accepting: set[PatchId] = set()
         self._tasks: set[asyncio.Task[Any]] = set()
         self._loop_task: asyncio.Task[None] | None = None
@@ -182,15 +184,17 @@ class PatchSync:
             return
         digest = PatchDigest.from_wire_model(state.holdings)
         self._peers[state.id] = (digest, state.finished)
-        self._departed_unsettled.pop(state.id, None)
+        self._departed.pop(state.id, None)
         self.scheduler.update_peer(state.id, state.position, digest)
 
     def peer_left(self, peer_id: int, now: float | None = None) -> None:
+        now = time.monotonic() if now is None else now
         last = self._peers.pop(peer_id, None)
         self.scheduler.remove_peer(peer_id)
-        unsettled = peer_id in self._departed_unsettled if last is None else not self._in_step(*last)
-        if unsettled:  # (a peer back by its token alone and gone again is still the one we were waiting for)
-            self._departed_unsettled[peer_id] = time.monotonic() if now is None else now
+        if last is not None:
+            self._departed[peer_id] = (now, *last)
+        elif peer_id in self._departed:  # back by its token alone and gone again: still the one we wait for
+            self._departed[peer_id] = (now, *self._departed[peer_id][1:])
 
     def _in_step(self, digest: PatchDigest, finished: bool) -> bool:
         return finished and digest == self._digest
@@ -199,11 +203,13 @@ class PatchSync:
         """Every peer heard from has finished (sealed its last patch) and holds exactly what this agent holds:
         nothing more will come, so the swarm has one map.
 
-        A peer that left while it was not in step holds this back for `linger_wait_departed_s`: on a lossy
-        radio a lease expiry is often a flap, and the peer's next heartbeat brings it back."""
+        A peer that left less than `linger_wait_departed_s` ago and was, when it left, not in step with what
+        this agent holds now holds this back: on a lossy radio a lease expiry is often a flap, and the peer's
+        next heartbeat brings it back (then it is judged on that heartbeat)."""
         now = time.monotonic() if now is None else now
-        if any(now - left < self.settings.linger_wait_departed_s for left in self._departed_unsettled.values()):
-            return False
+        for left, digest, finished in self._departed.values():
+            if now - left < self.settings.linger_wait_departed_s and not self._in_step(digest, finished):
+                return False
         return all(self._in_step(digest, finished) for digest, finished in self._peers.values())
 
     def heard_from(self) -> set[int]:

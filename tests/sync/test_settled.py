@@ -7,6 +7,7 @@ from types import SimpleNamespace
 
 from swarm.bus.keys import Keys
 from swarm.config import SyncSettings
+from swarm.patches.patch import PatchId
 from swarm.sync.service import PatchSync
 from tests.bus.helpers import make_state
 
@@ -68,3 +69,14 @@ def test_a_peer_back_by_token_only_and_gone_again_restarts_the_wait() -> None:
     sync.peer_left(2, now=106.0)  # its token came and went; no heartbeat in between
     assert not sync.settled(now=110.0)
     assert sync.settled(now=114.5)
+
+
+def test_a_peer_that_left_in_step_is_waited_for_once_we_seal_a_patch_it_has_not_seen() -> None:
+    # The race a lossy radio produces: both peers' tokens expire (in step), then this agent seals its last patch
+    # and would otherwise find nobody to wait for and leave with a patch no one else holds.
+    sync = _sync(wait_s=8.0)
+    sync.on_state(_finished_state(2))
+    sync.peer_left(2, now=100.0)
+    sync.add_recovered(PatchId(1, 0, 7), b"last patch")
+    assert not sync.settled(now=101.0)
+    assert sync.settled(now=108.5)
