@@ -187,7 +187,7 @@ class Autopilot:
         if not done:
             self._stragglers.add(task)
             task.add_done_callback(self._stragglers.discard)
-            raise FlightError(f"{what}: no answer from the autopilot within {timeout_s or self.command_timeout_s:.0f} s")
+            raise FlightError(f"{what}: no answer from the autopilot within {timeout_s or self.command_timeout_s:g} s")
         try:
             return task.result()
         except (ActionError, OffboardError) as exc:

@@ -15,8 +15,12 @@ its way (not one that stepped off its segment), and gives the segment up after M
 land first waits for any drone under it to move off.
 
 Fail safe: if position telemetry stops for `telemetry_timeout_s` while airborne, the drone is told to hold,
-then to land, and the flight ends in phase `failsafe`. A stop request (SIGINT/SIGTERM) ends the route early
-and lands.
+then to land, and the flight ends in phase `failsafe`; if telemetry comes back, the agent watches the landing
+through as after a normal flight. A stop request (SIGINT/SIGTERM) ends the route early and lands.
+
+Landing is watched, not assumed: a command the autopilot did not answer in time is retried by MAVSDK and may
+arrive after LAND (a late HOLD leaves the drone hovering), so while the drone is airborne and not in LAND the
+land command is sent again.
 """
 
 from __future__ import annotations
@@ -39,6 +43,8 @@ LAND_TIMEOUT_S = 60.0
 STALL_S = 2.0  # a gap this long between two flight checks means this process was not running
 LANDED_STATE_WAIT_S = 3.0  # after connecting, how long the landed state may stay unknown
 FAILSAFE_COMMAND_TIMEOUT_S = 0.6
+RELAND_AFTER_S = 2.0  # airborne, telemetry fresh and not in LAND this long after a land command: command it again
+FAILSAFE_BLIND_S = 10.0  # after a failsafe land, telemetry still silent this long: stop watching (nothing to see)
 STEP_ASIDE_M = 0.7  # a yielding drone climbs or descends this much out of the way
 PASS_HYSTERESIS_M = 0.3  # ... and resumes once the other is this much beyond the separation distance
 PRIORITY_PAUSE_FRACTION = 1.0  # the drone with the right of way holds for one closer than this x separation
@@ -324,9 +330,7 @@ class Flight:
         await self._wait_for_room_below()
         try:
             await self.ap.land()
-            await self.ap.wait_until(
-                lambda t: t.landed_state == "ON_GROUND" and not t.armed, LAND_TIMEOUT_S, "landing and disarm"
-            )
+            await self._see_landing_through(LAND_TIMEOUT_S)
         except FlightError as exc:
             self.log("flight_error", reason=str(exc))
             self._set_phase(Phase.FAILED)
@@ -335,8 +339,38 @@ class Flight:
         self._set_phase(Phase.LANDED)
         return self.phase
 
+    async def _see_landing_through(self, timeout_s: float, blind_s: float = math.inf) -> None:
+        """Wait until the drone is on the ground and disarmed, commanding land again whenever fresh telemetry
+        shows it airborne in another mode for `RELAND_AFTER_S`; raises FlightError after `timeout_s`, or once
+        no telemetry has come for `blind_s`."""
+        deadline = time.monotonic() + timeout_s
+        not_landing_since: float | None = None
+        while True:
+            t = self.ap.telemetry
+            if t.landed_state == "ON_GROUND" and not t.armed:
+                return
+            now = time.monotonic()
+            if now > deadline:
+                raise FlightError(f"timed out after {timeout_s:.0f} s waiting for landing and disarm")
+            if self.ap.telemetry_age_s > blind_s:
+                raise FlightError(f"no telemetry for {self.ap.telemetry_age_s:.0f} s: the landing cannot be seen")
+            fresh = self.ap.telemetry_age_s < self.settings.telemetry_timeout_s
+            if not fresh or t.flight_mode == "LAND" or t.landed_state == "ON_GROUND":
+                not_landing_since = None
+            elif not_landing_since is None:
+                not_landing_since = now
+            elif now - not_landing_since > RELAND_AFTER_S:
+                self.log("reland", mode=t.flight_mode, height=round(self.ap.height_above_home, 2))
+                not_landing_since = None
+                try:
+                    await self.ap.land()
+                except FlightError as exc:
+                    self.log("flight_error", reason=str(exc))
+            await asyncio.sleep(SETPOINT_PERIOD_S)
+
     async def _fail_safe(self) -> None:
-        """Hold, then land; with no telemetry we cannot confirm either, so we report FAILSAFE.
+        """Hold, then land, then watch the landing through if telemetry comes back; without telemetry we cannot
+        confirm the landing, and the flight ends in FAILSAFE either way.
 
         Short timeouts: both commands must leave before MAVSDK declares the link lost (3 s without a heartbeat)
         and stops sending; the vehicle may still hear us even though we no longer hear it.
@@ -348,6 +382,13 @@ class Flight:
                 self.log("failsafe_command", command=step.__name__, accepted=True)
             except FlightError as exc:
                 self.log("failsafe_command", command=step.__name__, accepted=False, reason=str(exc))
+        try:
+            await self._see_landing_through(LAND_TIMEOUT_S, blind_s=FAILSAFE_BLIND_S)
+        except FlightError as exc:
+            self.log("failsafe_unconfirmed", reason=str(exc))
+            return
+        self.airborne = False
+        self.log("failsafe_landed")
 
     # -- helpers -----------------------------------------------------------------------------------------
 

@@ -24,6 +24,7 @@ from swarm.config import ConfigError, SwarmConfig, gcs_port, vehicle_port
 from swarm.errors import PortInUseError, SwarmError, WorldError
 from swarm.files import write_json_atomic
 from swarm.sim.collisions import CollisionMonitor
+from swarm.sim.px4 import FlightMode
 from swarm.sim.vehicle import Downlink, SimVehicle
 from swarm.sim.worlds import World, load_world, spawn_points
 
@@ -124,6 +125,13 @@ class SimServer:
             raise ValueError(f"no vehicle with id {drone_id}")
         with self._lock:
             self.vehicles[drone_id].telemetry_enabled = enabled
+
+    def hold(self, drone_id: int) -> None:
+        """Fault injection: switch vehicle `drone_id` to HOLD as a late, retried command would."""
+        if drone_id not in self.vehicles:
+            raise ValueError(f"no vehicle with id {drone_id}")
+        with self._lock:
+            self.vehicles[drone_id].autopilot.set_mode(FlightMode.HOLD, time.monotonic())
 
     def _read_control(self) -> None:
         """Fault injection from `swarm run`: `sim.control_path` holds {"telemetry_off": [drone ids]}. A missing
