@@ -157,6 +157,8 @@ def build_parser() -> argparse.ArgumentParser:
     explore.add_argument("--strategies", type=_strategy_list, default=["coordinated", "uncoordinated"],
                          help="comma-separated, e.g. coordinated,uncoordinated,frontier-only")
     explore.add_argument("--world", default="office")
+    explore.add_argument("--repeat", type=_positive_int, default=1,
+                         help="missions per strategy and size (the table gives medians and ranges; default 1)")
     explore.add_argument("--out", type=Path, help="where to keep the runs (default a temp dir)")
     _add_config_flags(explore)
 
@@ -314,7 +316,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         from swarm.mission.bench_explore import bench_explore
 
         config = _config_from(args, {"mission.world": args.world})
-        return bench_explore(config, args.drones, args.strategies, args.out)
+        return bench_explore(config, args.drones, args.strategies, args.out, repeats=args.repeat)
     if args.command == "experiment" and args.experiment == "dropout":
         from swarm.mission.experiment import experiment_dropout
 
