@@ -46,7 +46,7 @@ EXIT_OK, EXIT_FLIGHT_FAILED, EXIT_FAILSAFE = 0, 1, 3
 LINGER_POLL_S = 0.2
 MIN_HEARTBEAT_GAP_S = 0.05
 TIMELINE_PERIOD_S = 1.0
-NEIGHBOUR_FRESH_S = 1.0  # a peer's position older than this is not used for separation
+NEIGHBOUR_FRESH_S = 1.0  # a peer heard longer ago than this is not extrapolated: it is taken to hover there
 AIRBORNE_PHASES = frozenset({"takeoff", "flying", "hovering", "landing"})
 
 
@@ -201,14 +201,22 @@ class Agent:
         return tel.position if tel.samples > 0 else (0.0, 0.0, 0.0)
 
     def _neighbours(self) -> list[Neighbour]:
-        """Other drones in the air where their last heartbeats put them now (position + velocity x age)."""
+        """Other drones in the air where their last heartbeats put them now (position + velocity x age); one
+        whose heartbeats stopped, or whose agent vanished while flying, is where it was last heard, hovering
+        (a vehicle whose agent died holds its position, and no camera here sees drones)."""
         now = time.monotonic()
         found = []
         for p in self.peers.peers.values():
+            if p.phase not in AIRBORNE_PHASES:
+                continue
             age = now - p.last_heard
-            if p.phase in AIRBORNE_PHASES and age < NEIGHBOUR_FRESH_S:
+            if age < NEIGHBOUR_FRESH_S:
                 position = tuple(float(x + v * age) for x, v in zip(p.position, p.velocity))
                 found.append(Neighbour(p.id, position, p.velocity, p.heading_to))
+            else:
+                found.append(Neighbour(p.id, p.position, (0.0, 0.0, 0.0)))
+        found.extend(Neighbour(k, position, (0.0, 0.0, 0.0)) for k, position in self.lost_in_air.items()
+                     if k not in self.peers.peers)
         return found
 
     def _is_safe(self, point: tuple[float, float, float]) -> bool:
@@ -284,6 +292,8 @@ class Agent:
             if phase in AIRBORNE_PHASES:  # its vehicle may still hover there, unseen by the camera: avoid it
                 self.lost_in_air[peer_id] = position
                 self.log("peer_lost_in_air", peer=peer_id, position=[round(c, 2) for c in position])
+                if self.exploration is not None:
+                    self.exploration.wake.set()  # plan around it now, not at the next loop
         else:
             self.lost_in_air.pop(peer_id, None)
         self.peer_events.append({"t": round(time.time(), 3), "event": event, "peer": peer_id, "cause": cause})
