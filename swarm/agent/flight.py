@@ -12,7 +12,7 @@ of way. A drone closer than `separation_m` to a lower id stops and steps out of 
 other hovers; else to the nearest point the map allows, `is_safe`, well off the other's segment) until the
 other has passed; the drone with the right of way holds its position while a higher id is very close and in
 its way (not one that stepped off its segment), and gives the segment up after MAX_YIELD_S. A drone about to
-land first waits for any drone under it to move off.
+land first waits for any drone under it to move off, and lands beside one that sits on the ground there.
 
 Fail safe: if position telemetry stops for `telemetry_timeout_s` while airborne, the drone is told to hold,
 then to land, and the flight ends in phase `failsafe`; if telemetry comes back, the agent watches the landing
@@ -54,6 +54,10 @@ PASS_CLEARANCE_M = 0.6  # ... that is in its way: this close to the rest of its 
 SLOW_M_S = 0.2  # a peer slower than this, going nowhere, has no track to step off: the yielder climbs or descends
 REFUGE_CLEAR_M = PASS_CLEARANCE_M + 0.2  # a refuge this far off the other's segment lets it pass
 MAX_YIELD_S = 8.0  # yielding longer than this gives up the path (the mission replans)
+LAND_CLEAR_M = PASS_CLEARANCE_M  # a drone this close horizontally under us is in the way of a landing
+GROUNDED_M = 0.3  # a drone this low above our home's floor, and slow, sits on the ground
+LAND_ASIDE_M = 1.0  # ... so we land this far beside it
+LAND_SPOT_TOLERANCE_M = 0.1
 
 TRACK_HORIZON_S = 3.0  # a yielding drone keeps away from where the other will be within this time
 
@@ -294,18 +298,55 @@ class Flight:
         return False
 
     async def _wait_for_room_below(self) -> None:
-        """Hold (at most MAX_YIELD_S) while another drone is under us: we are about to descend."""
+        """Before descending: hold (at most MAX_YIELD_S) while another drone flies under us; one that sits on the
+        ground there (a failsafe landing) will not move off, so we move beside it instead."""
         end = time.monotonic() + MAX_YIELD_S
         logged = False
         while self.separation_m > 0 and time.monotonic() < end:
-            here = np.array(self.ap.telemetry.position)
-            below = [n.id for n in self.neighbours()
-                     if n.position[2] < here[2] and math.dist(n.position[:2], here[:2]) < PASS_CLEARANCE_M]
+            below = self._below()
             if not below:
                 return
+            if any(self._on_the_ground(n) for n in below):
+                break
             if not logged:
-                self.log("landing_waits", below=below)
+                self.log("landing_waits", below=[n.id for n in below])
                 logged = True
+            await asyncio.sleep(SETPOINT_PERIOD_S)
+        below = self._below()
+        if below:
+            await self._move_beside(below)
+
+    def _below(self) -> list[Neighbour]:
+        here = self.ap.telemetry.position
+        return [n for n in self.neighbours()
+                if n.position[2] < here[2] and math.dist(n.position[:2], here[:2]) < LAND_CLEAR_M]
+
+    def _on_the_ground(self, n: Neighbour) -> bool:
+        home = self.ap.home_world
+        return home is not None and n.position[2] - home[2] < GROUNDED_M and math.hypot(*n.velocity) < SLOW_M_S
+
+    async def _move_beside(self, below: list[Neighbour]) -> None:
+        """Fly to the nearest safe spot LAND_ASIDE_M from the drones below, at our height, clear of every other
+        drone (at most MAX_YIELD_S)."""
+        here = np.array(self.ap.telemetry.position)
+        centre = np.mean([n.position[:2] for n in below], axis=0)
+        others = [np.asarray(n.position[:2], dtype=float) for n in self.neighbours()]
+        spots = [np.array([centre[0] + LAND_ASIDE_M * math.cos(a), centre[1] + LAND_ASIDE_M * math.sin(a), here[2]])
+                 for a in np.linspace(0.0, 2 * math.pi, 8, endpoint=False)]
+        spots.sort(key=lambda c: float(np.linalg.norm(c - here)))
+        clear = [c for c in spots if self.is_safe(tuple(float(v) for v in c))
+                 and all(np.linalg.norm(c[:2] - o) >= LAND_CLEAR_M for o in others)]
+        if not clear:
+            self.log("land_beside", below=[n.id for n in below], spot=None)
+            return
+        spot = clear[0]
+        self.log("land_beside", below=[n.id for n in below], spot=[round(float(v), 2) for v in spot])
+        self._carrot = tuple(float(v) for v in spot)
+        end = time.monotonic() + MAX_YIELD_S
+        while time.monotonic() < end:
+            await self.ap.set_setpoint(self._carrot, self.ap.telemetry.yaw_deg)
+            if np.linalg.norm(np.array(self.ap.telemetry.position) - spot) < LAND_SPOT_TOLERANCE_M:
+                return
             await asyncio.sleep(SETPOINT_PERIOD_S)
 
     def _neighbour(self, peer_id: int) -> Neighbour | None:

@@ -47,7 +47,8 @@ LINGER_POLL_S = 0.2
 MIN_HEARTBEAT_GAP_S = 0.05
 TIMELINE_PERIOD_S = 1.0
 NEIGHBOUR_FRESH_S = 1.0  # a peer heard longer ago than this is not extrapolated: it is taken to hover there
-AIRBORNE_PHASES = frozenset({"takeoff", "flying", "hovering", "landing"})
+# phases whose drone may be in the air, or (failsafe) came down where it was rather than at its home: kept clear of
+AIRBORNE_PHASES = frozenset({"takeoff", "flying", "hovering", "landing", "failsafe"})
 
 
 def agent_command(config: SwarmConfig) -> NoReturn:

@@ -171,3 +171,42 @@ def test_a_hovering_higher_id_in_the_way_moves_off_the_line() -> None:
     assert flights[0].yields == 0 and flights[1].yields >= 1
     x, y, _ = flights[0].ap.telemetry.position
     assert math.hypot(x - EAST[0], y - EAST[1]) < 0.6
+
+
+async def _come_down_onto_a_grounded_drone() -> tuple[dict, Flight, list[dict]]:
+    """Drone 1 flies from WEST to above drone 2, which sits on the ground where a failsafe put it, and lands."""
+    grounded = (2.3, 2.0, 0.0)
+    config = sim_config(free_port_block(), **{"mission.drones": 2, "sim.spawns": [WEST, grounded]})
+    world = load_world("box")
+    events: list[dict] = []
+    with running_sim(config, world) as server:
+        autopilot = Autopilot(f"udpin://127.0.0.1:{gcs_port(config.sim, 1)}", config.mission.origin)
+        settings = config.agent.model_copy(update={"id": 1, "altitude_m": ALTITUDE, "hover_s": 0.0})
+
+        def is_safe(point) -> bool:
+            return point[2] >= 0.6 and float(world.distance(np.array([point]) + [0.0, 0.0, 0.22])[0]) > 0.5
+
+        def log(event: str, **fields) -> None:
+            events.append({"event": event, **fields})
+
+        flight = Flight(autopilot, settings, log, separation_m=1.2, is_safe=is_safe,
+                        neighbours=lambda: [Neighbour(2, grounded, (0.0, 0.0, 0.0))])
+
+        async def mission(f: Flight, stop: asyncio.Event) -> None:
+            assert await f.fly_path([(grounded[0], grounded[1], ALTITUDE)], stop)
+
+        try:
+            await flight.run(mission, asyncio.Event())
+        finally:
+            await flight.ap.close()
+        return server.status(), flight, events
+
+
+def test_a_drone_coming_down_onto_one_on_the_ground_lands_beside_it() -> None:
+    status, flight, events = asyncio.run(_come_down_onto_a_grounded_drone())
+    [beside] = [e for e in events if e["event"] == "land_beside"]
+    assert beside["below"] == [2] and beside["spot"] is not None  # it was over the grounded drone
+    assert flight.phase.value == "landed"
+    assert status["collision_events"] == []
+    x, y, _ = status["vehicles"][0]["position"]
+    assert math.hypot(x - 2.3, y - 2.0) > 0.8
