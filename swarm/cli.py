@@ -7,7 +7,9 @@ and a non-zero exit: 2 for bad input (flags, config), 1 for anything else that s
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+import threading
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NoReturn, get_args
@@ -246,6 +248,10 @@ def _config_from(args: argparse.Namespace, flags: dict[str, Any]) -> SwarmConfig
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    # SIGTERM ends a command as Ctrl-C does, so missions land their drones and take their network namespaces
+    # down (an agent installs its own handlers later)
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, signal.default_int_handler)
     try:
         return _dispatch(args)
     except ConfigError as exc:

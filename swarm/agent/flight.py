@@ -58,6 +58,7 @@ LAND_CLEAR_M = PASS_CLEARANCE_M  # a drone this close horizontally under us is i
 GROUNDED_M = 0.3  # a drone this low above our home's floor, and slow, sits on the ground
 LAND_ASIDE_M = 1.0  # ... so we land this far beside it
 LAND_SPOT_TOLERANCE_M = 0.1
+SILENT_CLEAR_M = 0.45  # a segment passing a silent drone closer than this touches it (two 0.2 m airframes + margin)
 
 TRACK_HORIZON_S = 3.0  # a yielding drone keeps away from where the other will be within this time
 
@@ -67,6 +68,7 @@ class Neighbour(NamedTuple):
     position: Vec3
     velocity: Vec3
     heading_to: Vec3 | None = None  # the end of the segment it is flying
+    silent: bool = False  # no recent heartbeat (its agent is frozen or dead): it will not move, whatever its id
 
 
 Neighbours = Callable[[], list[Neighbour]]
@@ -220,7 +222,7 @@ class Flight:
             position = np.array(self.ap.telemetry.position)
             rival = self._rival(position, target)
             if rival is not None:
-                if rival[0] < self.settings.id:
+                if rival[0] < self.settings.id and not self._is_silent(rival[0]):
                     if not await self._step_aside(rival[0], stop, interrupt):
                         return False
                     # resume from where we are now: the deadline restarts and the carrot rejoins the segment
@@ -258,9 +260,16 @@ class Flight:
         to us and in the way of the rest of our segment to `target` (we hold for it), else None."""
         if self.separation_m <= 0:
             return None
-        for peer_id, peer_position, *_ in sorted(self.neighbours(), key=lambda n: n.id):
-            peer = np.asarray(peer_position, dtype=float)
+        for n in sorted(self.neighbours(), key=lambda n: n.id):
+            peer_id, peer = n.id, np.asarray(n.position, dtype=float)
             distance = float(np.linalg.norm(peer - position))
+            if n.silent:
+                # an obstacle, not a drone to give way to (stepping aside for it never ends): hold only when our
+                # segment would touch it; the planner routes around it
+                if (distance < self.separation_m and float(np.dot(peer - position, target - position)) > 0
+                        and distance_to_segment(peer, position, target) < SILENT_CLEAR_M):
+                    return peer_id, peer
+                continue
             if peer_id < self.settings.id and distance < self.separation_m:
                 return peer_id, peer
             if (
@@ -306,7 +315,7 @@ class Flight:
             below = self._below()
             if not below:
                 return
-            if any(self._on_the_ground(n) for n in below):
+            if any(n.silent or self._on_the_ground(n) for n in below):  # it will not move off
                 break
             if not logged:
                 self.log("landing_waits", below=[n.id for n in below])
@@ -348,6 +357,10 @@ class Flight:
             if np.linalg.norm(np.array(self.ap.telemetry.position) - spot) < LAND_SPOT_TOLERANCE_M:
                 return
             await asyncio.sleep(SETPOINT_PERIOD_S)
+
+    def _is_silent(self, peer_id: int) -> bool:
+        n = self._neighbour(peer_id)
+        return n is not None and n.silent
 
     def _neighbour(self, peer_id: int) -> Neighbour | None:
         return next((n for n in self.neighbours() if n.id == peer_id), None)

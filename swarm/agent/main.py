@@ -215,8 +215,8 @@ class Agent:
                 position = tuple(float(x + v * age) for x, v in zip(p.position, p.velocity))
                 found.append(Neighbour(p.id, position, p.velocity, p.heading_to))
             else:
-                found.append(Neighbour(p.id, p.position, (0.0, 0.0, 0.0)))
-        found.extend(Neighbour(k, position, (0.0, 0.0, 0.0)) for k, position in self.lost_in_air.items()
+                found.append(Neighbour(p.id, p.position, (0.0, 0.0, 0.0), silent=True))
+        found.extend(Neighbour(k, position, (0.0, 0.0, 0.0), silent=True) for k, position in self.lost_in_air.items()
                      if k not in self.peers.peers)
         return found
 

@@ -170,6 +170,9 @@ def soak(config: SwarmConfig, minutes: float, out: Path, seed: int, console: Con
         console.print(f"swarm soak: mission {index}: {fault}, loss {loss if loss is not None else '-'}")
         result = _one_mission(config, out / f"mission-{index:03d}", fault, loss)
         missions.append(result)
+        if result["reason"] == "interrupted":  # Ctrl-C (or SIGTERM): the mission landed and cleaned up; stop here
+            console.print("swarm soak: interrupted")
+            break
         growth = [a["rss_growth"] for a in result["agents"] if a["rss_growth"] is not None]
         console.print(f"  {result['status']} in {result['wall_s']} s, patches sealed {result['patches_sealed']}, "
                       f"lost {result['patches_lost']}, max agent memory growth "

@@ -28,12 +28,13 @@ def test_fresh_peers_are_extrapolated_stale_ones_hover_where_last_heard_and_land
     assert set(found) == {1, 3}
     assert found[1].position[0] == pytest.approx(0.5, abs=0.05)
     assert found[3].position == (4.0, 0.0, 1.5) and found[3].velocity == (0.0, 0.0, 0.0)
+    assert found[3].silent and not found[1].silent
 
 
 def test_a_peer_lost_in_the_air_stays_a_neighbour_until_it_is_back() -> None:
     agent = _agent()
     agent.lost_in_air[3] = (3.5, 3.0, 1.36)
     (lost,) = agent._neighbours()
-    assert (lost.id, lost.position, lost.velocity) == (3, (3.5, 3.0, 1.36), (0.0, 0.0, 0.0))
+    assert (lost.id, lost.position, lost.velocity, lost.silent) == (3, (3.5, 3.0, 1.36), (0.0, 0.0, 0.0), True)
     agent.peers.heard(3, (3.5, 3.0, 0.0), "landed", 2)  # back (restarted, on the ground): its heartbeat rules
     assert agent._neighbours() == []

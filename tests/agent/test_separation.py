@@ -85,6 +85,22 @@ def test_distance_to_track_is_measured_to_the_covered_segment() -> None:
     assert distance_to_track(np.array([1.0, 4.0, 0.0]), flying) == pytest.approx(1.0)
 
 
+def test_a_silent_drone_is_an_obstacle_held_for_only_when_our_segment_would_touch_it() -> None:
+    # Drone 1 went silent (agent killed, vehicle hovering). Giving way to it by id would never end (a soak
+    # mission livelocked so for 400 s); holding for it is right only when the segment passes through it.
+    settings = sim_config(free_port_block()).agent.model_copy(update={"id": 2})
+    silent = [Neighbour(1, (2.0, 0.0, 1.5), (0.0, 0.0, 0.0), silent=True)]
+    flight = Flight(Autopilot("udpin://127.0.0.1:9", sim_config(free_port_block()).mission.origin), settings,
+                    lambda *a, **kw: None, separation_m=1.2, neighbours=lambda: silent)
+    here = np.array([1.0, 0.0, 1.5])
+    assert flight._rival(here, here) is None  # hovering near it: no stepping aside
+    assert flight._rival(here, np.array([3.0, 0.0, 1.5])) is not None  # straight through it: hold
+    assert flight._rival(here, np.array([2.0, 1.5, 1.5])) is None  # passing 0.83 m off it: carry on
+    talking = [n._replace(silent=False) for n in silent]
+    flight.neighbours = lambda: talking
+    assert flight._rival(here, here) is not None  # the same drone alive, a lower id: give way
+
+
 async def _encounter(separation_m: float, hover_in_the_way: bool = False) -> tuple[dict, list[Flight], list[bool]]:
     """Drone 1 flies WEST -> EAST at ALTITUDE; drone 2 flies EAST -> WEST on the same line, or, with
     `hover_in_the_way`, hovers (looking about, as a drone waiting for a target does) on drone 1's line."""

@@ -145,3 +145,23 @@ def test_killed_agent_is_seen_leaving_within_3_s_and_sigterm_lands(tmp_path: Pat
         assert phases[-2:] == ["landing", "landed"], phases
     finally:
         kill_all(procs)
+
+
+def test_sigterm_ends_swarm_run_as_ctrl_c_does_landing_and_cleaning_up(tmp_path: Path, swarm_ports: SwarmPorts) -> None:
+    out = tmp_path / "run"
+    cmd = swarm_cmd("run", "--no-live", "--out", str(out), *swarm_ports.overrides(), "--world", "box", "--drones", "1")
+    run = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        log = out / "logs" / "agent-1.log"
+        deadline = time.monotonic() + 60
+        while not (log.is_file() and any(e.get("phase") == "flying" for e in log_events(log))):
+            assert run.poll() is None and time.monotonic() < deadline, "the drone never flew"
+            time.sleep(0.2)
+        run.send_signal(signal.SIGTERM)
+        assert run.wait(timeout=90) != 0
+        report = json.loads((out / "report.json").read_text())
+        assert (report["status"], report["reason"]) == ("failed", "interrupted")
+        assert report["agents"][0]["phase"] == "landed", report["agents"]
+        assert not processes_mentioning(str(out)), "swarm run left processes behind"
+    finally:
+        kill_all([run])
