@@ -199,7 +199,7 @@ class Flight:
             position = np.array(self.ap.telemetry.position)
             rival = self._rival(position, position)  # no segment: only a lower id counts
             if rival is not None:
-                await self._step_aside(rival[0], stop, None)
+                await self._step_aside(rival.id, stop, None)
                 return
             await self.ap.set_setpoint(hold, yaw)
             await self._tick(stop, end + 1.0, "the end of a look")
@@ -222,8 +222,8 @@ class Flight:
             position = np.array(self.ap.telemetry.position)
             rival = self._rival(position, target)
             if rival is not None:
-                if rival[0] < self.settings.id and not self._is_silent(rival[0]):
-                    if not await self._step_aside(rival[0], stop, interrupt):
+                if rival.id < self.settings.id and not rival.silent:
+                    if not await self._step_aside(rival.id, stop, interrupt):
                         return False
                     # resume from where we are now: the deadline restarts and the carrot rejoins the segment
                     start, travelled = np.array(self.ap.telemetry.position), 0.0
@@ -236,7 +236,7 @@ class Flight:
                 now = time.monotonic()
                 held_since = now if held_since is None else held_since
                 if now - held_since > MAX_YIELD_S:
-                    self.log("blocked_by", peer=rival[0])
+                    self.log("blocked_by", peer=rival.id)
                     return False  # it is not moving off: the mission plans again
                 deadline += SETPOINT_PERIOD_S  # holding does not count against the segment's time
                 if length > 0:
@@ -255,30 +255,26 @@ class Flight:
                 return True
             await self._tick(stop, deadline, f"waypoint {tuple(round(c, 2) for c in goal)}")
 
-    def _rival(self, position: np.ndarray, target: np.ndarray) -> tuple[int, np.ndarray] | None:
-        """The neighbour we must give way to (a lower id within the separation distance), or a higher id close
-        to us and in the way of the rest of our segment to `target` (we hold for it), else None."""
+    def _rival(self, position: np.ndarray, target: np.ndarray) -> Neighbour | None:
+        """The neighbour we must give way to (a lower id within the separation distance), or one we hold for: a
+        higher id close to us and in the way of the rest of our segment to `target`, or a silent drone our
+        segment would touch; else None."""
         if self.separation_m <= 0:
             return None
         for n in sorted(self.neighbours(), key=lambda n: n.id):
-            peer_id, peer = n.id, np.asarray(n.position, dtype=float)
+            peer = np.asarray(n.position, dtype=float)
             distance = float(np.linalg.norm(peer - position))
             if n.silent:
                 # an obstacle, not a drone to give way to (stepping aside for it never ends): hold only when our
                 # segment would touch it; the planner routes around it
-                if (distance < self.separation_m and float(np.dot(peer - position, target - position)) > 0
-                        and distance_to_segment(peer, position, target) < SILENT_CLEAR_M):
-                    return peer_id, peer
+                if distance < self.separation_m and _in_the_way(peer, position, target, SILENT_CLEAR_M):
+                    return n
                 continue
-            if peer_id < self.settings.id and distance < self.separation_m:
-                return peer_id, peer
-            if (
-                peer_id > self.settings.id
-                and distance < PRIORITY_PAUSE_FRACTION * self.separation_m
-                and float(np.dot(peer - position, target - position)) > 0
-                and distance_to_segment(peer, position, target) < PASS_CLEARANCE_M
-            ):
-                return peer_id, peer
+            if n.id < self.settings.id and distance < self.separation_m:
+                return n
+            if (n.id > self.settings.id and distance < PRIORITY_PAUSE_FRACTION * self.separation_m
+                    and _in_the_way(peer, position, target, PASS_CLEARANCE_M)):
+                return n
         return None
 
     async def _step_aside(self, peer_id: int, stop: asyncio.Event, interrupt: asyncio.Event | None) -> bool:
@@ -357,10 +353,6 @@ class Flight:
             if np.linalg.norm(np.array(self.ap.telemetry.position) - spot) < LAND_SPOT_TOLERANCE_M:
                 return
             await asyncio.sleep(SETPOINT_PERIOD_S)
-
-    def _is_silent(self, peer_id: int) -> bool:
-        n = self._neighbour(peer_id)
-        return n is not None and n.silent
 
     def _neighbour(self, peer_id: int) -> Neighbour | None:
         return next((n for n in self.neighbours() if n.id == peer_id), None)
@@ -519,6 +511,12 @@ def distance_to_track(point: np.ndarray, peer: Neighbour) -> float:
     if peer.heading_to is not None:
         return distance_to_segment(point, start, np.asarray(peer.heading_to, dtype=float))
     return distance_to_segment(point, start, start + np.asarray(peer.velocity, dtype=float) * TRACK_HORIZON_S)
+
+
+def _in_the_way(peer: np.ndarray, position: np.ndarray, target: np.ndarray, clearance: float) -> bool:
+    """`peer` is ahead of us on the way to `target` and closer than `clearance` to that segment."""
+    ahead = float(np.dot(peer - position, target - position)) > 0
+    return ahead and distance_to_segment(peer, position, target) < clearance
 
 
 def distance_to_segment(point: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:

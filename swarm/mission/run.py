@@ -56,6 +56,7 @@ POLL_PERIOD_S = 0.25
 # issues #1886 and #2130), and the healed drone stayed deaf to a peer for the rest of the mission in about one
 # cut-and-heal run in four. TCP alone rejoined every time; with the 20 ms rto_min it also holds up at 30 % loss.
 RADIO_PROTOCOLS = ("tcp",)
+INTERRUPTED = "interrupted"  # the reason of a mission stopped by Ctrl-C or SIGTERM
 
 
 @dataclass
@@ -185,7 +186,7 @@ def run_mission(
         with view:
             _supervise(plan, state, view, on_tick)
     except KeyboardInterrupt:
-        state.status, state.reason = "failed", "interrupted"
+        state.status, state.reason = "failed", INTERRUPTED
         _land_agents(state)
     finally:
         if state.faults is not None:
