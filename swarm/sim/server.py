@@ -121,17 +121,20 @@ class SimServer:
 
     def set_telemetry_enabled(self, drone_id: int, enabled: bool) -> None:
         """Fault injection: silence (or restore) everything vehicle `drone_id` sends."""
-        if drone_id not in self.vehicles:
-            raise ValueError(f"no vehicle with id {drone_id}")
+        vehicle = self._vehicle(drone_id)
         with self._lock:
-            self.vehicles[drone_id].telemetry_enabled = enabled
+            vehicle.telemetry_enabled = enabled
 
     def hold(self, drone_id: int) -> None:
         """Fault injection: switch vehicle `drone_id` to HOLD as a late, retried command would."""
+        vehicle = self._vehicle(drone_id)
+        with self._lock:
+            vehicle.autopilot.set_mode(FlightMode.HOLD, time.monotonic())
+
+    def _vehicle(self, drone_id: int) -> SimVehicle:
         if drone_id not in self.vehicles:
             raise ValueError(f"no vehicle with id {drone_id}")
-        with self._lock:
-            self.vehicles[drone_id].autopilot.set_mode(FlightMode.HOLD, time.monotonic())
+        return self.vehicles[drone_id]
 
     def _read_control(self) -> None:
         """Fault injection from `swarm run`: `sim.control_path` holds {"telemetry_off": [drone ids]}. A missing
