@@ -154,7 +154,7 @@ def build_parser() -> argparse.ArgumentParser:
     sync.add_argument("--no-mission", action="store_true", help="skip the bandwidth missions (swarm run)")
     sync.add_argument("--out", type=Path, help="where to keep the runs (default a temp dir)")
     _add_config_flags(sync)
-    explore = bench_sub.add_parser("explore", help="time to 95 % with 1..N drones, coordinated vs uncoordinated")
+    explore = bench_sub.add_parser("explore", help="time to 95 %% with 1..N drones, coordinated vs uncoordinated")
     explore.add_argument("--drones", type=_int_list, default=[1, 2, 3], help="swarm sizes, e.g. 1,2,3,5")
     explore.add_argument("--strategies", type=_strategy_list, default=["coordinated", "uncoordinated"],
                          help="comma-separated, e.g. coordinated,uncoordinated,frontier-only")
