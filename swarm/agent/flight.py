@@ -9,8 +9,9 @@ not shortcuts between them, at a speed the agent chooses.
 Separation: `neighbours()` gives the other airborne drones' positions, velocities and `heading_to` (the end of
 the segment each is flying), from their heartbeats, positions extrapolated to now. The lower id has the right
 of way. A drone closer than `separation_m` to a lower id stops and steps out of its way (up or down when the
-other hovers; else to the nearest point the map allows, `is_safe`, well off the other's segment) until the
-other has passed; the drone with the right of way holds its position while a higher id is very close and in
+other hovers; else to the nearest point the map lets it fly straight to, `is_clear`, well off the other's
+segment) until the other has passed, then rejoins its segment where it left it unless the map shows the straight
+way on clear (cutting across from the refuge to the waypoint beyond a doorway would clip the door's jamb); the drone with the right of way holds its position while a higher id is very close and in
 its way (not one that stepped off its segment), and gives the segment up after MAX_YIELD_S. A drone about to
 land first waits for any drone under it to move off, and lands beside one that sits on the ground there.
 
@@ -104,7 +105,7 @@ class Flight:
         *,
         separation_m: float = 0.0,
         neighbours: Neighbours | None = None,
-        is_safe: Callable[[Vec3], bool] | None = None,
+        is_clear: Callable[[Vec3, Vec3], bool] | None = None,
     ) -> None:
         self.ap = autopilot
         self.settings = settings
@@ -114,7 +115,8 @@ class Flight:
         self.airborne = False
         self.separation_m = separation_m
         self.neighbours: Neighbours = neighbours or (lambda: [])
-        self.is_safe = is_safe or (lambda p: True)
+        # the straight flight from a to b keeps clear of everything the map shows (the planner's test)
+        self.is_clear = is_clear or (lambda a, b: True)
         self.yields = 0
         self.heading_to: Vec3 | None = None  # the end of the segment being flown (heartbeats carry it)
         self._last_position: np.ndarray | None = None
@@ -223,10 +225,13 @@ class Flight:
             rival = self._rival(position, target)
             if rival is not None:
                 if rival.id < self.settings.id and not rival.silent:
+                    left_at = tuple(float(c) for c in position)
                     if not await self._step_aside(rival.id, stop, interrupt):
                         return False
-                    # resume from where we are now: the deadline restarts and the carrot rejoins the segment
-                    start, travelled = np.array(self.ap.telemetry.position), 0.0
+                    # resume from the refuge if the way on is clear, else from where we left the segment (the
+                    # refuge-to-left_at leg is the step aside flown back); the deadline restarts
+                    here = tuple(float(c) for c in self.ap.telemetry.position)
+                    start, travelled = np.array(resume_from(here, left_at, tuple(target.tolist()), self.is_clear)), 0.0
                     segment = target - start
                     length = float(np.linalg.norm(segment))
                     deadline = time.monotonic() + 20.0 + 3.0 * length / speed
@@ -285,7 +290,8 @@ class Flight:
         peer = self._neighbour(peer_id)
         refuge = here
         if peer is not None:
-            safe = [c for c in refuge_candidates(here, peer) if self.is_safe(tuple(float(v) for v in c))]
+            start = tuple(float(v) for v in here)
+            safe = [c for c in refuge_candidates(here, peer) if self.is_clear(start, tuple(float(v) for v in c))]
             refuge = choose_refuge(safe, peer) if safe else here
         self.log("give_way", to=peer_id, refuge=[round(float(v), 2) for v in refuge])
         self._carrot = tuple(float(v) for v in refuge)
@@ -339,7 +345,8 @@ class Flight:
         spots = [np.array([centre[0] + LAND_ASIDE_M * math.cos(a), centre[1] + LAND_ASIDE_M * math.sin(a), here[2]])
                  for a in np.linspace(0.0, 2 * math.pi, 8, endpoint=False)]
         spots.sort(key=lambda c: float(np.linalg.norm(c - here)))
-        clear = [c for c in spots if self.is_safe(tuple(float(v) for v in c))
+        start = tuple(float(v) for v in here)
+        clear = [c for c in spots if self.is_clear(start, tuple(float(v) for v in c))
                  and all(np.linalg.norm(c[:2] - o) >= LAND_CLEAR_M for o in others)]
         if not clear:
             self.log("land_beside", below=[n.id for n in below], spot=None)
@@ -478,6 +485,12 @@ def route_mission(route: list[Vec3]) -> Mission:
         await flight.fly_path(route, stop)
 
     return fly
+
+
+def resume_from(here: Vec3, left_at: Vec3, target: Vec3, is_clear: Callable[[Vec3, Vec3], bool]) -> Vec3:
+    """Where a drone that stepped aside takes up its segment to `target` again: from `here` when the straight way
+    on is clear, else from `left_at`, where it left the segment (flying back along the step it took)."""
+    return here if is_clear(here, target) else left_at
 
 
 def refuge_candidates(here: np.ndarray, peer: Neighbour) -> list[np.ndarray]:

@@ -97,7 +97,7 @@ class Agent:
         self.flight = Flight(
             autopilot, self.config.agent, self.log,
             separation_m=self.config.explore.separation_m if exploring else 0.0,
-            neighbours=self._neighbours, is_safe=self._is_safe,
+            neighbours=self._neighbours, is_clear=self._is_clear,
         )
         keys = self.keys = bus.keys
         mapping_stop = asyncio.Event()
@@ -220,9 +220,9 @@ class Agent:
                      if k not in self.peers.peers)
         return found
 
-    def _is_safe(self, point: tuple[float, float, float]) -> bool:
+    def _is_clear(self, a: tuple[float, float, float], b: tuple[float, float, float]) -> bool:
         grid = self.exploration.grid if self.exploration is not None else None
-        return grid is not None and grid.planning_grid.is_free(point)
+        return grid is not None and grid.planning_grid.segment_is_free(a, b)
 
     # -- presence ----------------------------------------------------------------------------------------
 

@@ -2,7 +2,7 @@
 hovering on the other's line.
 
 The drones' `neighbours()` read each other's telemetry directly (in flight, heartbeats carry the same position
-and velocity), and `is_safe` asks the world mesh: everything else (autopilot, MAVLink, simulator physics and
+and velocity), and `is_clear` asks the world mesh: everything else (autopilot, MAVLink, simulator physics and
 collision truth) is the real thing. Without separation the two collide, which shows the scenario is a real
 conflict; with it, drone 2 steps out of drone 1's way and both arrive.
 """
@@ -25,6 +25,7 @@ from swarm.agent.flight import (
     distance_to_segment,
     distance_to_track,
     refuge_candidates,
+    resume_from,
 )
 from swarm.config import gcs_port
 from swarm.sim.worlds import load_world
@@ -101,6 +102,17 @@ def test_a_silent_drone_is_an_obstacle_held_for_only_when_our_segment_would_touc
     assert flight._rival(here, here) is not None  # the same drone alive, a lower id: give way
 
 
+def clear_in(world):
+    """`Flight.is_clear` from the world mesh: every point of a-b (every 5 cm) at least 0.6 m up and its airframe
+    0.5 m from every surface."""
+    def is_clear(a, b) -> bool:
+        a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+        t = np.linspace(0.0, 1.0, max(2, int(np.linalg.norm(b - a) / 0.05) + 1))[:, None]
+        points = a + t * (b - a)
+        return bool((points[:, 2] >= 0.6).all() and (world.distance(points + [0.0, 0.0, 0.22]) > 0.5).all())
+    return is_clear
+
+
 async def _encounter(separation_m: float, hover_in_the_way: bool = False) -> tuple[dict, list[Flight], list[bool]]:
     """Drone 1 flies WEST -> EAST at ALTITUDE; drone 2 flies EAST -> WEST on the same line, or, with
     `hover_in_the_way`, hovers (looking about, as a drone waiting for a target does) on drone 1's line."""
@@ -117,15 +129,12 @@ async def _encounter(separation_m: float, hover_in_the_way: bool = False) -> tup
                 return [Neighbour(2 - k, tel.position, tel.velocity, other.heading_to)] if other.airborne else []
             return neighbours
 
-        def is_safe(point) -> bool:
-            lowest = point[2] >= 0.6
-            return lowest and float(world.distance(np.array([point]) + [0.0, 0.0, 0.22])[0]) > 0.5
 
         for k in range(2):
             autopilot = Autopilot(f"udpin://127.0.0.1:{gcs_port(config.sim, k + 1)}", config.mission.origin)
             settings = config.agent.model_copy(update={"id": k + 1, "altitude_m": ALTITUDE, "hover_s": 0.0})
             flights.append(Flight(autopilot, settings, lambda *a, **kw: None, separation_m=separation_m,
-                                  neighbours=neighbours_of(k), is_safe=is_safe))
+                                  neighbours=neighbours_of(k), is_clear=clear_in(world)))
         arrived = [False, False]
         both_up = asyncio.Event()
 
@@ -199,13 +208,11 @@ async def _come_down_onto_a_grounded_drone() -> tuple[dict, Flight, list[dict]]:
         autopilot = Autopilot(f"udpin://127.0.0.1:{gcs_port(config.sim, 1)}", config.mission.origin)
         settings = config.agent.model_copy(update={"id": 1, "altitude_m": ALTITUDE, "hover_s": 0.0})
 
-        def is_safe(point) -> bool:
-            return point[2] >= 0.6 and float(world.distance(np.array([point]) + [0.0, 0.0, 0.22])[0]) > 0.5
 
         def log(event: str, **fields) -> None:
             events.append({"event": event, **fields})
 
-        flight = Flight(autopilot, settings, log, separation_m=1.2, is_safe=is_safe,
+        flight = Flight(autopilot, settings, log, separation_m=1.2, is_clear=clear_in(world),
                         neighbours=lambda: [Neighbour(2, grounded, (0.0, 0.0, 0.0))])
 
         async def mission(f: Flight, stop: asyncio.Event) -> None:
@@ -226,3 +233,14 @@ def test_a_drone_coming_down_onto_one_on_the_ground_lands_beside_it() -> None:
     assert status["collision_events"] == []
     x, y, _ = status["vehicles"][0]["position"]
     assert math.hypot(x - 2.3, y - 2.0) > 0.8
+
+
+def test_after_stepping_aside_a_drone_rejoins_its_segment_unless_the_way_on_is_clear() -> None:
+    # box world: a wall stub at x = 4 from y = 3 to the north wall; the segment passes 0.7 m south of its end
+    is_clear = clear_in(load_world("box"))
+    left_at, target = (3.0, 2.3, 1.2), (5.0, 2.3, 1.2)
+    assert is_clear(left_at, target)
+    north, south = (3.3, 3.2, 1.2), (3.0, 1.6, 1.2)  # refuges beside the stub's end, and away from it
+    assert is_clear(left_at, north) and not is_clear(north, target)  # straight on would clip the stub's end
+    assert resume_from(north, left_at, target, is_clear) == left_at
+    assert resume_from(south, left_at, target, is_clear) == south
