@@ -49,6 +49,8 @@ STATUS_EVERY_LOOPS = 10
 RETURN_ATTEMPTS = 3  # a drone that had to give way too long on its way home plans again
 WAIT_FOR_TARGET_S = 0.5
 IDLE_TURN_DEG = 45.0
+UNREACHABLE_RETRY_S = 30.0  # a viewpoint this drone could not plan a path to is not given to it again this long
+UNREACHABLE_GIVE_UP = 3  # ... and after this many failures it counts as visited: nobody is sent there again
 
 
 @dataclass
@@ -90,6 +92,8 @@ class Exploration:
         self.target: Target | None = None
         self.path: list[Vec3] = []
         self.visited: list[Vec3] = []  # frontier points this drone went and looked at
+        # viewpoints this drone could not plan a path to, and when: its map may shut a door the others see open
+        self.unreachable: list[tuple[Vec3, float]] = []
         self.done = False
         self.done_reason = ""
         self.wake = asyncio.Event()  # run a decision now
@@ -198,9 +202,11 @@ class Exploration:
         choice = assign_targets(
             self.own, {self.id: self.position()}, lam=self.settings.utility_lambda, sigma=self.settings.sigma_m,
             current=self._current(), current_bonus=self.settings.current_target_bonus, keep_radius=KEEP_RADIUS_M,
+            unreachable={self.id: self._recently_unreachable()}, unreachable_radius=self.settings.visited_radius_m,
         ).get(self.id)
         if choice is None:
-            self._count_empty("no frontier left in this drone's map")
+            if not self.own:  # candidates it cannot reach now come back after UNREACHABLE_RETRY_S
+                self._count_empty("no frontier left in this drone's map")
             return
         self.empty_rounds = 0
         self._set_target(Target(choice.viewpoint, choice.point, "self"))
@@ -211,7 +217,8 @@ class Exploration:
             id=self.id, epoch=self.epoch, seq=self.report_seq, position=here,
             viewpoints=as_points([c.viewpoint for c in self.own]), points=as_points([c.point for c in self.own]),
             gains=np.asarray([c.gain for c in self.own], dtype=np.float32),
-            visited=as_points(self.visited[-MAX_VISITED:]), arrived=self.arrived,
+            visited=as_points(self.visited[-MAX_VISITED:]),
+            unreachable=as_points(self._recently_unreachable()[-MAX_VISITED:]), arrived=self.arrived,
         )
         self.bus.publish(self.bus.keys.frontiers(self.id), report, reliable=True)
         leader, now = self.peers.leader, time.monotonic()
@@ -260,7 +267,9 @@ class Exploration:
             merged, positions, lam=self.settings.utility_lambda, sigma=self.settings.sigma_m,
             current={k: v for k, v in self.assigned_current.items() if k in positions},
             current_bonus=self.settings.current_target_bonus, own_bonus=self.settings.own_frontier_bonus,
-            keep_radius=KEEP_RADIUS_M,
+            keep_radius=KEEP_RADIUS_M, unreachable_radius=self.settings.visited_radius_m,
+            unreachable={self.id: self._recently_unreachable(),
+                         **{k: [tuple(map(float, v)) for v in r.unreachable] for k, r in reports.items()}},
         )
         assigned = {k: c for k, c in choice.items() if c is not None}
         self.assigned_current = {k: c.viewpoint for k, c in assigned.items()}
@@ -331,7 +340,7 @@ class Exploration:
             self.retarget.clear()
             path = await self._plan(target.viewpoint)
             if path is None:
-                self._done_with(target)
+                self._cannot_reach(target)
                 continue
             self.path = path[1:]
             reached = await flight.fly_path(path[1:], stop, interrupt=self.retarget)
@@ -364,6 +373,26 @@ class Exploration:
         except NoPathError as exc:
             self.log("no_path", goal=_r(goal), reason=str(exc))
             return None
+
+    def _cannot_reach(self, target: Target) -> None:
+        """No path to the target's viewpoint in this drone's map: it is not given to this drone again for
+        UNREACHABLE_RETRY_S (the others may reach it, and the map may open up), and after UNREACHABLE_GIVE_UP
+        failures it is done with, as if visited."""
+        now = time.monotonic()
+        self.unreachable.append((target.viewpoint, now))
+        failures = sum(_distance(v, target.viewpoint) <= self.settings.visited_radius_m for v, _ in self.unreachable)
+        if failures >= UNREACHABLE_GIVE_UP:
+            self.log("unreachable_given_up", viewpoint=_r(target.viewpoint), failures=failures)
+            self._done_with(target)
+            return
+        if self.target is target:
+            self.target = None
+        self.arrived = True
+        self.wake.set()
+
+    def _recently_unreachable(self) -> list[Vec3]:
+        since = time.monotonic() - UNREACHABLE_RETRY_S
+        return [v for v, t in self.unreachable if t >= since]
 
     def _done_with(self, target: Target) -> None:
         """A target reached and looked at, or unreachable: either way nobody is sent there again, and the

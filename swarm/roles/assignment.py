@@ -189,7 +189,8 @@ def _within(views: np.ndarray, point: Vec3, radius: float) -> np.ndarray:
 
 def assign_targets(candidates: Sequence[Candidate], positions: Mapping[int, Vec3], *, lam: float, sigma: float,
                    current: Mapping[int, Vec3] | None = None, current_bonus: float = 1.0, own_bonus: float = 1.0,
-                   keep_radius: float = 1.0) -> dict[int, Candidate | None]:
+                   keep_radius: float = 1.0, unreachable: Mapping[int, Sequence[Vec3]] | None = None,
+                   unreachable_radius: float = 1.0) -> dict[int, Candidate | None]:
     """Alg. 3.5, sequentially over members in ascending id (the leader assigns itself too): for each member, the
     argmax over unassigned candidates of the utility (Euclidean 3D distances from positions to viewpoints;
     d_others over the other members of `positions`, at their current positions) with the working, scheduled
@@ -198,7 +199,9 @@ def assign_targets(candidates: Sequence[Candidate], positions: Mapping[int, Vec3
     instead of swapping them between rounds), and times own_bonus when the member reported it; then the candidate is taken out and the gains of the
     rest are scheduled around its frontier point (Eq. 3.5: the information there overlaps). Scheduling lives
     for this round only. Members left without a candidate get None. Exact ties go to the first candidate in
-    `merge_candidates`'s order, whatever order the input came in."""
+    `merge_candidates`'s order, whatever order the input came in. A member is never given a candidate whose
+    viewpoint lies within unreachable_radius of a viewpoint it could not plan a path to (`unreachable`): that
+    candidate stays for the others."""
     members = sorted(positions)
     result: dict[int, Candidate | None] = {m: None for m in members}
     pool = sorted(candidates, key=_order_key)
@@ -219,7 +222,10 @@ def assign_targets(candidates: Sequence[Candidate], positions: Mapping[int, Vec3
         for other, theirs in (current or {}).items():
             if other != member and other in positions:  # another drone is on its way there: leave it to it
                 u = np.where(_within(views, theirs, keep_radius), u / current_bonus, u)
-        best = int(np.argmax(np.where(free, u, -np.inf)))
+        open_ = free & ~_near_any(views, _array((unreachable or {}).get(member, [])), unreachable_radius)
+        if not open_.any():
+            continue
+        best = int(np.argmax(np.where(open_, u, -np.inf)))
         result[member] = pool[best]
         free[best] = False
         work = schedule_gain(work, points, pool[best].point, sigma)

@@ -50,6 +50,7 @@ class FrontierReport(WireMessage):
     points: _Points = EMPTY_POINTS
     gains: _Gains = EMPTY_GAINS
     visited: _Points = EMPTY_POINTS
+    unreachable: _Points = EMPTY_POINTS  # viewpoints it recently could not plan a path to: not to be assigned to it
     arrived: bool = False
 
     @model_validator(mode="after")
@@ -57,6 +58,7 @@ class FrontierReport(WireMessage):
         _check_points("viewpoints", self.viewpoints, MAX_CANDIDATES)
         _check_points("points", self.points, MAX_CANDIDATES)
         _check_points("visited", self.visited, MAX_VISITED)
+        _check_points("unreachable", self.unreachable, MAX_VISITED)
         if not (len(self.viewpoints) == len(self.points) == len(self.gains)):
             raise ValueError("viewpoints, points and gains must have the same length")
         if not (np.isfinite(self.gains).all() and (self.gains >= 0).all()):

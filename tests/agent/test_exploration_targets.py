@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from swarm.agent.exploration import Exploration, Target
+from swarm.agent.exploration import UNREACHABLE_GIVE_UP, UNREACHABLE_RETRY_S, Exploration, Target
 from swarm.config import load_config
 from swarm.roles.membership import PeerTable
 
@@ -50,3 +50,23 @@ def test_a_different_spot_replaces_the_target_and_interrupts_the_flight() -> Non
     assert exploration.retarget.is_set()
     assert exploration.targets_assigned == 2
     assert [e["event"] for e in events] == ["target", "target"]
+
+
+def test_a_target_without_a_path_is_kept_from_this_drone_a_while_then_given_up(monkeypatch) -> None:
+    events: list[dict[str, Any]] = []
+    exploration = _exploration(events)
+    clock = [100.0]
+    monkeypatch.setattr("swarm.agent.exploration.time.monotonic", lambda: clock[0])
+    behind_a_door = Target((5.0, 1.0, 1.5), (5.5, 1.0, 1.5), "leader")
+    for _ in range(1, UNREACHABLE_GIVE_UP):
+        exploration._set_target(behind_a_door)
+        exploration._cannot_reach(behind_a_door)
+        assert exploration.target is None and exploration.arrived  # asks for another target now
+        assert exploration._recently_unreachable() == [behind_a_door.viewpoint]
+        assert exploration.visited == []  # the others may still be sent there
+        clock[0] += UNREACHABLE_RETRY_S + 1.0
+        assert exploration._recently_unreachable() == []  # and it may be tried again
+    exploration._set_target(behind_a_door)
+    exploration._cannot_reach(behind_a_door)
+    assert exploration.visited == [behind_a_door.point]  # the last try: nobody is sent there again
+    assert events[-1]["event"] == "unreachable_given_up"

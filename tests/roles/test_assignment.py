@@ -233,3 +233,15 @@ def test_a_drone_does_not_take_another_drones_current_target() -> None:
     assert plain[1] == near_1
     kept = assign_targets([near_1, far], positions, lam=0.2, sigma=3.0, current={2: near_1.viewpoint}, current_bonus=3.0)
     assert kept[2] == near_1 and kept[1] == far
+
+
+def test_a_member_is_not_given_a_viewpoint_it_could_not_reach_and_another_member_is() -> None:
+    near_1, far = cand(2.0, 0.0, gain=20.0), cand(-6.0, 0.0, gain=10.0)
+    positions = {1: (0.0, 0.0, 1.0), 2: (8.0, 0.0, 1.0)}
+    assert assign_targets([near_1, far], positions, lam=0.2, sigma=1e-6) == {1: near_1, 2: far}
+    got = assign_targets([near_1, far], positions, lam=0.2, sigma=1e-6, unreachable={1: [(2.3, 0.0, 1.0)]},
+                         unreachable_radius=0.5)
+    assert got == {1: far, 2: near_1}
+    stuck = assign_targets([near_1], {1: positions[1]}, lam=0.2, sigma=3.0, unreachable={1: [(2.0, 0.4, 1.0)]},
+                           unreachable_radius=0.5)
+    assert stuck == {1: None}  # nothing it can reach: no target rather than the one it cannot
