@@ -204,17 +204,18 @@ class Agent:
     def _neighbours(self) -> list[Neighbour]:
         """Other drones in the air where their last heartbeats put them now (position + velocity x age); one
         whose heartbeats stopped, or whose agent vanished while flying, is where it was last heard, hovering
-        (a vehicle whose agent died holds its position, and no camera here sees drones)."""
+        (a vehicle whose agent died holds its position, and no camera here sees drones); so is one whose agent
+        lost its telemetry (failsafe): silent, an obstacle that gives way to nobody."""
         now = time.monotonic()
         found = []
         for p in self.peers.peers.values():
             if p.phase not in AIRBORNE_PHASES:
                 continue
             age = now - p.last_heard
-            if age < NEIGHBOUR_FRESH_S:
+            if age < NEIGHBOUR_FRESH_S and p.phase != "failsafe":
                 position = tuple(float(x + v * age) for x, v in zip(p.position, p.velocity))
                 found.append(Neighbour(p.id, position, p.velocity, p.heading_to))
-            else:
+            else:  # no recent heartbeat, or its agent lost its drone (failsafe): it will not give way or move off
                 found.append(Neighbour(p.id, p.position, (0.0, 0.0, 0.0), silent=True))
         found.extend(Neighbour(k, position, (0.0, 0.0, 0.0), silent=True) for k, position in self.lost_in_air.items()
                      if k not in self.peers.peers)

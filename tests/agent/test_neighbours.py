@@ -38,3 +38,10 @@ def test_a_peer_lost_in_the_air_stays_a_neighbour_until_it_is_back() -> None:
     assert (lost.id, lost.position, lost.velocity, lost.silent) == (3, (3.5, 3.0, 1.36), (0.0, 0.0, 0.0), True)
     agent.peers.heard(3, (3.5, 3.0, 0.0), "landed", 2)  # back (restarted, on the ground): its heartbeat rules
     assert agent._neighbours() == []
+
+
+def test_a_peer_in_failsafe_is_a_silent_obstacle_where_it_last_reported() -> None:
+    agent = _agent()
+    agent.peers.heard(1, (2.0, 0.0, 0.4), "failsafe", 1, velocity=(0.0, 0.0, -0.5))  # heartbeats still come
+    (peer,) = agent._neighbours()
+    assert (peer.id, peer.position, peer.velocity, peer.silent) == (1, (2.0, 0.0, 0.4), (0.0, 0.0, 0.0), True)
