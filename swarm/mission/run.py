@@ -21,6 +21,7 @@ report.json.
 from __future__ import annotations
 
 import datetime as dt
+import shutil
 import signal
 import time
 from collections.abc import Callable
@@ -200,6 +201,7 @@ def run_mission(
             state.net.down()
         if state.links is not None:
             state.links.finish(state.finished - state.started)
+        shutil.rmtree(_agents_tmp(plan), ignore_errors=True)
     report = build_report(plan, state, read_json(out / "sim.json"), read_json(out / "observer.json"))
     write_report(out, report)
     return report
@@ -287,7 +289,7 @@ def _start_swarm(plan: RunPlan, state: RunState) -> None:
         if net is not None:
             argv = net.exec_argv(k, argv)
         state.agent_argv[k] = argv
-        state.agents[k] = start_child(f"agent-{k}", argv, plan.out / "logs" / f"agent-{k}.log")
+        state.agents[k] = start_child(f"agent-{k}", argv, plan.out / "logs" / f"agent-{k}.log", _agent_env(plan))
 
 
 def _control_path(plan: RunPlan) -> Path:
@@ -297,7 +299,20 @@ def _control_path(plan: RunPlan) -> Path:
 def _restart_agent(plan: RunPlan, state: RunState, k: int, restart: int) -> Child:
     """A restart fault: agent k again, with the same config and a log of its own (the new process takes a new
     epoch and takes its drone over in the air)."""
-    return start_child(f"agent-{k}", state.agent_argv[k], plan.out / "logs" / f"agent-{k}.restart{restart}.log")
+    return start_child(f"agent-{k}", state.agent_argv[k], plan.out / "logs" / f"agent-{k}.restart{restart}.log",
+                       _agent_env(plan))
+
+
+def _agent_env(plan: RunPlan) -> dict[str, str]:
+    """MAVSDK makes a temporary directory per vehicle it meets and never removes it: the agents' go in the run
+    directory (removed at the end of the run), not in /tmp."""
+    tmp = _agents_tmp(plan)
+    tmp.mkdir(parents=True, exist_ok=True)
+    return {"TMPDIR": str(tmp)}
+
+
+def _agents_tmp(plan: RunPlan) -> Path:
+    return plan.out / "agents" / "tmp"
 
 
 def _supervise(plan: RunPlan, state: RunState, view: ProgressView, on_tick: Callable[[RunState], None] | None) -> None:

@@ -4,6 +4,7 @@ talking MAVLink over UDP to the simulated vehicles. Small world, short flights."
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
 import time
@@ -22,8 +23,15 @@ def run_swarm(out: Path, ports: SwarmPorts, *args: str, timeout: float = 200) ->
     return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
 
 
+def _mavsdk_temp_dirs() -> set[Path]:
+    """The directories MAVSDK leaves behind, in /tmp and in this session's TMPDIR (tests/conftest.py)."""
+    places = {Path("/tmp"), Path(os.environ.get("TMPDIR", "/tmp"))}
+    return {p for place in places for p in place.glob("mavsdk-component-metadata-*")}
+
+
 def test_two_agents_fly_see_each_other_and_land(tmp_path: Path, swarm_ports: SwarmPorts) -> None:
     out = tmp_path / "run"
+    left_before = _mavsdk_temp_dirs()
     result = run_swarm(out, swarm_ports, "--drones", "2", "--world", "box", "--max-time", "150")
     assert result.returncode == 0, result.stdout + result.stderr
     report = json.loads((out / "report.json").read_text())
@@ -72,6 +80,7 @@ def test_two_agents_fly_see_each_other_and_land(tmp_path: Path, swarm_ports: Swa
     bandwidth = report["bandwidth"]
     assert 0 < bandwidth["bytes_per_agent_s"] < bandwidth["whole_map_baseline_bytes_per_agent_s"]
     assert not processes_mentioning(str(out)), "swarm run left processes behind"
+    assert _mavsdk_temp_dirs() == left_before and not (out / "agents" / "tmp").exists()  # nor temporary dirs
 
 
 def test_mesh_file_world_with_start(tmp_path: Path, swarm_ports: SwarmPorts) -> None:
