@@ -10,9 +10,10 @@ Separation: `neighbours()` gives the other airborne drones' positions, velocitie
 the segment each is flying), from their heartbeats, positions extrapolated to now. The lower id has the right
 of way. A drone closer than `separation_m` to a lower id stops and steps out of its way (up or down when the
 other hovers; else to the nearest point the map lets it fly straight to, `is_clear`, well off the other's
-segment) until the other has passed, then rejoins its segment where it left it unless the map shows the straight
-way on clear (cutting across from the refuge to the waypoint beyond a doorway would clip the door's jamb); the drone with the right of way holds its position while a higher id is very close and in
-its way (not one that stepped off its segment), and gives the segment up after MAX_YIELD_S. A drone about to
+segment) until the other has passed, then rejoins its segment where it left it unless the map shows the
+straight way on clear (from a refuge beside a doorway, the line to the waypoint beyond it clips the jamb). The
+drone with the right of way holds its position while a higher id is very close and in its way (not one that
+stepped off its segment), and gives the segment up after MAX_YIELD_S. A drone about to
 land first waits for any drone under it to move off, and lands beside one that sits on the ground there.
 
 Fail safe: if position telemetry stops for `telemetry_timeout_s` while airborne, the drone is told to hold,
