@@ -62,6 +62,7 @@ LAND_ASIDE_M = 1.0  # ... so we land this far beside it
 LAND_SPOT_TOLERANCE_M = 0.1
 SILENT_CLEAR_M = 0.45  # a segment passing a silent drone closer than this touches it (two 0.2 m airframes + margin)
 
+ENTERING_HORIZON_S = 0.5  # the drone with the right of way holds for one that will be in its way this soon
 TRACK_HORIZON_S = 3.0  # a yielding drone keeps away from where the other will be within this time
 
 
@@ -278,9 +279,11 @@ class Flight:
                 continue
             if n.id < self.settings.id and distance < self.separation_m:
                 return n
-            if (n.id > self.settings.id and distance < PRIORITY_PAUSE_FRACTION * self.separation_m
-                    and _in_the_way(peer, position, target, PASS_CLEARANCE_M)):
-                return n
+            if n.id > self.settings.id and distance < PRIORITY_PAUSE_FRACTION * self.separation_m:
+                # where it is, or where it will be in a moment (one coming out of a doorway across our way)
+                soon = peer + np.asarray(n.velocity, dtype=float) * ENTERING_HORIZON_S
+                if any(_in_the_way(p, position, target, PASS_CLEARANCE_M) for p in (peer, soon)):
+                    return n
         return None
 
     async def _step_aside(self, peer_id: int, stop: asyncio.Event, interrupt: asyncio.Event | None) -> bool:
@@ -292,7 +295,10 @@ class Flight:
         refuge = here
         if peer is not None:
             start = tuple(float(v) for v in here)
-            safe = [c for c in refuge_candidates(here, peer) if self.is_clear(start, tuple(float(v) for v in c))]
+            everyone = self.neighbours()
+            others = [n for n in everyone if n.id != peer_id]
+            candidates = moves_clear_of(here, off_the_others_ways(refuge_candidates(here, peer), others), everyone)
+            safe = [c for c in candidates if self.is_clear(start, tuple(float(v) for v in c))]
             refuge = choose_refuge(safe, peer) if safe else here
         self.log("give_way", to=peer_id, refuge=[round(float(v), 2) for v in refuge])
         self._carrot = tuple(float(v) for v in refuge)
@@ -506,6 +512,21 @@ def refuge_candidates(here: np.ndarray, peer: Neighbour) -> list[np.ndarray]:
     directions += [np.array([-way[1], way[0], 0.0]), np.array([way[1], -way[0], 0.0])]
     units = [d / np.linalg.norm(d) for d in directions if np.linalg.norm(d) > 1e-6]
     return [here + u * step for step in (STEP_ASIDE_M, 2 * STEP_ASIDE_M) for u in units]
+
+
+def off_the_others_ways(candidates: list[np.ndarray], others: list[Neighbour]) -> list[np.ndarray]:
+    """The refuges at least REFUGE_CLEAR_M off every other drone's way: stepping aside for one drone must not
+    put us in the path of another (a drone leaving a doorway for one behind it met a third in the corridor)."""
+    return [c for c in candidates if all(distance_to_track(c, n) >= REFUGE_CLEAR_M for n in others)]
+
+
+def moves_clear_of(here: np.ndarray, candidates: list[np.ndarray], neighbours: list[Neighbour]) -> list[np.ndarray]:
+    """The refuges reached without passing within PASS_CLEARANCE_M of a drone: a drone under us must not be
+    stepped down onto (with the ceiling above, "down" was the only vertical step left, and it went through the
+    drone it gave way to)."""
+    return [c for c in candidates
+            if all(distance_to_segment(np.asarray(n.position, dtype=float), here, c) >= PASS_CLEARANCE_M
+                   for n in neighbours)]
 
 
 def choose_refuge(candidates: list[np.ndarray], peer: Neighbour) -> np.ndarray:

@@ -24,6 +24,8 @@ from swarm.agent.flight import (
     choose_refuge,
     distance_to_segment,
     distance_to_track,
+    moves_clear_of,
+    off_the_others_ways,
     refuge_candidates,
     resume_from,
 )
@@ -244,3 +246,39 @@ def test_after_stepping_aside_a_drone_rejoins_its_segment_unless_the_way_on_is_c
     assert is_clear(left_at, north) and not is_clear(north, target)  # straight on would clip the stub's end
     assert resume_from(north, left_at, target, is_clear) == left_at
     assert resume_from(south, left_at, target, is_clear) == south
+
+
+def test_a_refuge_in_a_third_drones_way_is_not_taken() -> None:
+    # drone 3 in a doorway gives way to drone 2 behind it; drone 1 flies west along the corridor in front of it
+    here = np.array([21.1, 9.3, 1.5])
+    behind = Neighbour(2, (21.1, 8.2, 1.3), (0.0, 0.8, 0.0), heading_to=(21.1, 11.0, 1.3))
+    corridor = Neighbour(1, (23.0, 9.6, 1.5), (-1.2, 0.0, 0.0), heading_to=(15.0, 9.6, 1.5))
+    candidates = refuge_candidates(here, behind)
+    kept = off_the_others_ways(candidates, [corridor])
+    assert kept and len(kept) < len(candidates)
+    assert all(distance_to_track(c, corridor) >= REFUGE_CLEAR_M for c in kept)
+    assert off_the_others_ways(candidates, []) == candidates
+
+
+def test_the_drone_with_the_right_of_way_holds_for_one_about_to_cross_its_way() -> None:
+    # drone 1 flies west along a corridor; drone 3 comes out of a doorway 0.8 m ahead, still 0.7 m off its line
+    settings = sim_config(free_port_block()).agent.model_copy(update={"id": 1})
+    here, target = np.array([22.0, 9.6, 1.5]), np.array([15.0, 9.6, 1.5])
+    leaving_the_door = Neighbour(3, (21.4, 8.9, 1.5), (0.0, 1.0, 0.0), heading_to=(21.4, 11.0, 1.5))
+    standing_in_it = leaving_the_door._replace(velocity=(0.0, 0.0, 0.0), heading_to=None)
+    flight = Flight(Autopilot("udpin://127.0.0.1:9", sim_config(free_port_block()).mission.origin), settings,
+                    lambda *a, **kw: None, separation_m=1.2, neighbours=lambda: [standing_in_it])
+    assert flight._rival(here, target) is None  # 0.7 m off our line and staying there: carry on
+    flight.neighbours = lambda: [leaving_the_door]
+    assert flight._rival(here, target) == leaving_the_door  # it will be on our line in half a second: hold
+
+
+def test_a_refuge_is_not_reached_through_a_drone() -> None:
+    # drone 2 hovers 0.8 m above drone 1's way; the step down would pass through drone 1
+    here = np.array([26.3, 10.9, 2.1])
+    below = Neighbour(1, (26.2, 10.9, 1.3), (0.0, 0.5, 0.0), heading_to=(26.2, 12.5, 1.3))
+    candidates = refuge_candidates(here, below)
+    kept = moves_clear_of(here, candidates, [below])
+    assert all(c[2] > 1.3 for c in kept)  # nothing down through it
+    assert any(c[2] < 1.3 for c in candidates)
+    assert len(moves_clear_of(here, candidates, [])) == len(candidates)
