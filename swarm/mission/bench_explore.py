@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import statistics
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +25,7 @@ from rich.table import Table
 
 from swarm.config import SwarmConfig
 from swarm.mission.bench import _console_and_root
-from swarm.mission.run import run_mission
+from swarm.mission.run import INTERRUPTED, run_mission
 
 STRATEGIES = ("coordinated", "uncoordinated")
 
@@ -37,26 +38,35 @@ def bench_explore(
     root.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
     chosen = strategies or list(STRATEGIES)
-    for strategy in chosen:
-        for n in sizes:
-            if n == 1 and strategy != chosen[0]:
-                # one drone is its own leader and picks by Eq. 3.3 either way: the same missions, flown once
-                singles = [r for r in rows if r["drones"] == 1]
-                rows.extend({**r, "strategy": strategy, "same_as": chosen[0]} for r in singles)
-                continue
-            for repeat in range(1, repeats + 1):
-                run_config = config.model_copy(deep=True)
-                run_config.mission.drones = n
-                run_config.explore.strategy = strategy  # type: ignore[assignment]
-                run_config.mission.out = root / (f"{strategy}-{n}" if repeats == 1 else f"{strategy}-{n}-{repeat}")
-                console.print(f"bench explore: {strategy}, {n} drone(s) in '{config.mission.world}' "
-                              f"(seed {config.mission.seed}), mission {repeat} of {repeats} ...", markup=False)
-                rows.append({**_row(strategy, n, run_mission(run_config, live=False)), "repeat": repeat})
-                _write(root, rows)
+    for strategy, n, repeat in _missions(chosen, sizes, repeats):
+        if n == 1 and strategy != chosen[0]:
+            # one drone is its own leader and picks by Eq. 3.3 either way: the same missions, flown once
+            rows.extend({**r, "strategy": strategy, "same_as": chosen[0]}
+                        for r in rows if r["drones"] == 1 and r["strategy"] == chosen[0] and r["repeat"] == repeat)
+            continue
+        run_config = config.model_copy(deep=True)
+        run_config.mission.drones = n
+        run_config.explore.strategy = strategy  # type: ignore[assignment]
+        run_config.mission.out = root / (f"{strategy}-{n}" if repeats == 1 else f"{strategy}-{n}-{repeat}")
+        console.print(f"bench explore: {strategy}, {n} drone(s) in '{config.mission.world}' "
+                      f"(seed {config.mission.seed}), mission {repeat} of {repeats} ...", markup=False)
+        report = run_mission(run_config, live=False)
+        rows.append({**_row(strategy, n, report), "repeat": repeat})
+        _write(root, rows)
+        if report["reason"] == INTERRUPTED:  # Ctrl-C or SIGTERM: that mission landed and cleaned up; stop here
+            console.print("bench explore: interrupted", markup=False)
+            break
     _write(root, rows)
     _print(console, config, summarise(rows), repeats)
     console.print(f"figures: {root / 'bench-explore.json'}; runs (report.md each): {root}")
     return 0 if all(r["status"] == "complete" for r in rows) else 1
+
+
+def _missions(strategies: list[str], sizes: list[int], repeats: int) -> Iterator[tuple[str, int, int]]:
+    for strategy in strategies:
+        for n in sizes:
+            for repeat in range(1, repeats + 1):
+                yield strategy, n, repeat
 
 
 def _write(root: Path, rows: list[dict[str, Any]]) -> None:

@@ -1,8 +1,16 @@
-"""`swarm bench explore`'s summary of repeated missions (one function, fed rows shaped like `_row`'s)."""
+"""`swarm bench explore`: the summary of repeated missions (fed rows shaped like `_row`'s), and the order of the
+missions with a fake `run_mission` (the missions themselves are real in every other test)."""
 
 from __future__ import annotations
 
-from swarm.mission.bench_explore import summarise
+import json
+from pathlib import Path
+
+import pytest
+
+from swarm.config import SwarmConfig, load_config
+from swarm.mission.bench_explore import bench_explore, summarise
+from swarm.mission.run import INTERRUPTED
 
 
 def _run(strategy: str, drones: int, t95: float | None, duration: float = 300.0, **extra: object) -> dict:
@@ -42,3 +50,49 @@ def test_each_strategy_is_compared_with_its_own_single_drone_cell() -> None:
     assert by_key["coordinated", 3]["vs_1_drone"] == 0.45
     assert by_key["uncoordinated", 3]["vs_1_drone"] == 0.3
     assert by_key["uncoordinated", 1]["same_as"] == "coordinated"
+
+
+def _report(cfg: SwarmConfig, reason: str = "") -> dict:
+    return {
+        "status": "failed" if reason else "complete", "reason": reason, "duration_s": 100.0,
+        "explored_fraction": 0.97, "time_to": {"0.95": 80.0}, "agents": [{"distance_m": 50.0}],
+        "overlap_fraction": 0.5, "bandwidth": {"bytes_per_agent_s": 40_000.0}, "collisions": 0,
+        "run_dir": str(cfg.mission.out),
+    }
+
+
+def test_the_single_drone_missions_are_flown_once_and_an_interrupted_mission_ends_the_bench(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    flown: list[tuple[str, int]] = []
+
+    def fake_run(cfg: SwarmConfig, live: bool | None = None) -> dict:  # stands in for the missions only
+        flown.append((cfg.explore.strategy, cfg.mission.drones))
+        return _report(cfg, INTERRUPTED if len(flown) == 4 else "")
+
+    monkeypatch.setattr("swarm.mission.bench_explore.run_mission", fake_run)
+    code = bench_explore(load_config(), [1, 3], ["coordinated", "uncoordinated"], tmp_path, repeats=2)
+    # coordinated 1 (x2) and 3 (x2), then the interrupt: no uncoordinated mission (its 1-drone rows are copies)
+    assert flown == [("coordinated", 1), ("coordinated", 1), ("coordinated", 3), ("coordinated", 3)]
+    assert code == 1
+    runs = json.loads((tmp_path / "bench-explore.json").read_text())["runs"]
+    assert [(r["strategy"], r["drones"], r["repeat"]) for r in runs] == [
+        ("coordinated", 1, 1), ("coordinated", 1, 2), ("coordinated", 3, 1), ("coordinated", 3, 2)]
+
+
+def test_every_mission_is_flown_in_order_and_one_drone_only_for_the_first_strategy(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    flown: list[tuple[str, int]] = []
+
+    def fake_run(cfg: SwarmConfig, live: bool | None = None) -> dict:
+        flown.append((cfg.explore.strategy, cfg.mission.drones))
+        return _report(cfg)
+
+    monkeypatch.setattr("swarm.mission.bench_explore.run_mission", fake_run)
+    assert bench_explore(load_config(), [1, 3], ["coordinated", "uncoordinated"], tmp_path, repeats=2) == 0
+    assert flown == [("coordinated", 1)] * 2 + [("coordinated", 3)] * 2 + [("uncoordinated", 3)] * 2
+    runs = json.loads((tmp_path / "bench-explore.json").read_text())["runs"]
+    copies = [r for r in runs if r.get("same_as")]
+    assert [(r["strategy"], r["drones"], r["repeat"], r["same_as"]) for r in copies] == [
+        ("uncoordinated", 1, 1, "coordinated"), ("uncoordinated", 1, 2, "coordinated")]

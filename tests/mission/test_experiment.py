@@ -14,6 +14,7 @@ from swarm.config import ConfigError, SwarmConfig, load_config
 from swarm.errors import SwarmError
 from swarm.mission import experiment as ex
 from swarm.mission.experiment_plot import plot_dropout, x_positions
+from swarm.mission.run import INTERRUPTED
 from swarm.netem.scenario import load_scenario
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -214,6 +215,16 @@ def test_a_failed_condition_is_a_row_and_the_others_still_run(
     assert rows[1]["reason"] == "[netns] unavailable"
     assert (tmp_path / "dropout.png").is_file()
     assert "loss-10: failed: [netns] unavailable" in capsys.readouterr().out  # printed as is, not as markup
+
+
+def test_an_interrupted_mission_ends_the_experiment(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    stopped = report(status="failed") | {"reason": INTERRUPTED}
+    fake = FakeRun({"loss-10": stopped})
+    ex.experiment_dropout(config(), [0.1, 0.5], True, tmp_path, run=fake)
+    assert [Path(c.mission.out).name for c in fake.configs] == ["loss-0", "loss-10"]  # not loss-50, cut-heal
+    rows = json.loads((tmp_path / "experiment.json").read_text())["rows"]
+    assert [r["reason"] for r in rows] == ["", INTERRUPTED]
+    assert "interrupted" in capsys.readouterr().out
 
 
 def test_a_bug_in_a_run_is_not_swallowed(tmp_path: Path) -> None:
