@@ -395,8 +395,8 @@ class Exploration:
         return [v for v, t in self.unreachable if t >= since]
 
     def _done_with(self, target: Target) -> None:
-        """A target reached and looked at, or unreachable: either way nobody is sent there again, and the
-        cluster assigns again now."""
+        """A target reached and looked at, or given up as unreachable: either way nobody is sent there again,
+        and the cluster assigns again now."""
         self.visited.append(target.point)
         if self.target is target:
             self.target = None
