@@ -268,8 +268,7 @@ class Exploration:
             current={k: v for k, v in self.assigned_current.items() if k in positions},
             current_bonus=self.settings.current_target_bonus, own_bonus=self.settings.own_frontier_bonus,
             keep_radius=KEEP_RADIUS_M, unreachable_radius=self.settings.visited_radius_m,
-            unreachable={self.id: self._recently_unreachable(),
-                         **{k: [tuple(map(float, v)) for v in r.unreachable] for k, r in reports.items()}},
+            unreachable={self.id: self._recently_unreachable(), **{k: r.unreachable for k, r in reports.items()}},
         )
         assigned = {k: c for k, c in choice.items() if c is not None}
         self.assigned_current = {k: c.viewpoint for k, c in assigned.items()}

@@ -19,7 +19,7 @@ from rich.console import Console
 from rich.table import Table
 
 from swarm.config import SwarmConfig
-from swarm.mission.run import INTERRUPTED, RunState, run_mission
+from swarm.mission.run import RunState, run_mission, was_interrupted
 
 WARMUP_S = 8.0
 
@@ -83,7 +83,7 @@ def bench_flight(config: SwarmConfig, sizes: list[int], out: Path | None) -> int
         console.print(f"bench flight: {n} drone(s) in '{config.mission.world}' ...")
         report = run_mission(run_config, live=False, on_tick=sampler)
         results.append(_summarise(n, report, sampler))
-        if report["reason"] == INTERRUPTED:  # Ctrl-C or SIGTERM: that mission landed and cleaned up; stop here
+        if was_interrupted(report):
             console.print("bench flight: interrupted")
             break
     _print(console, results)

@@ -25,7 +25,7 @@ from rich.table import Table
 
 from swarm.config import SwarmConfig
 from swarm.mission.bench import _console_and_root
-from swarm.mission.run import INTERRUPTED, run_mission
+from swarm.mission.run import run_mission, was_interrupted
 
 STRATEGIES = ("coordinated", "uncoordinated")
 
@@ -53,7 +53,7 @@ def bench_explore(
         report = run_mission(run_config, live=False)
         rows.append({**_row(strategy, n, report), "repeat": repeat})
         _write(root, rows)
-        if report["reason"] == INTERRUPTED:  # Ctrl-C or SIGTERM: that mission landed and cleaned up; stop here
+        if was_interrupted(report):
             console.print("bench explore: interrupted", markup=False)
             break
     _write(root, rows)

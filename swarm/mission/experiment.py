@@ -30,7 +30,7 @@ from swarm.config import ConfigError, SwarmConfig
 from swarm.errors import SwarmError
 from swarm.mission.bench import _console_and_root
 from swarm.mission.experiment_plot import DROPOUT_PNG, plot_dropout
-from swarm.mission.run import INTERRUPTED, run_mission
+from swarm.mission.run import run_mission, was_interrupted
 from swarm.netem.scenario import load_scenario
 
 DEFAULT_LEVELS = (0.0, 0.1, 0.3, 0.5)
@@ -237,7 +237,7 @@ def experiment_dropout(
         console.print(f"  {_outcome(rows[-1])}", markup=False)
         relative(rows)
         (root / EXPERIMENT_JSON).write_text(json.dumps(summary, indent=2))
-        if rows[-1]["reason"] == INTERRUPTED:  # Ctrl-C or SIGTERM: that mission landed and cleaned up; stop here
+        if was_interrupted(rows[-1]):
             console.print("experiment dropout: interrupted", markup=False)
             break
     console.print(table(config, rows))

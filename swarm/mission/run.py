@@ -207,6 +207,11 @@ def run_mission(
     return report
 
 
+def was_interrupted(report: dict[str, Any]) -> bool:
+    """The mission ended on Ctrl-C or SIGTERM (it landed and cleaned up): a caller running several stops here."""
+    return report.get("reason") == INTERRUPTED
+
+
 def _start_simulator(plan: RunPlan, state: RunState) -> None:
     sim_config = plan.config.model_copy(deep=True)
     sim_config.sim.spawns = plan.spawns

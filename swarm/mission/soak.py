@@ -26,7 +26,7 @@ from rich.table import Table
 from swarm.config import ConfigError, SwarmConfig
 from swarm.errors import SwarmError
 from swarm.mission.report import held_patch_ids, read_json, sealed_patch_ids
-from swarm.mission.run import INTERRUPTED, RunState, run_mission
+from swarm.mission.run import RunState, run_mission, was_interrupted
 from swarm.netem.commands import NetemUnavailable, check_prerequisites
 
 WARMUP_S = 20.0
@@ -170,7 +170,7 @@ def soak(config: SwarmConfig, minutes: float, out: Path, seed: int, console: Con
         console.print(f"swarm soak: mission {index}: {fault}, loss {loss if loss is not None else '-'}")
         result = _one_mission(config, out / f"mission-{index:03d}", fault, loss)
         missions.append(result)
-        if result["reason"] == INTERRUPTED:  # Ctrl-C (or SIGTERM): the mission landed and cleaned up; stop here
+        if was_interrupted(result):
             console.print("swarm soak: interrupted")
             break
         growth = [a["rss_growth"] for a in result["agents"] if a["rss_growth"] is not None]

@@ -189,7 +189,7 @@ def _within(views: np.ndarray, point: Vec3, radius: float) -> np.ndarray:
 
 def assign_targets(candidates: Sequence[Candidate], positions: Mapping[int, Vec3], *, lam: float, sigma: float,
                    current: Mapping[int, Vec3] | None = None, current_bonus: float = 1.0, own_bonus: float = 1.0,
-                   keep_radius: float = 1.0, unreachable: Mapping[int, Sequence[Vec3]] | None = None,
+                   keep_radius: float = 1.0, unreachable: Mapping[int, Sequence[Vec3] | np.ndarray] | None = None,
                    unreachable_radius: float = 1.0) -> dict[int, Candidate | None]:
     """Alg. 3.5, sequentially over members in ascending id (the leader assigns itself too): for each member, the
     argmax over unassigned candidates of the utility (Euclidean 3D distances from positions to viewpoints;
