@@ -366,12 +366,14 @@ class Exploration:
         grid = self.grid
         assert grid is not None
         try:
-            return await asyncio.to_thread(
+            path = await asyncio.to_thread(
                 plan_path, grid.planning_grid, self.position(), goal, max_expansions=PLAN_EXPANSIONS
             )
         except NoPathError as exc:
             self.log("no_path", goal=_r(goal), reason=str(exc))
             return None
+        self.log("path", waypoints=[_r(p) for p in path])
+        return path
 
     def _cannot_reach(self, target: Target) -> None:
         """No path to the target's viewpoint in this drone's map: it is not given to this drone again for

@@ -42,6 +42,9 @@ def build_report(
             {
                 "id": k,
                 "distance_m": round(float(truth.get("distance_m", 0.0)), 2),
+                "closest_world_m": truth.get("closest_world_m"),
+                "closest_world_at": truth.get("closest_world_at"),
+                "closest_drone_m": truth.get("closest_drone_m"),
                 "bytes_sent": int(summary.get("bytes_sent", 0)),
                 "bytes_received": int(summary.get("bytes_received", 0)),
                 "landed": truth.get("landed_state") == "on_ground" and not truth.get("armed", True),
@@ -83,6 +86,8 @@ def build_report(
         "run_dir": str(plan.out),
         "drones": plan.config.mission.drones,
         "duration_s": round(max(0.0, state.finished - state.started), 2) if state.started else 0.0,
+        # unix time of the mission clock's zero: an agent log's `t` minus this is the report's mission time
+        "started_at": round(getattr(state, "started_wall", 0.0), 3),
         "collisions": int((sim or {}).get("collisions", 0)),
         "explored_fraction": float((observer or {}).get("explored_fraction", 0.0)),
         "explored_timeline": explored_timeline,

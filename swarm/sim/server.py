@@ -23,7 +23,7 @@ import numpy as np
 from swarm.config import ConfigError, SwarmConfig, gcs_port, vehicle_port
 from swarm.errors import PortInUseError, SwarmError, WorldError
 from swarm.files import write_json_atomic
-from swarm.sim.collisions import CollisionMonitor
+from swarm.sim.collisions import CRUISE_HEIGHT_M, CollisionMonitor
 from swarm.sim.px4 import FlightMode
 from swarm.sim.vehicle import Downlink, SimVehicle
 from swarm.sim.worlds import World, load_world, spawn_points
@@ -206,7 +206,8 @@ class SimServer:
         aps = [v.autopilot for v in self.vehicles.values()]
         positions = np.array([ap.position for ap in aps])
         airborne = np.array([ap.airborne for ap in aps])
-        self.collisions.update(self._t, positions, airborne)
+        cruising = np.array([ap.height > CRUISE_HEIGHT_M for ap in aps])
+        self.collisions.update(self._t, positions, airborne, cruising)
 
     # --- status ------------------------------------------------------------------------------------------------
 
@@ -227,6 +228,9 @@ class SimServer:
                     "landed_state": v["landed_state"],
                     "distance_m": v["distance_m"],
                     "collisions": self.collisions.counts[vid],
+                    "closest_world_m": _rounded(self.collisions.closest_world(vid)),
+                    "closest_world_at": _rounded_point(self.collisions.closest_world_at(vid)),
+                    "closest_drone_m": _rounded(self.collisions.closest_drone(vid)),
                     "gcs_seen": v["gcs_seen"],
                     "last_gcs_message_age_s": v["last_gcs_message_age_s"],
                 })
@@ -331,6 +335,14 @@ def _print_endpoints(endpoints: list[dict]) -> None:
             f"  (agent: swarm agent --id {ep['id']} --autopilot {ep['connect_url']})"
         )
     sys.stdout.flush()
+
+
+def _rounded(gap: float | None) -> float | None:
+    return None if gap is None else round(gap, 3)
+
+
+def _rounded_point(point: list[float] | None) -> list[float] | None:
+    return None if point is None else [round(c, 3) for c in point]
 
 
 def summary_line(status: dict) -> str:

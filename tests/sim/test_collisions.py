@@ -1,5 +1,7 @@
 """Collision events counted by the simulator, stepped with a fake clock (no sockets)."""
 
+import math
+
 import numpy as np
 import pytest
 
@@ -99,3 +101,22 @@ def test_a_home_inside_a_wall_is_refused(box_world: World) -> None:
     config = load_config(overrides={"mission.world": "box", "sim.spawns": [[2.0, 3.0, 0.0], [4.07, 4.0, 0.0]]})
     with pytest.raises(WorldError, match="vehicle 2"):
         SimServer(config, box_world)
+
+
+def test_the_closest_approach_to_the_world_and_to_another_drone_is_measured(box_world: World) -> None:
+    # vehicle 1 hovers 0.3 m from the wall stub's end face (y = 3.0): its 0.2 m sphere is 0.1 m from it
+    flight = Flight(box_world, [(4.07, 2.7, 0.0), (2.0, 1.5, 0.0), (1.0, 4.5, 0.0)])
+    flight.go(1, (4.07, 2.7, 1.5))
+    flight.go(2, (4.07, 1.9, 1.5))  # 0.8 m from vehicle 1: the spheres are 0.4 m apart
+    flight.run(6.0)
+    first, second, grounded = flight.status["vehicles"]
+    assert flight.status["collisions"] == 0
+    assert first["closest_world_m"] == pytest.approx(0.1, abs=0.01)
+    assert first["closest_world_at"][:2] == pytest.approx([4.07, 2.7], abs=0.02)  # the stub is full height
+    # never within NEAR_GAP_M of a surface, take-off included
+    assert second["closest_world_m"] is None and second["closest_world_at"] is None
+    assert first["closest_drone_m"] == pytest.approx(0.4, abs=0.02)
+    assert second["closest_drone_m"] == pytest.approx(0.4, abs=0.02)
+    assert grounded["closest_world_m"] is None  # it never flew
+    # ... but others flew near it: closest when vehicle 2 took off from (2.0, 1.5), 3.16 m away
+    assert grounded["closest_drone_m"] == pytest.approx(math.hypot(1.0, 3.0) - 0.4, abs=0.02)
