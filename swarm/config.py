@@ -349,6 +349,11 @@ class ExploreSettings(_Section):
         0.25, description="planned paths keep this far from mapped obstacle cells (drone radius + 5 cm: at 0.2 m a "
         "drone touched a wall end; at 0.35 m the 0.2 m grid cut 1.1 m doorways off)"
     )
+    roomy_clearance_m: float = Field(
+        0.45, ge=0.0, le=2.0, description="paths keep this far from mapped obstacles where the space allows, and "
+        "come down to clearance_m only in narrow passages (at the minimum alone, a drone passed every wall end "
+        "0.05 m from contact); at most clearance_m: off"
+    )
     body_height_m: float = Field(
         0.45, ge=0.0, le=2.0, description="the airframe reaches this far above the position it reports; planned "
         "positions need clearance_m up to there (the simulator's drone: its sphere's top is 0.42 m up)"

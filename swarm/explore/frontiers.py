@@ -16,6 +16,8 @@ UNKNOWN, FREE or OCCUPIED per cell, cell (i, j, k) spanning `origin + [i, i+1) x
   cell is OCCUPIED when any of its voxels is, so on a 0.2 m grid a wall surface can take up to 0.2 m of a
   doorway on each side: a 1.1 m office door showed 0.8 m of free cells, none of them 0.25 m clear of both jambs,
   and a room stayed unexplored. From the voxels, such a door keeps one or two safe cells whatever its alignment.
+- roomy cell: a safe cell that is also safe with `roomy_clearance_m` instead of `clearance_m` (the planner
+  keeps to those where it can), when that is the larger.
 - reachable: the safe cells 26-connected to the safe cell nearest a position (searched within 1.5 m).
 - open unknown: an UNKNOWN cell not 26-adjacent to an OCCUPIED cell (crevices next to obstacles do not count),
   in a 26-connected component of open unknown cells of at least `min_unknown_m3` (specks inside known space do
@@ -70,7 +72,7 @@ class ExplorationGrid:
     frontiers are."""
 
     def __init__(self, origin: np.ndarray, resolution: float, states: np.ndarray, safe: np.ndarray,
-                 band: tuple[int, int], settings: ExploreSettings) -> None:
+                 band: tuple[int, int], settings: ExploreSettings, roomy: np.ndarray | None = None) -> None:
         """Use `from_states`; this only stores what it computed."""
         self.origin, self.resolution, self.settings = origin, resolution, settings
         self._occupied = states == OCCUPIED
@@ -83,7 +85,7 @@ class ExplorationGrid:
             round(settings.min_unknown_m3 / resolution**3),
         )
         self._band = band
-        self.planning_grid = OccupancyGrid(origin, resolution, ~safe)
+        self.planning_grid = OccupancyGrid(origin, resolution, ~safe, roomy=roomy)
 
     @classmethod
     def from_states(cls, origin: ArrayLike, resolution: float, states: np.ndarray, settings: ExploreSettings,
@@ -110,7 +112,12 @@ class ExplorationGrid:
         safe = _with_room_above((states == FREE) & ~blocked, body_cells)
         safe[:, :, :k0] = False
         safe[:, :, k1:] = False
-        return cls(origin_, float(resolution), states, safe, (k0, k1), settings)
+        roomy = None
+        if settings.roomy_clearance_m > settings.clearance_m:
+            roomy_cells = max(math.ceil((settings.body_height_m - settings.roomy_clearance_m) / resolution - _EPS), 0)
+            wide = _blocked(states, occupied_fine, settings.roomy_clearance_m / resolution)
+            roomy = _with_room_above((states == FREE) & ~wide, roomy_cells) & safe
+        return cls(origin_, float(resolution), states, safe, (k0, k1), settings, roomy)
 
     def reachable(self, position: Vec3) -> np.ndarray:
         """Bool mask of the safe cells 26-connected to the safe cell nearest `position`; all False if none."""

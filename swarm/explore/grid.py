@@ -29,6 +29,8 @@ class OccupancyGrid:
     resolution: float  # cell edge, metres
     occupied: np.ndarray  # (nx, ny, nz) bool
     unknown: np.ndarray | None = None  # (nx, ny, nz) bool; None when every cell is known
+    # (nx, ny, nz) bool: free cells with room to spare (a wider clearance), which the planner prefers; None: all
+    roomy: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.origin = np.asarray(self.origin, dtype=float).reshape(3)
@@ -42,6 +44,10 @@ class OccupancyGrid:
             self.unknown = np.asarray(self.unknown, dtype=bool)
             if self.unknown.shape != self.occupied.shape:
                 raise ValueError(f"unknown has shape {self.unknown.shape}, occupied {self.occupied.shape}")
+        if self.roomy is not None:
+            self.roomy = np.asarray(self.roomy, dtype=bool) & ~self.occupied
+            if self.roomy.shape != self.occupied.shape:
+                raise ValueError(f"roomy has shape {self.roomy.shape}, occupied {self.occupied.shape}")
 
     @property
     def shape(self) -> tuple[int, int, int]:

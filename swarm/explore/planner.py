@@ -3,6 +3,13 @@
 The grid given to `plan_path` must already be inflated by the drone's radius (`OccupancyGrid.inflate`): the
 planner treats a point as safe exactly when its cell is free. Replanning after a map update is a new call on
 the new grid; `path_is_free` tells whether a path planned earlier is still clear.
+
+When the grid marks its `roomy` cells (free with a wider clearance), paths keep to them where they can: a step
+into a free cell that is not roomy costs NOT_ROOMY_COST times its length, and a shortcut may leave the roomy
+cells only through cells the A* path itself used. Shortcutting alone pulls every path taut against the
+obstacles it turns around, so without this a drone passes each wall end at exactly the minimum clearance, and
+any shortfall of the map (a thin wall's end face seen edge-on is reconstructed up to a voxel short) or of the
+tracking becomes a contact. Narrow passages (doorways) still use the minimum.
 """
 
 from __future__ import annotations
@@ -19,6 +26,9 @@ from swarm.explore.grid import OccupancyGrid
 
 # A start or goal in a blocked cell is moved to the nearest free cell centre at most this many cell edges away.
 SNAP_RADIUS_CELLS = 2.0
+# A step into a free cell that is not roomy costs this many times its length (a metre near an obstacle is worth
+# a detour of up to two through open space).
+NOT_ROOMY_COST = 3.0
 
 _SQRT2 = math.sqrt(2.0)
 _SQRT3 = math.sqrt(3.0)
@@ -42,8 +52,9 @@ def plan_path(
 ) -> list[Vec3]:
     """World waypoints from `start` to `goal` whose every segment crosses only free cells of `grid`.
 
-    A* over the 26-connected free cells (Euclidean step cost), then greedy line-of-sight shortcutting, so a
-    straight corridor gives two points. The first and last points are `start` and `goal` themselves when
+    A* over the 26-connected free cells (Euclidean step cost, NOT_ROOMY_COST times that into free cells that
+    are not roomy when the grid marks roomy cells), then greedy line-of-sight shortcutting, so a straight
+    corridor gives two points. The first and last points are `start` and `goal` themselves when
     their cells are free; otherwise the nearest free cell centre within SNAP_RADIUS_CELLS cells, or
     NoPathError. `z_limits` (min, max) restricts the search to the grid layers whose centre lies within it;
     limits no wider than a cell, such as (z, z), select the one layer containing their middle. Intermediate
@@ -55,7 +66,7 @@ def plan_path(
     goal_point = _free_endpoint(grid, search_grid, goal, "goal")
     cells = _astar(search_grid, start_point, goal_point, max_expansions)
     waypoints = [start_point, *(search_grid.centre_of(c) for c in cells), goal_point]
-    return [_as_vec3(p) for p in _shortcut(search_grid, _drop_repeats(waypoints))]
+    return [_as_vec3(p) for p in _shortcut(_shortcut_grid(search_grid, cells), _drop_repeats(waypoints))]
 
 
 def path_length(path: Sequence[Sequence[float]]) -> float:
@@ -91,7 +102,18 @@ def _restrict_to_layers(grid: OccupancyGrid, z_limits: tuple[float, float]) -> O
         raise NoPathError(f"z_limits {z_limits} lie outside the grid's altitude range")
     origin = grid.origin + np.array([0.0, 0.0, low * grid.resolution])
     unknown = None if grid.unknown is None else grid.unknown[:, :, low:high]
-    return OccupancyGrid(origin, grid.resolution, grid.occupied[:, :, low:high], unknown)
+    roomy = None if grid.roomy is None else grid.roomy[:, :, low:high]
+    return OccupancyGrid(origin, grid.resolution, grid.occupied[:, :, low:high], unknown, roomy)
+
+
+def _shortcut_grid(grid: OccupancyGrid, path_cells: list[np.ndarray]) -> OccupancyGrid:
+    """Where shortcuts may go: the roomy cells and the cells of the A* path (every free cell when none is
+    marked roomy)."""
+    if grid.roomy is None:
+        return grid
+    allowed = grid.roomy.copy()
+    allowed[tuple(np.asarray(path_cells).T)] = True
+    return OccupancyGrid(grid.origin, grid.resolution, ~allowed)
 
 
 def _free_endpoint(grid: OccupancyGrid, search_grid: OccupancyGrid, point: Vec3, name: str) -> np.ndarray:
@@ -126,6 +148,7 @@ def _astar(grid: OccupancyGrid, start: np.ndarray, goal: np.ndarray, max_expansi
     # The search loop runs in plain Python on flat buffers: for 26 neighbours, per-element access to
     # array.array/bytearray beats numpy's per-call overhead about twice over (measured), at 8 bytes a cell.
     heuristic = array.array("d", _octile_distance_to(goal_cell, shape).ravel().tobytes())
+    step_cost = array.array("d", _step_cost_factors(grid).ravel().tobytes())
     open_cells = bytearray(padded_free.ravel().tobytes())
     cost = array.array("d", np.full(padded_free.size, np.inf).tobytes())
     parent = array.array("q", np.full(padded_free.size, -1, dtype=np.int64).tobytes())
@@ -147,13 +170,22 @@ def _astar(grid: OccupancyGrid, start: np.ndarray, goal: np.ndarray, max_expansi
         for offset, length in neighbours:
             neighbour = cell + offset
             if open_cells[neighbour]:
-                new_cost = cell_cost + length
+                new_cost = cell_cost + length * step_cost[neighbour]
                 if new_cost < cost[neighbour]:
                     cost[neighbour] = new_cost
                     parent[neighbour] = cell
                     # Ties on f go to the deeper node (higher cost so far): far fewer expansions on plateaus.
                     push(heap, (new_cost + heuristic[neighbour], -new_cost, neighbour))
     raise NoPathError(f"goal {_fmt(goal)} is unreachable from start {_fmt(start)} ({expansions} cells searched)")
+
+
+def _step_cost_factors(grid: OccupancyGrid) -> np.ndarray:
+    """Per padded cell, what a step into it costs per unit of length: 1, or NOT_ROOMY_COST where the grid marks
+    roomy cells and this is not one (>= 1 everywhere: the octile heuristic stays admissible)."""
+    factors = np.ones(tuple(n + 2 for n in grid.shape))
+    if grid.roomy is not None:
+        factors[1:-1, 1:-1, 1:-1] = np.where(grid.roomy, 1.0, NOT_ROOMY_COST)
+    return factors
 
 
 def _octile_distance_to(goal_cell: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:

@@ -167,3 +167,40 @@ def test_office_far_corner_through_two_doors() -> None:
     assert path[0] == (1.0, 1.0, 1.5) and path[-1] == (29.0, 19.0, 1.5)
     _assert_collision_free(path, inflated)
     assert path_length(path) < 45.0
+
+
+def _with_roomy(raw: OccupancyGrid, clearance_m: float, roomy_m: float) -> OccupancyGrid:
+    planning = raw.inflate(clearance_m)
+    return OccupancyGrid(planning.origin, planning.resolution, planning.occupied, roomy=~raw.inflate(roomy_m).occupied)
+
+
+def test_a_path_round_a_wall_end_keeps_the_wider_clearance_where_there_is_room() -> None:
+    raw = empty_grid((8.0, 6.0, 3.0), resolution=0.1)
+    fill(raw, (4.0, 3.0, 0.0), (4.19, 6.0, 3.0))  # a wall stub from y = 6 down to its end at y = 3
+    start, goal = (2.0, 4.5, 1.5), (6.0, 4.5, 1.5)
+
+    taut = plan_path(raw.inflate(0.25), start, goal)
+    assert clearance(raw, densify(taut, 0.02)).min() < 0.35  # shortcutting pulls it against the wall end
+
+    path = plan_path(_with_roomy(raw, 0.25, 0.45), start, goal)
+    assert path[0] == start and path[-1] == goal
+    assert clearance(raw, densify(path, 0.02)).min() >= 0.45 - 1e-9
+    assert path_length(path) < 1.15 * path_length(taut)
+
+
+def test_a_door_too_narrow_for_the_wider_clearance_is_flown_at_the_minimum() -> None:
+    raw = room_with_wall(door_open=True)  # 1.2 m: no cell of it is 0.45 m clear of both jambs
+    grid = _with_roomy(raw, 0.25, 0.45)
+    assert not grid.roomy[20:22].any()  # the wall's and the door's cells, x 4.0..4.4
+    path = plan_path(grid, (1.0, 0.6, 1.0), (7.0, 5.4, 1.0))
+    _assert_collision_free(path, grid)
+    assert clearance(raw, densify(path, 0.02)).min() >= 0.25 - 1e-9
+
+
+def test_z_limits_keep_the_roomy_cells_of_their_layers() -> None:
+    raw = empty_grid((8.0, 6.0, 3.0))
+    fill(raw, (4.0, 3.0, 0.0), (4.19, 6.0, 3.0))
+    grid = _with_roomy(raw, 0.25, 0.45)
+    path = plan_path(grid, (2.0, 4.5, 1.5), (6.0, 4.5, 1.5), z_limits=(1.5, 1.5))
+    assert [p[2] for p in path] == pytest.approx([1.5] * len(path))
+    assert clearance(raw, densify(path, 0.02)).min() >= 0.45 - 1e-9
