@@ -126,6 +126,11 @@ class Flight:
         self._last_check = time.monotonic()
         self._judge_telemetry_after = 0.0
 
+    @property
+    def setpoint(self) -> Vec3 | None:
+        """The position setpoint the drone was last led by on a path (the carrot), or None."""
+        return self._carrot
+
     def _set_phase(self, phase: Phase) -> None:
         if phase != self.phase:
             self.phase = phase
@@ -185,7 +190,12 @@ class Flight:
         return tel.armed and tel.landed_state == "IN_AIR"
 
     async def fly_path(self, path: list[Vec3], stop: asyncio.Event, interrupt: asyncio.Event | None = None) -> bool:
-        """Fly the waypoints in order; False as soon as `interrupt` is set (or a yield lasted too long)."""
+        """Fly the waypoints in order, from where the drone is; False as soon as `interrupt` is set (or a yield
+        lasted too long)."""
+        # A path is planned from the drone's position. The carrot of an interrupted path can be a metre ahead
+        # of the drone, round a corner of that path: a first segment from there is one nobody checked (a drone
+        # cut through a doorway with its top in the lintel).
+        self._carrot = None
         for waypoint in path:
             if not await self._fly_segment_to(waypoint, stop, interrupt):
                 return False

@@ -1,0 +1,74 @@
+"""Path following against the simulator through real MAVSDK: a new path starts where the drone is."""
+
+from __future__ import annotations
+
+import asyncio
+
+import numpy as np
+import pytest
+
+from swarm.agent.autopilot import Autopilot
+from swarm.agent.flight import Flight, distance_to_segment
+from swarm.config import gcs_port
+from swarm.sim.worlds import load_world
+from tests.sim.support import free_port_block, running_sim, sim_config
+
+pytestmark = pytest.mark.timeout(120)
+
+HOME = (1.0, 1.5, 0.0)  # the box's open strip south of its wall stub
+ALTITUDE = 1.5
+
+
+async def _redirected_mid_segment() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
+    """Fly east, interrupt the path at full speed, then fly a new path north-west from where the drone is;
+    returns where the new path started, its goal, the positions flown and the setpoints sent along it, and
+    the simulator's status."""
+    config = sim_config(free_port_block(), **{"mission.drones": 1, "sim.spawns": [HOME]})
+    with running_sim(config, load_world("box")) as server:
+        autopilot = Autopilot(f"udpin://127.0.0.1:{gcs_port(config.sim, 1)}", config.mission.origin)
+        settings = config.agent.model_copy(update={"id": 1, "altitude_m": ALTITUDE, "hover_s": 0.0})
+        flight = Flight(autopilot, settings, lambda *a, **kw: None)
+        flown: list[np.ndarray] = []
+        setpoints: list[np.ndarray] = []
+        start: list[np.ndarray] = []
+        goal = np.zeros(3)
+
+        async def mission(flight: Flight, stop: asyncio.Event) -> None:
+            interrupt = asyncio.Event()
+            asyncio.get_running_loop().call_later(3.0, interrupt.set)
+            assert not await flight.fly_path([(7.0, 1.5, ALTITUDE)], stop, interrupt=interrupt)
+            here = np.array(flight.ap.telemetry.position)
+            start.append(here)
+            goal[:] = (1.0, 5.0, ALTITUDE)  # north-west: passes the stub's end (x 4.0-4.15, y >= 3) well clear
+
+            async def record() -> None:
+                while True:
+                    flown.append(np.array(flight.ap.telemetry.position))
+                    if flight.setpoint is not None:
+                        setpoints.append(np.array(flight.setpoint))
+                    await asyncio.sleep(0.05)
+
+            recorder = asyncio.create_task(record())
+            try:
+                assert await flight.fly_path([tuple(goal)], stop)
+            finally:
+                recorder.cancel()
+
+        stop = asyncio.Event()
+        try:
+            await flight.run(mission, stop)
+        finally:
+            await flight.ap.close()
+        return start[0], goal, np.array(flown), np.array(setpoints), server.status()
+
+
+def test_a_new_path_starts_from_the_drone_not_from_the_interrupted_paths_setpoint() -> None:
+    start, goal, flown, setpoints, status = asyncio.run(_redirected_mid_segment())
+    assert status["collisions"] == 0
+    assert np.linalg.norm(flown[-1] - goal) < 0.35
+    # The drone was moving east at cruise speed, its old setpoint up to a metre ahead of it: the new path's
+    # setpoints must lie on the planned segment itself, not on one from that stale setpoint
+    assert len(setpoints) > 20
+    assert max(distance_to_segment(p, start, goal) for p in setpoints) < 0.05
+    # ... and the drone flies it, carried off only by its momentum
+    assert max(distance_to_segment(p, start, goal) for p in flown) < 0.35
