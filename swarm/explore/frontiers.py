@@ -7,11 +7,14 @@ UNKNOWN, FREE or OCCUPIED per cell, cell (i, j, k) spanning `origin + [i, i+1) x
 - safe cell: a cell where the drone's reported position may be. It and the
   ceil((body_height_m - clearance_m) / res) cells above it (the airframe stands above its position) are known
   FREE with no point closer than `clearance_m` to an obstacle (the conservative rasterisation of
-  `OccupancyGrid.inflate`), and its centre is inside the flight band
+  `OccupancyGrid.inflate`), none of the ceil((body_height_m + clearance_m) / res) cells above it is UNKNOWN
+  (above the grid counts as unknown: a ceiling nobody saw, the drone's top would touch), and its centre is
+  inside the flight band
   z in [floor_z + min_altitude_m, top_z - ceiling_margin_m]. UNKNOWN cells are never safe but are not inflated:
   otherwise every frontier would sit behind a wall of blocked cells. UNKNOWN cells whose centre is within
-  `clearance_m` of a `free_points` entry or of the column above it (a drone's own position: space a drone
-  occupies is free), and the cells holding those, count as FREE; OCCUPIED is never overridden.
+  `clearance_m` of a `free_points` entry or of the column of ceil((body_height_m + clearance_m) / res) cells
+  above it (a drone's own position: space a drone occupies, and has room above, is free), and the cells
+  holding those, count as FREE; OCCUPIED is never overridden.
   Obstacles are the occupied voxels when the caller gives them (`occupied_fine`), else the OCCUPIED cells. A
   cell is OCCUPIED when any of its voxels is, so on a 0.2 m grid a wall surface can take up to 0.2 m of a
   doorway on each side: a 1.1 m office door showed 0.8 m of free cells, none of them 0.25 m clear of both jambs,
@@ -101,7 +104,10 @@ class ExplorationGrid:
         # The cells above a position that must be clear too: the clearance already reaches clearance_m above
         # the top of the last one, so together they cover the airframe up to body_height_m above the cell's top.
         body_cells = max(math.ceil((settings.body_height_m - settings.clearance_m) / resolution - _EPS), 0)
-        column = np.array([[0.0, 0.0, j * resolution] for j in range(body_cells + 1)])
+        # Unknown space is not inflated (see the module docstring), but the airframe and its clearance above it
+        # must have been seen: cameras look ahead, and a ceiling nobody looked at is unknown, not absent.
+        seen_cells = math.ceil((settings.body_height_m + settings.clearance_m) / resolution - _EPS)
+        column = np.array([[0.0, 0.0, j * resolution] for j in range(max(seen_cells, body_cells + 1))])
         body_points = [tuple(np.asarray(p, dtype=float) + c) for p in free_points for c in column]
         states = _mark_free(states, origin_, resolution, body_points, settings.clearance_m)
         blocked = _blocked(states, occupied_fine, settings.clearance_m / resolution)
@@ -109,7 +115,7 @@ class ExplorationGrid:
         high = (top_z - settings.ceiling_margin_m - origin_[2]) / resolution - 0.5
         k0 = max(math.ceil(low - _EPS), 0)
         k1 = max(min(math.floor(high + _EPS) + 1, states.shape[2]), k0)
-        safe = _with_room_above((states == FREE) & ~blocked, body_cells)
+        safe = _with_room_above((states == FREE) & ~blocked, body_cells) & ~_under_unknown(states, seen_cells)
         safe[:, :, :k0] = False
         safe[:, :, k1:] = False
         roomy = None
@@ -306,6 +312,16 @@ def _coarsen(mask: np.ndarray, f: int) -> np.ndarray:
     for axis in range(3):  # strided ORs: several times faster than .any() over a 6D reshape
         parts = [np.take(out, np.arange(i, out.shape[axis], f), axis=axis) for i in range(f)]
         out = np.logical_or.reduce(parts) if f > 1 else out
+    return out
+
+
+def _under_unknown(states: np.ndarray, cells: int) -> np.ndarray:
+    """Cells with an UNKNOWN cell among the `cells` cells above them (above the grid counts as unknown)."""
+    unknown = np.concatenate([states == UNKNOWN, np.ones(states.shape[:2] + (cells,), dtype=bool)], axis=2)
+    out = np.zeros(states.shape, dtype=bool)
+    nz = states.shape[2]
+    for j in range(1, cells + 1):
+        out |= unknown[:, :, j : j + nz]
     return out
 
 

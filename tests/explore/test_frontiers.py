@@ -1,5 +1,6 @@
 import dataclasses
 import itertools
+import math
 
 import numpy as np
 import pytest
@@ -280,6 +281,23 @@ def test_a_drone_needs_room_for_its_airframe_above_its_position() -> None:
     assert _grid(states, airframe, free_points=[(2.1, 3.1, 0.9)]).planning_grid.is_free((2.1, 3.1, 0.9))
 
 
+def test_a_drone_flies_only_where_the_space_above_its_airframe_has_been_seen() -> None:
+    # The room of the test above with its top unseen from z = 2.4 m (the ceiling and the layers under it): a
+    # drone's position needs body_height_m + clearance_m = 0.7 m, 4 cells, of seen space above its cell, so
+    # the highest safe layer is k = 7 (1.4..1.6 m) where, with the ceiling seen, it was k = 10.
+    states = room_states(known_to_x=8.0)
+    airframe = SETTINGS.model_copy(update={"ceiling_margin_m": 0.01, "body_height_m": 0.45})
+    heights = [0.9 + 0.2 * k for k in range(8)]  # cell centres 0.9 .. 2.3 m
+    assert [_grid(states, airframe).planning_grid.is_free((2.0, 3.0, z)) for z in heights] == [True] * 7 + [False]
+    states[:, :, 12:] = UNKNOWN
+    unseen = _grid(states, airframe)
+    assert [unseen.planning_grid.is_free((2.0, 3.0, z)) for z in heights] == [True] * 4 + [False] * 4
+    # a drone up there (it climbed before the map caught up) can still plan from where it is
+    here = (2.1, 3.1, 2.1)
+    assert not unseen.planning_grid.is_free(here)
+    assert _grid(states, airframe, free_points=[here]).planning_grid.is_free(here)
+
+
 def test_gain_is_larger_facing_a_large_unknown_region_than_a_small_pocket() -> None:
     states = room_states(known_to_x=6.0)
     set_states(states, (2.0, 3.0, 1.2), (2.39, 3.39, 1.59), UNKNOWN)  # a 2 x 2 x 2 cell pocket in mid-air
@@ -339,7 +357,10 @@ def test_free_points_make_the_drones_unknown_cell_plannable() -> None:
     assert grid.reachable(position)[_cell(position)]
     assert all(grid.planning_grid.is_free(f.viewpoint) for f in grid.frontiers(position))
     centres = (np.indices(states.shape).reshape(3, -1).T + 0.5) * RES
-    ball = (np.linalg.norm(centres - position, axis=1) <= SETTINGS.clearance_m).reshape(states.shape)
+    # the position and the column above it that must have been seen: up to clearance_m over a point drone
+    column = [np.add(position, (0.0, 0.0, j * RES)) for j in range(math.ceil(SETTINGS.clearance_m / RES))]
+    ball = (np.min([np.linalg.norm(centres - p, axis=1) for p in column], axis=0) <= SETTINGS.clearance_m).reshape(
+        states.shape)
     freed = int(ball.sum())
     assert blind.gain_at(np.array([position]))[0] - grid.gain_at(np.array([position]))[0] == pytest.approx(freed * RES**3)
 
@@ -493,7 +514,14 @@ def test_safe_cells_are_the_free_cells_outside_the_inflated_obstacles(clearance:
     settings = SETTINGS.model_copy(update={"clearance_m": clearance})
     grid = ExplorationGrid.from_states((0.0, 0.0, 0.0), RES, states, settings, floor_z=-10.0, top_z=10.0)
     inflated = OccupancyGrid(np.zeros(3), RES, states == OCCUPIED).inflate(clearance).occupied
-    np.testing.assert_array_equal(grid.planning_grid.occupied, inflated | (states != FREE))
+    # ... and the cells with an unknown cell (or the grid's top) less than `clearance` above their top
+    above = math.ceil(clearance / RES - 1e-9)
+    nz = states.shape[2]
+    under_unknown = np.zeros(states.shape, dtype=bool)
+    for k in range(nz):
+        column = states[:, :, k + 1 : k + 1 + above] == UNKNOWN
+        under_unknown[:, :, k] = column.any(axis=2) | (k + above >= nz)
+    np.testing.assert_array_equal(grid.planning_grid.occupied, inflated | (states != FREE) | under_unknown)
 
 
 def test_a_half_explored_warehouse() -> None:
