@@ -101,6 +101,12 @@ class FaultSpec(_Section):
         return f"{self.kind}:agent={self.agent}@{self.at:g}{tail}"
 
 
+DEFAULT_MAX_TIME_S = 420.0
+# A lone drone needed 909 s to finish the warehouse (6,400 m^3), three drones 299 s: 0.25 s/m^3 per drone leaves
+# room for the slower runs and still ends a stuck mission.
+MAX_TIME_S_PER_M3_PER_DRONE = 0.25
+
+
 class MissionSettings(_Section):
     """What the swarm is asked to do, and where."""
 
@@ -110,7 +116,10 @@ class MissionSettings(_Section):
     start: Vec3 | None = Field(None, description="take-off area centre; the world's default when unset")
     spawn_spacing_m: PositiveFloat = 1.5
     volume: Box | None = Field(None, description="mission volume; the world mesh bounds when unset")
-    max_time_s: PositiveFloat = Field(420.0, description="the mission stops (drones land) after this long")
+    max_time_s: PositiveFloat | None = Field(
+        None, description=f"the mission stops (drones land) after this long; unset: {DEFAULT_MAX_TIME_S:g} s, or "
+        f"{MAX_TIME_S_PER_M3_PER_DRONE:g} s per cubic metre of mission volume per drone when that is longer"
+    )
     seed: int = 0
     out: Path | None = Field(None, description="run directory; runs/<timestamp>-<world> when unset")
     origin: GeoOrigin = GeoOrigin()
@@ -127,6 +136,12 @@ class MissionSettings(_Section):
         False, description="swarm run: a fresh CA and certificates in OUT/certs; every session on mutual TLS with "
         "access control (a drone publishes only under its own id)"
     )
+
+    def time_limit_s(self, volume_m3: float) -> float:
+        """`max_time_s`, or when unset the default for a mission volume of `volume_m3` and these drones."""
+        if self.max_time_s is not None:
+            return self.max_time_s
+        return max(DEFAULT_MAX_TIME_S, MAX_TIME_S_PER_M3_PER_DRONE * volume_m3 / self.drones)
 
     @model_validator(mode="after")
     def _links_need_netns(self) -> MissionSettings:

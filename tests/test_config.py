@@ -62,3 +62,16 @@ def test_parse_override_reads_toml_values_and_falls_back_to_strings() -> None:
 def test_dump_round_trips() -> None:
     config = load_config(None, {"mission.start": [1, 2, 0], "agent.waypoints": [[0, 0, 1]]})
     assert SwarmConfig.model_validate(dump_config(config)) == config
+
+
+def test_the_default_time_limit_grows_with_the_mission_volume_per_drone() -> None:
+    from swarm.config import DEFAULT_MAX_TIME_S, MAX_TIME_S_PER_M3_PER_DRONE
+
+    mission = load_config(overrides={"mission.drones": 1}).mission
+    assert mission.max_time_s is None
+    assert mission.time_limit_s(100.0) == DEFAULT_MAX_TIME_S  # small worlds: the floor
+    assert mission.time_limit_s(6400.0) == 6400.0 * MAX_TIME_S_PER_M3_PER_DRONE
+    three = load_config(overrides={"mission.drones": 3}).mission
+    assert three.time_limit_s(6400.0) == pytest.approx(6400.0 * MAX_TIME_S_PER_M3_PER_DRONE / 3)
+    given = load_config(overrides={"mission.drones": 1, "mission.max_time_s": 90.0}).mission
+    assert given.time_limit_s(6400.0) == 90.0

@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import tomli_w
 from pydantic import ValidationError
 
@@ -135,11 +136,13 @@ def plan(
         )
     world = load_world(m.world)
     spawns = spawn_points(world, m.start, drones, m.spawn_spacing_m)
+    lo, hi = mission_volume(world, m.volume)
+    time_limit = m.model_copy(update={"drones": drones}).time_limit_s(float(np.prod(hi - lo)))
+    m = m.model_copy(update={"max_time_s": time_limit})
     routes: dict[int, Any] = {}
     if config.explore.strategy == "scripted":
         from swarm.mission.routes import scripted_routes
 
-        lo, hi = mission_volume(world, m.volume)
         planned = scripted_routes(world, spawns, lo, hi, config.sim.drone_radius_m, config.agent.cruise_speed_m_s)
         routes = {route.drone_id: route for route in planned}
 

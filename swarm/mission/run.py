@@ -94,9 +94,10 @@ class RunState:
 
 def prepare(config: SwarmConfig) -> RunPlan:
     """Validate everything and plan the flights; raises SwarmError (one line) before any process starts."""
+    world = load_world(config.mission.world)
+    lo, hi = mission_volume(world, config.mission.volume)
+    config = with_time_limit(config, world)
     m = config.mission
-    world = load_world(m.world)
-    lo, hi = mission_volume(world, m.volume)
     spawns = spawn_points(world, m.start, m.drones, m.spawn_spacing_m)
     scenario = None
     if m.network == "netns":
@@ -116,6 +117,20 @@ def prepare(config: SwarmConfig) -> RunPlan:
     if out.exists() and any(out.iterdir()):
         raise SwarmError(f"output directory {out} is not empty")
     return RunPlan(config, world, out, spawns, routes, (lo, hi), scenario)
+
+
+def time_limit_s(config: SwarmConfig, world: World | None = None) -> float:
+    """`mission.max_time_s`, or when unset the default for the mission's volume and drones."""
+    if config.mission.max_time_s is not None:
+        return config.mission.max_time_s
+    lo, hi = mission_volume(world or load_world(config.mission.world), config.mission.volume)
+    return config.mission.time_limit_s(float(np.prod(hi - lo)))
+
+
+def with_time_limit(config: SwarmConfig, world: World) -> SwarmConfig:
+    """`config` with `mission.max_time_s` set (`time_limit_s`)."""
+    limit = time_limit_s(config, world)
+    return config.model_copy(update={"mission": config.mission.model_copy(update={"max_time_s": limit})})
 
 
 def _netns_scenario(config: SwarmConfig) -> Scenario:

@@ -125,7 +125,8 @@ def test_each_agent_impairs_its_own_radio_then_runs(compose: dict[str, Any]) -> 
         netem, _, agent = script.partition(" && exec ")
         assert netem == f"swarm deploy netem --address {radio} --loss {LOSS:g}"
         assert agent.endswith(f"swarm agent --config /etc/swarm/agent-{k}.toml")
-        assert agent.startswith("timeout --signal=TERM")  # mission.max_time_s, as swarm run --max-time
+        # mission.max_time_s, as swarm run --max-time: unset, the default for the box and three drones
+        assert agent.startswith("timeout --signal=TERM --kill-after=") and " 420 swarm agent" in agent
         assert service["depends_on"]["sim"] == {"condition": "service_healthy"}
     assert len(radios) == DRONES
 
@@ -152,6 +153,7 @@ def test_configs_load_and_wire_the_bus(generated: tuple[Path, Deployment]) -> No
     assert set(loaded) == {"sim", "observer", *(f"agent-{k}" for k in range(1, DRONES + 1))}
     for config in loaded.values():
         assert config.mission.drones == DRONES and config.mission.world == "box"
+        assert config.mission.max_time_s == 420.0  # the default, resolved for the containers' own timeout
     for k in range(1, DRONES + 1):
         agent = loaded[f"agent-{k}"]
         assert agent.agent.id == k

@@ -34,6 +34,14 @@ def test_cells_take_medians_and_ranges_and_ratios_use_the_one_drone_median() -> 
     assert three["collisions"] == 1 and three["complete"] == 3
 
 
+def test_the_closest_approach_is_the_smallest_measured_in_any_mission() -> None:
+    rows = [_run("coordinated", 3, 50.0, closest_world_m=None), _run("coordinated", 3, 60.0, closest_world_m=0.12),
+            _run("coordinated", 3, 70.0, closest_world_m=0.04), _run("coordinated", 1, 100.0, closest_world_m=None)]
+    three, one = summarise(rows)
+    assert three["closest_world_m"] == 0.04
+    assert one["closest_world_m"] is None  # never under the simulator's NEAR_GAP_M
+
+
 def test_a_mission_that_never_reached_95_percent_counts_as_its_whole_duration_and_is_counted() -> None:
     rows = [_run("uncoordinated", 2, 80.0), _run("uncoordinated", 2, None, duration=420.0, status="timeout"),
             _run("uncoordinated", 2, 90.0)]
@@ -55,7 +63,8 @@ def test_each_strategy_is_compared_with_its_own_single_drone_cell() -> None:
 def _report(cfg: SwarmConfig, reason: str = "") -> dict:
     return {
         "status": "failed" if reason else "complete", "reason": reason, "duration_s": 100.0,
-        "explored_fraction": 0.97, "time_to": {"0.95": 80.0}, "agents": [{"distance_m": 50.0}],
+        "explored_fraction": 0.97, "time_to": {"0.95": 80.0},
+        "agents": [{"distance_m": 50.0, "closest_world_m": 0.1}, {"distance_m": 40.0, "closest_world_m": None}],
         "overlap_fraction": 0.5, "bandwidth": {"bytes_per_agent_s": 40_000.0}, "collisions": 0,
         "run_dir": str(cfg.mission.out),
     }
