@@ -186,7 +186,10 @@ class Exploration:
         """Replan when the map now shows the path blocked; drop a target that is no longer a frontier."""
         if self.grid is None or self.target is None:
             return
-        if self.path and not path_is_free(self.grid.planning_grid, [self.position(), *self.path]):
+        here = self.position()
+        # from a cell that is not safe, the path's first leg leads to a safe one: only the rest can be blocked
+        legs = [here, *self.path] if self.grid.planning_grid.is_free(here) else self.path
+        if self.path and not path_is_free(self.grid.planning_grid, legs):
             self.log("path_blocked", target=_r(self.target.viewpoint))
             self.retarget.set()
         if not self.grid.is_frontier_near(self.target.point, self.settings.cluster_size_m):
@@ -341,8 +344,8 @@ class Exploration:
             if path is None:
                 self._cannot_reach(target)
                 continue
-            self.path = path[1:]
-            reached = await flight.fly_path(path[1:], stop, interrupt=self.retarget)
+            self.path = path
+            reached = await flight.fly_path(path, stop, interrupt=self.retarget)
             self.path = []
             if reached and self.target is target:
                 await flight.face(target.point, self.settings.dwell_s, stop)
@@ -363,17 +366,22 @@ class Exploration:
             await asyncio.gather(self._decisions, return_exceptions=True)
 
     async def _plan(self, goal: Vec3) -> list[Vec3] | None:
+        """The waypoints to fly from here to `goal`, or None. When the drone is in a cell that is not safe (it
+        stepped aside, or the map grew round it), the path starts at the nearest safe cell and so does the
+        flight: straight from the drone to the second waypoint was never checked (a drone that had stepped up
+        flew through a doorway with its top in the lintel)."""
         grid = self.grid
         assert grid is not None
+        here = self.position()
         try:
             path = await asyncio.to_thread(
-                plan_path, grid.planning_grid, self.position(), goal, max_expansions=PLAN_EXPANSIONS
+                plan_path, grid.planning_grid, here, goal, max_expansions=PLAN_EXPANSIONS
             )
         except NoPathError as exc:
             self.log("no_path", goal=_r(goal), reason=str(exc))
             return None
         self.log("path", waypoints=[_r(p) for p in path])
-        return path
+        return path[1:] if path[0] == here else path
 
     def _cannot_reach(self, target: Target) -> None:
         """No path to the target's viewpoint in this drone's map: it is not given to this drone again for
@@ -412,7 +420,7 @@ class Exploration:
             if path is None:
                 reason = "no path home"
                 break
-            if await flight.fly_path(path[1:], stop):
+            if await flight.fly_path(path, stop):
                 return
             self.log("return_replan", attempt=attempt)  # gave way too long: plan again from here
         self.log("land_in_place", reason=reason)

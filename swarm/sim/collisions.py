@@ -59,7 +59,7 @@ class CollisionMonitor:
         self._closest_drone = np.full(len(self.ids), np.inf)
 
     def closest_world(self, vid: int) -> float | None:
-        """The smallest gap (m) between vehicle `vid`'s sphere and the world while airborne; None when it never
+        """The smallest gap (m) between vehicle `vid`'s sphere and the world while cruising; None when it never
         came within NEAR_GAP_M (negative: it was inside a surface)."""
         gap = self._closest_world[self.ids.index(vid)]
         return float(gap) if gap < NEAR_GAP_M else None

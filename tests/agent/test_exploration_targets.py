@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from typing import Any
 
+import pytest
+
 from swarm.agent.exploration import UNREACHABLE_GIVE_UP, UNREACHABLE_RETRY_S, Exploration, Target
 from swarm.config import load_config
 from swarm.roles.membership import PeerTable
@@ -70,3 +72,29 @@ def test_a_target_without_a_path_is_kept_from_this_drone_a_while_then_given_up(m
     exploration._cannot_reach(behind_a_door)
     assert exploration.visited == [behind_a_door.point]  # the last try: nobody is sent there again
     assert events[-1]["event"] == "unreachable_given_up"
+
+
+def test_from_a_cell_that_is_not_safe_the_flight_starts_at_the_nearest_safe_cell() -> None:
+    import asyncio
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from swarm.explore.grid import OccupancyGrid
+
+    blocked = np.zeros((20, 20, 15), dtype=bool)  # 4 x 4 x 3 m at 0.2 m
+    blocked[:, :, 9:] = True  # nothing is safe above 1.8 m (under a lintel, say)
+    grid = OccupancyGrid(np.zeros(3), 0.2, blocked)
+    exploration = _exploration([])
+    exploration.grid = SimpleNamespace(planning_grid=grid)  # type: ignore[assignment]  # only the grid is read
+    goal = (3.0, 1.0, 1.5)
+
+    exploration.position = lambda: (1.0, 1.0, 1.5)  # a safe cell: the path's start is the drone itself
+    path = asyncio.run(exploration._plan(goal))
+    assert path == [goal]
+
+    exploration.position = lambda: (1.0, 1.0, 1.9)  # stepped up out of the safe cells
+    path = asyncio.run(exploration._plan(goal))
+    assert path is not None and len(path) == 2 and path[-1] == goal
+    first = np.array(path[0])  # first down to the nearest safe cell centre (the top safe layer, 1.6-1.8 m)
+    assert grid.is_free(first) and first[2] == pytest.approx(1.7) and np.linalg.norm(first - (1.0, 1.0, 1.9)) < 0.3
