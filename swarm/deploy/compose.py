@@ -32,14 +32,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import tomli_w
 from pydantic import ValidationError
 
 from swarm.config import ConfigError, SwarmConfig, dump_config, vehicle_port
 from swarm.deploy import yamltext
 from swarm.errors import SwarmError
-from swarm.sim.worlds import BUILTIN_WORLDS, load_world, mission_volume, spawn_points
+from swarm.sim.worlds import BUILTIN_WORLDS, load_world, mission_time_limit_s, mission_volume, spawn_points
 
 RADIO_SUBNET = ipaddress.ip_network("10.77.1.0/24")
 CONTROL_SUBNET = ipaddress.ip_network("10.77.2.0/24")
@@ -136,13 +135,12 @@ def plan(
         )
     world = load_world(m.world)
     spawns = spawn_points(world, m.start, drones, m.spawn_spacing_m)
-    lo, hi = mission_volume(world, m.volume)
-    time_limit = m.model_copy(update={"drones": drones}).time_limit_s(float(np.prod(hi - lo)))
-    m = m.model_copy(update={"max_time_s": time_limit})
+    m = m.model_copy(update={"max_time_s": mission_time_limit_s(m.model_copy(update={"drones": drones}), world)})
     routes: dict[int, Any] = {}
     if config.explore.strategy == "scripted":
         from swarm.mission.routes import scripted_routes
 
+        lo, hi = mission_volume(world, m.volume)
         planned = scripted_routes(world, spawns, lo, hi, config.sim.drone_radius_m, config.agent.cruise_speed_m_s)
         routes = {route.drone_id: route for route in planned}
 

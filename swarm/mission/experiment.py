@@ -30,8 +30,9 @@ from swarm.config import ConfigError, SwarmConfig
 from swarm.errors import SwarmError
 from swarm.mission.bench import _console_and_root
 from swarm.mission.experiment_plot import DROPOUT_PNG, plot_dropout
-from swarm.mission.run import run_mission, time_limit_s, was_interrupted
+from swarm.mission.run import run_mission, was_interrupted
 from swarm.netem.scenario import load_scenario
+from swarm.sim.worlds import mission_time_limit_s
 
 DEFAULT_LEVELS = (0.0, 0.1, 0.3, 0.5)
 EXPERIMENT_JSON = "experiment.json"
@@ -88,7 +89,7 @@ def validate(config: SwarmConfig, levels: list[float], cut_and_heal: bool, cut_a
                 raise ConfigError(f"the {what} time must be seconds after take-off (got {t:g})")
         if heal_at_s <= cut_at_s:
             raise ConfigError(f"the heal ({heal_at_s:g} s) must come after the cut ({cut_at_s:g} s)")
-        max_time_s = time_limit_s(config)
+        max_time_s = mission_time_limit_s(config.mission)
         if heal_at_s >= max_time_s:
             raise ConfigError(f"the heal ({heal_at_s:g} s) would come after the mission's max time ({max_time_s:g} s)")
 

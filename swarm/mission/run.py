@@ -46,7 +46,7 @@ from swarm.netem.commands import NetemUnavailable, check_prerequisites
 from swarm.netem.network import SwarmNetwork
 from swarm.netem.profile import refuse_delay
 from swarm.netem.scenario import Scenario, load_scenario
-from swarm.sim.worlds import World, load_world, mission_volume, spawn_points
+from swarm.sim.worlds import World, load_world, mission_time_limit_s, mission_volume, spawn_points
 
 SIM_READY_TIMEOUT_S = 30.0
 LANDING_GRACE_S = 60.0
@@ -119,17 +119,9 @@ def prepare(config: SwarmConfig) -> RunPlan:
     return RunPlan(config, world, out, spawns, routes, (lo, hi), scenario)
 
 
-def time_limit_s(config: SwarmConfig, world: World | None = None) -> float:
-    """`mission.max_time_s`, or when unset the default for the mission's volume and drones."""
-    if config.mission.max_time_s is not None:
-        return config.mission.max_time_s
-    lo, hi = mission_volume(world or load_world(config.mission.world), config.mission.volume)
-    return config.mission.time_limit_s(float(np.prod(hi - lo)))
-
-
 def with_time_limit(config: SwarmConfig, world: World) -> SwarmConfig:
-    """`config` with `mission.max_time_s` set (`time_limit_s`)."""
-    limit = time_limit_s(config, world)
+    """`config` with `mission.max_time_s` set (`mission_time_limit_s`)."""
+    limit = mission_time_limit_s(config.mission, world)
     return config.model_copy(update={"mission": config.mission.model_copy(update={"max_time_s": limit})})
 
 

@@ -17,7 +17,7 @@ from typing import Callable
 import numpy as np
 import open3d as o3d
 
-from swarm.config import Box
+from swarm.config import Box, MissionSettings
 from swarm.errors import WorldError
 from swarm.sim import layouts
 
@@ -346,3 +346,12 @@ def mission_volume(world: World | None, volume: Box | None) -> tuple[np.ndarray,
     if world is None:
         raise ValueError("no mission volume configured and no world to take its bounds from")
     return world.bounds
+
+
+def mission_time_limit_s(mission: MissionSettings, world: World | None = None) -> float:
+    """`mission.max_time_s`, or when unset the default for the mission's volume and drones (`world`: the
+    mission's world, loaded when not given and needed)."""
+    if mission.max_time_s is not None:
+        return mission.max_time_s
+    lo, hi = mission_volume(world or load_world(mission.world), mission.volume)
+    return mission.time_limit_s(float(np.prod(hi - lo)))

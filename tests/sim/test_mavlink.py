@@ -227,7 +227,8 @@ def test_status_file_and_endpoints(port_base: int, box_world: World, tmp_path) -
         assert vehicle["mode"] == "HOLD" and vehicle["landed_state"] == "on_ground" and not vehicle["armed"]
         assert vehicle["gcs_seen"] is False and vehicle["last_gcs_message_age_s"] is None
         assert set(vehicle) == {"id", "vehicle_port", "gcs_port", "home", "position", "velocity", "armed", "mode",
-                                "landed_state", "distance_m", "collisions", "closest_world_m", "closest_world_at", "closest_drone_m", "gcs_seen",
+                                "landed_state", "distance_m", "collisions", "closest_world_m", "closest_world_at",
+                                "closest_drone_m", "gcs_seen",
                                     "last_gcs_message_age_s"}
     finally:
         stop.set()
