@@ -284,13 +284,21 @@ class CameraSettings(_Section):
         return self
 
 
+WeightLaw = Literal["constant", "inverse_square", "dropoff"]
+
+
 class MappingSettings(_Section):
     """The shared TSDF lattice (mission constants: every patch carries them) and patch sealing."""
 
     voxel_size_m: float = Field(0.1, ge=0.02, le=1.0)
     block_resolution: int = Field(8, ge=4, le=32, description="voxels per block edge")
     truncation_voxels: float = Field(4.0, ge=1.0, le=16.0)
-    weight_law: Literal["constant", "inverse_square"] = "constant"
+    weight_law: WeightLaw = Field(
+        "dropoff",
+        description="how much one observation weighs: dropoff (1, falling linearly to 0 from one voxel behind the "
+        "surface to the truncation distance, as in voxblox: guesses behind a surface no longer close doors), "
+        "constant (1), inverse_square (1 / z^2)",
+    )
     known_weight: PositiveFloat = Field(1.0, description="a voxel is known once its summed weight reaches this")
     patch_frames: int = Field(15, ge=1, le=255, description="seal the open patch every K frames")
     patch_distance_m: PositiveFloat = Field(2.0, description="... or after the drone moved this far")

@@ -10,8 +10,10 @@ each patch's tsdf.
 Storage is a block pool (rows of R^3 voxels) with a dense block-index grid over the mission volume; blocks of
 a patch outside that volume are ignored.
 
-Classification (Hardouin 2022, section 1.2): known = W >= known threshold; occupied = known and tsdf <= 0;
-free = known and tsdf > 0; unknown otherwise.
+Classification (after Hardouin 2022, section 1.2): known = W >= known threshold; free = known and tsdf > 0;
+occupied = observed (W > 0) and tsdf <= 0, known or not; unknown otherwise. An obstacle counts as soon as anything
+saw it there: under the "dropoff" weight law a thin wall seen only edge-on gets weights far below the threshold,
+and requiring the threshold let such a wall read as free space.
 """
 
 from __future__ import annotations
@@ -281,7 +283,7 @@ class FusedMap:
         flat, ok = flat.reshape(len(rows), r**3), ok.reshape(len(rows), r**3)
         weight, total_sum = self._weight[rows], self._sum[rows]
         known = ok & (weight >= self.known_units)
-        occupied = known & (total_sum <= 0)
+        occupied = ok & (weight > 0) & (total_sum <= 0)
         known_per_cell = np.bincount(flat[known], minlength=n_cells)
         occupied_cells = np.zeros(n_cells, dtype=bool)
         occupied_cells[flat[occupied]] = True
@@ -309,7 +311,7 @@ class FusedMap:
         if n == 0:
             return states
         known = self._weight[:n] >= self.known_units
-        occupied = known & (self._sum[:n] <= 0)
+        occupied = (self._weight[:n] > 0) & (self._sum[:n] <= 0)
         if min_known >= 1.0:
             enough_known = _reduce_cells(known, np.logical_and, r, f)
         else:
@@ -370,5 +372,5 @@ def _reduce_cells(voxels: np.ndarray, combine: np.ufunc, r: int, f: int) -> np.n
 
 
 def _classify(weight: np.ndarray, total: np.ndarray, known_units: int) -> np.ndarray:
-    known = weight >= known_units
-    return np.where(known & (total <= 0), np.uint8(OCCUPIED), np.where(known, np.uint8(FREE), np.uint8(UNKNOWN)))
+    occupied = (weight > 0) & (total <= 0)
+    return np.where(occupied, np.uint8(OCCUPIED), np.where(weight >= known_units, np.uint8(FREE), np.uint8(UNKNOWN)))

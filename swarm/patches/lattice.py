@@ -12,24 +12,25 @@ Conventions are Open3D's `VoxelBlockGrid` ones, so its arrays can be used withou
 
 The weight law is part of the lattice because it fixes what a weight means (and how it is quantised on the
 wire): "constant" adds 1 per observation (wire unit 1, uint8); "inverse_square" adds (1 m / z)^2 with z the
-distance from the sensor to the voxel (wire unit 1/256, uint16).
+distance from the sensor to the voxel (wire unit 1/256, uint16); "dropoff" adds 1 in front of the surface and
+down to one voxel behind it, then less, linearly, down to 0 at the truncation distance (voxblox's drop-off;
+wire unit 1/16, uint16).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal
+from typing import get_args
 
 import numpy as np
 
-from swarm.config import MappingSettings
+from swarm.config import MappingSettings, WeightLaw
 
-WeightLaw = Literal["constant", "inverse_square"]
-WEIGHT_LAWS: tuple[str, ...] = ("constant", "inverse_square")
+WEIGHT_LAWS: tuple[str, ...] = get_args(WeightLaw)
 
-_WEIGHT_UNIT = {"constant": 1.0, "inverse_square": 1.0 / 256.0}
-_WEIGHT_DTYPE = {"constant": np.dtype(np.uint8), "inverse_square": np.dtype(np.uint16)}
+_WEIGHT_UNIT = {"constant": 1.0, "inverse_square": 1.0 / 256.0, "dropoff": 1.0 / 16.0}
+_WEIGHT_DTYPE = {"constant": np.dtype(np.uint8), "inverse_square": np.dtype(np.uint16), "dropoff": np.dtype(np.uint16)}
 
 
 @dataclass(frozen=True)

@@ -2,8 +2,8 @@
 
 A patch holds its voxels in the quantised form that travels on the wire, and fusion uses exactly that form:
 tsdf as int8 = round(tsdf * 127), weight as unsigned integers in the lattice's weight unit (constant law: uint8
-= min(w, 255), exact up to 255 frames; inverse-square law: uint16 in 1/256, see `Lattice`). Only blocks with at
-least one observed voxel are kept; unobserved voxels have weight 0 and tsdf 0.
+= min(w, 255), exact up to 255 frames; inverse-square law: uint16 in 1/256; drop-off law: uint16 in 1/16, see
+`Lattice`). Only blocks with at least one observed voxel are kept; unobserved voxels have weight 0 and tsdf 0.
 """
 
 from __future__ import annotations

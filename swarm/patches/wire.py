@@ -27,7 +27,7 @@ Decompression writes into a buffer of the expected size plus one byte, so it nev
 from __future__ import annotations
 
 import zlib
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any
 
 import msgpack
 import numpy as np
@@ -37,6 +37,7 @@ from pydantic import Field
 from swarm.bus import codec
 from swarm.bus.codec import WireMessage
 from swarm.bus.messages import AgentId, Counter, Vec3
+from swarm.config import WeightLaw
 from swarm.patches.lattice import Lattice
 from swarm.patches.patch import TSDF_SCALE, FrameSpan, Patch, PatchId, VoxelBlocks, is_rigid
 
@@ -71,7 +72,7 @@ class PatchMessage(WireMessage):
     block_resolution: int = Field(ge=2, le=64)
     truncation_voxels: float = Field(gt=0.0)
     origin: Vec3
-    weight_law: Literal["constant", "inverse_square"]
+    weight_law: WeightLaw
     first_frame: Counter
     last_frame: Counter
     t_first: float

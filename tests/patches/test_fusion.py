@@ -42,7 +42,7 @@ def mapped(law: str) -> tuple[Mapper, list[Patch], VoxelBlockGridBackend]:
     return mapper, patches + [last], single
 
 
-@pytest.fixture(scope="module", params=["constant", "inverse_square"])
+@pytest.fixture(scope="module", params=["constant", "inverse_square", "dropoff"])
 def flown(request):
     return request.param, *mapped(request.param)
 

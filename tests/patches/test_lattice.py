@@ -9,10 +9,11 @@ from swarm.patches.lattice import Lattice
 def test_from_settings_and_equality() -> None:
     settings = MappingSettings(voxel_size_m=0.2, block_resolution=8, truncation_voxels=3.0)
     lattice = Lattice.from_settings(settings)
-    assert lattice == Lattice(0.2, 8, 3.0, (0.0, 0.0, 0.0), "constant")
+    assert lattice == Lattice(0.2, 8, 3.0, (0.0, 0.0, 0.0), "dropoff")
     assert lattice.block_size == pytest.approx(1.6)
     assert lattice.truncation_m == pytest.approx(0.6)
-    assert lattice != Lattice(0.2, 8, 3.0, (0.0, 0.0, 0.1))
+    assert lattice != Lattice(0.2, 8, 3.0, (0.0, 0.0, 0.1), "dropoff")
+    assert lattice != Lattice(0.2, 8, 3.0)  # a bare Lattice keeps the plain TSDF: constant weights
     assert lattice != Lattice(0.2, 8, 3.0, weight_law="inverse_square")
     with pytest.raises(ValueError):
         Lattice(voxel_size=0.0)

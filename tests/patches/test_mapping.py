@@ -4,11 +4,11 @@ the coarse occupancy grid."""
 import numpy as np
 import pytest
 
-from swarm.patches.backend import VoxelBlockGridBackend
+from swarm.patches.backend import VoxelBlockGridBackend, dropoff_weight
 from swarm.patches.carving import frame_blocks
 from swarm.patches.fused import FREE, OCCUPIED, UNKNOWN, FusedMap
 from swarm.patches.lattice import Lattice
-from swarm.patches.patch import FrameSpan, Patch, PatchId, quantise
+from swarm.patches.patch import FrameSpan, Patch, PatchId, VoxelBlocks, quantise
 from tests.patches.scene import (
     CENTRE,
     MAX_RANGE,
@@ -132,3 +132,45 @@ def test_an_empty_map_answers_unknown_everywhere(tmp_path) -> None:
     assert vertices.shape == (0, 3) and triangles.shape == (0, 3)
     assert fused.write_mesh(tmp_path / "empty.ply") == (0, 0)
     assert fused.digest() == FusedMap(Lattice(0.1, 8, 4.0), BOUNDS).digest()
+
+
+def test_the_dropoff_weight_is_one_down_to_a_voxel_behind_the_surface_then_falls_to_zero() -> None:
+    tsdf = np.array([1.0, 0.0, -0.25, -0.5, -0.75, -1.0], dtype=np.float32)  # truncation 4 voxels: one is 0.25
+    np.testing.assert_allclose(dropoff_weight(tsdf, 4.0), [1.0, 1.0, 1.0, 2 / 3, 1 / 3, 0.0], atol=1e-6)
+    np.testing.assert_allclose(dropoff_weight(tsdf, 1.0), np.ones(6))  # one voxel of truncation: nothing to drop
+
+
+def test_dropoff_weights_fall_behind_the_surface_and_leave_the_free_space_whole() -> None:
+    lattice = Lattice(0.1, 8, 4.0, weight_law="dropoff")
+    backend = VoxelBlockGridBackend(lattice)
+    K, T = intrinsics(), pose(CENTRE, 0.0)  # the wall x = 6 straight ahead, 3 m away
+    for _ in range(2):
+        backend.integrate(render_room(K, T), K, T, MAX_RANGE)
+    arrays = backend.extract()
+    points = lattice.voxel_to_point(lattice.block_voxel_indices(arrays.keys).reshape(-1, 3))
+    weight, tsdf = arrays.weight.ravel(), arrays.tsdf.ravel()
+    assert np.all(np.isfinite(tsdf))
+    on_axis = (np.abs(points[:, 1] - 2.5) < 0.01) & (np.abs(points[:, 2] - 1.5) < 0.01)
+    x, w = points[on_axis, 0], weight[on_axis]
+    np.testing.assert_allclose(w[(x > 3.5) & (x <= 6.1)], 2.0, rtol=1e-5)  # free space, the wall's face, 1 voxel
+    behind = {round(float(a), 1): float(b) for a, b in zip(x, w) if a > 6.15 and b > 0}
+    np.testing.assert_allclose([behind[6.2], behind[6.3]], [2 * 2 / 3, 2 * 1 / 3], rtol=1e-4)
+    assert 6.4 not in behind  # the truncation distance: weight 0, not observed
+
+
+def test_an_obstacle_counts_as_soon_as_it_is_seen_and_free_space_once_it_is_known() -> None:
+    # Under the drop-off law a guess behind a surface weighs less than the known threshold: it must still be an
+    # obstacle (a thin wall seen only edge-on is nothing but such guesses), while free space needs the threshold.
+    lattice = Lattice(0.1, 8, 4.0, weight_law="dropoff")
+    r3 = lattice.voxels_per_block
+    keys = np.array([[0, 0, 0]], dtype=np.int32)
+    weight = np.zeros((1, r3), dtype=np.uint16)
+    tsdf = np.zeros((1, r3), dtype=np.int8)
+    weight[0, :4] = (1, 1, 16, 16)  # 1/16 and 1 (the known threshold) in units of 1/16
+    tsdf[0, :4] = (-60, 60, -60, 60)
+    fused = FusedMap(lattice, ((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0)))
+    fused.add(Patch.seal(PatchId(1, 0, 0), lattice, FrameSpan(0, 0, 0.0, 0.0), np.eye(4), VoxelBlocks(keys, tsdf, weight)))
+    points = lattice.voxel_to_point(np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0], [4, 0, 0]]))
+    assert fused.state_at(points).tolist() == [OCCUPIED, UNKNOWN, OCCUPIED, FREE, UNKNOWN]
+    _, voxels = fused.occupancy_grid(0.1, (-0.05, -0.05, -0.05), (0.45, 0.05, 0.05))
+    assert voxels[:, 0, 0].tolist() == [OCCUPIED, UNKNOWN, OCCUPIED, FREE, UNKNOWN]

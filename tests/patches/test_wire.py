@@ -162,7 +162,8 @@ def test_array_contents_are_validated(patch: Patch) -> None:
     m, n = patch.block_count, patch.lattice.voxels_per_block
 
     def with_arrays(keys, tsdf, weight) -> bytes:
-        raw = keys.astype("<i2").tobytes() + tsdf.astype(np.int8).tobytes() + weight.astype("<u1").tobytes()
+        weight_dtype = patch.lattice.weight_dtype.newbyteorder("<")
+        raw = keys.astype("<i2").tobytes() + tsdf.astype(np.int8).tobytes() + weight.astype(weight_dtype).tobytes()
         payload = zstandard.ZstdCompressor(level=1).compress(raw)
         return tamper(encode_patch(patch), payload=payload, voxel_count=int(np.count_nonzero(weight)))
 
