@@ -169,7 +169,8 @@ def test_an_obstacle_counts_as_soon_as_it_is_seen_and_free_space_once_it_is_know
     weight[0, :4] = (1, 1, 16, 16)  # 1/16 and 1 (the known threshold) in units of 1/16
     tsdf[0, :4] = (-60, 60, -60, 60)
     fused = FusedMap(lattice, ((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0)))
-    fused.add(Patch.seal(PatchId(1, 0, 0), lattice, FrameSpan(0, 0, 0.0, 0.0), np.eye(4), VoxelBlocks(keys, tsdf, weight)))
+    blocks = VoxelBlocks(keys, tsdf, weight)
+    fused.add(Patch.seal(PatchId(1, 0, 0), lattice, FrameSpan(0, 0, 0.0, 0.0), np.eye(4), blocks))
     points = lattice.voxel_to_point(np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0], [4, 0, 0]]))
     assert fused.state_at(points).tolist() == [OCCUPIED, UNKNOWN, OCCUPIED, FREE, UNKNOWN]
     _, voxels = fused.occupancy_grid(0.1, (-0.05, -0.05, -0.05), (0.45, 0.05, 0.05))
