@@ -10,11 +10,11 @@ Separation: `neighbours()` gives the other airborne drones' positions, velocitie
 the segment each is flying), from their heartbeats, positions extrapolated to now. The lower id has the right
 of way. A drone closer than `separation_m` to a lower id stops and steps out of its way (up or down when the
 other hovers; else to the nearest point the map lets it fly straight to, `is_clear`, well off the other's
-segment) until the other has passed, then rejoins its segment where it left it unless the map shows the
-straight way on clear (from a refuge beside a doorway, the line to the waypoint beyond it clips the jamb). The
-drone with the right of way holds its position while a higher id is very close and in its way (not one that
-stepped off its segment), and gives the segment up after MAX_YIELD_S. A drone about to
-land first waits for any drone under it to move off, and lands beside one that sits on the ground there.
+segment) until the other has passed, then flies back to where it left its segment and on along it, unless the
+map shows the straight way on clear (from a refuge beside a doorway, the line to the waypoint beyond it clips the
+jamb). The drone with the right of way holds its position while a higher id is very close and in its way (not
+one that stepped off its segment), and gives the segment up after MAX_YIELD_S. A drone about to land first waits
+for any drone under it to move off, and lands beside one that sits on the ground there.
 
 Fail safe: if position telemetry stops for `telemetry_timeout_s` while airborne, the drone is told to hold,
 then to land, and the flight ends in phase `failsafe`; if telemetry comes back, the agent watches the landing
@@ -55,6 +55,7 @@ PASS_CLEARANCE_M = 0.6  # ... that is in its way: this close to the rest of its 
 # STEP_ASIDE_M off the segment is not, and holding for it would deadlock both)
 SLOW_M_S = 0.2  # a peer slower than this, going nowhere, has no track to step off: the yielder climbs or descends
 REFUGE_CLEAR_M = PASS_CLEARANCE_M + 0.2  # a refuge this far off the other's segment lets it pass
+REJOIN_TOLERANCE_M = 0.1  # a drone flying its step aside back is at the segment again this close to it
 MAX_YIELD_S = 8.0  # yielding longer than this gives up the path (the mission replans)
 LAND_CLEAR_M = PASS_CLEARANCE_M  # a drone this close horizontally under us is in the way of a landing
 GROUNDED_M = 0.3  # a drone this low above our home's floor, and slow, sits on the ground
@@ -218,7 +219,11 @@ class Flight:
             await self.ap.set_setpoint(hold, yaw)
             await self._tick(stop, end + 1.0, "the end of a look")
 
-    async def _fly_segment_to(self, goal: Vec3, stop: asyncio.Event, interrupt: asyncio.Event | None = None) -> bool:
+    async def _fly_segment_to(self, goal: Vec3, stop: asyncio.Event, interrupt: asyncio.Event | None = None,
+                              tolerance: float | None = None) -> bool:
+        """Fly the straight segment from the carrot (else the drone) to `goal`, reached within `tolerance` (by
+        default the waypoint tolerance); False when interrupted or a yield lasted too long."""
+        tolerance = self.settings.waypoint_tolerance_m if tolerance is None else tolerance
         here = np.array(self.ap.telemetry.position)
         start = np.array(self._carrot) if self._carrot is not None else here
         target = np.array(goal, dtype=float)
@@ -240,10 +245,13 @@ class Flight:
                     left_at = tuple(float(c) for c in position)
                     if not await self._step_aside(rival.id, stop, interrupt):
                         return False
-                    # resume from the refuge if the way on is clear, else from where we left the segment (the
-                    # refuge-to-left_at leg is the step aside flown back); the deadline restarts
+                    # resume from the refuge if the way on is clear, else from where we left the segment; the
+                    # deadline restarts
                     here = tuple(float(c) for c in self.ap.telemetry.position)
-                    start, travelled = np.array(resume_from(here, left_at, tuple(target.tolist()), self.is_clear)), 0.0
+                    resume = resume_from(here, left_at, tuple(target.tolist()), self.is_clear)
+                    if resume == left_at and not await self._fly_back_to(left_at, stop, interrupt):
+                        return False
+                    start, travelled = np.array(resume), 0.0
                     segment = target - start
                     length = float(np.linalg.norm(segment))
                     deadline = time.monotonic() + 20.0 + 3.0 * length / speed
@@ -267,10 +275,19 @@ class Flight:
                 carrot = start + segment * (travelled / length)
             self._carrot = tuple(float(c) for c in carrot)
             await self.ap.set_setpoint(self._carrot, yaw)
-            if travelled >= length and np.linalg.norm(target - position) < self.settings.waypoint_tolerance_m:
+            if travelled >= length and np.linalg.norm(target - position) < tolerance:
                 self.heading_to = None
                 return True
             await self._tick(stop, deadline, f"waypoint {tuple(round(c, 2) for c in goal)}")
+
+    async def _fly_back_to(self, left_at: Vec3, stop: asyncio.Event, interrupt: asyncio.Event | None) -> bool:
+        """Fly the step aside back, straight to where the segment was left, before going on along it. Going on at
+        once, the carrot runs along the segment while the drone is still off it, and the drone cuts the corner
+        between the two (from a step up in front of a door, its top went into the lintel)."""
+        if float(np.linalg.norm(np.subtract(self.ap.telemetry.position, left_at))) <= REJOIN_TOLERANCE_M:
+            return True
+        self._carrot = tuple(float(c) for c in self.ap.telemetry.position)
+        return await self._fly_segment_to(left_at, stop, interrupt, tolerance=REJOIN_TOLERANCE_M)
 
     def _rival(self, position: np.ndarray, target: np.ndarray) -> Neighbour | None:
         """The neighbour we must give way to (a lower id within the separation distance), or one we hold for: a

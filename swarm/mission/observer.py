@@ -36,6 +36,7 @@ from swarm.mission.coverage import SwarmCoverage
 
 SNAPSHOT_PERIOD_S = 0.5
 COVERAGE_PERIOD_S = 2.0
+NO_POSITION_PHASE = "connecting"  # before its autopilot's telemetry, an agent's heartbeat says (0, 0, 0)
 TRAJECTORY_PERIOD_S = 0.5  # at most one trajectory sample per agent this often: enough for a plot, small JSON
 FRESH_S = 2.0  # a heartbeat older than this no longer says which cluster the agent is in
 INACTIVE_PHASES = frozenset({"landed", "failed"})  # on the ground for good: in no cluster
@@ -167,7 +168,8 @@ class Observer:
             holdings=state.holdings.model_dump(mode="json"),
         )
         entry["heartbeats"] += 1
-        self.trajectories.add(state.id, time.time() - self.started, state.position)
+        if state.phase != NO_POSITION_PHASE:
+            self.trajectories.add(state.id, time.time() - self.started, state.position)
 
     def _follow_leaders(self) -> None:
         now = time.time()

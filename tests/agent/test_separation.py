@@ -29,7 +29,7 @@ from swarm.agent.flight import (
     refuge_candidates,
     resume_from,
 )
-from swarm.config import gcs_port
+from swarm.config import Vec3, gcs_port
 from swarm.sim.worlds import load_world
 from tests.sim.support import free_port_block, running_sim, sim_config
 
@@ -282,3 +282,67 @@ def test_a_refuge_is_not_reached_through_a_drone() -> None:
     assert all(c[2] > 1.3 for c in kept)  # nothing down through it
     assert any(c[2] < 1.3 for c in candidates)
     assert len(moves_clear_of(here, candidates, [])) == len(candidates)
+
+
+async def _step_up_and_rejoin() -> tuple[Vec3, list[Vec3], list[Vec3]]:
+    """Drone 2 flies east along the box's open strip; drone 1 hovers on its line (a neighbour from the test) and
+    is gone once drone 2 is half-way up its step aside. From up there the map shows no clear way on (is_clear
+    says so above 1.6 m, as a lintel ahead would), so drone 2 takes up its segment where it left it. Returns where
+    it left the segment, its refuges and the positions it flew through after the first step aside."""
+    config = sim_config(free_port_block(), **{"sim.spawns": [WEST]})
+    peer = Neighbour(1, (2.9, 2.0, ALTITUDE - 0.2), (0.0, 0.0, 0.0))  # a little lower: the step is up
+    left_at: list[Vec3] = []
+    refuges: list[Vec3] = []
+    track: list[Vec3] = []
+    with running_sim(config, load_world("box")):
+        autopilot = Autopilot(f"udpin://127.0.0.1:{gcs_port(config.sim, 1)}", config.mission.origin)
+        settings = config.agent.model_copy(update={"id": 2, "altitude_m": ALTITUDE, "hover_s": 0.0})
+
+        def log(event: str, **fields) -> None:
+            if event == "give_way":
+                left_at.append(autopilot.telemetry.position)
+                refuges.append(tuple(fields["refuge"]))
+
+        gone: list[bool] = []
+
+        def neighbours() -> list[Neighbour]:
+            if left_at and not gone and autopilot.telemetry.position[2] > left_at[0][2] + STEP_ASIDE_M / 2:
+                gone.append(True)
+            return [] if gone else [peer]
+
+        flight = Flight(autopilot, settings, log, separation_m=1.2, neighbours=neighbours,
+                        is_clear=lambda a, b: a[2] < ALTITUDE + 0.1 and b[2] < ALTITUDE + STEP_ASIDE_M + 0.1)
+
+        async def mission(f: Flight, stop: asyncio.Event) -> None:
+            async def record() -> None:
+                while True:
+                    if left_at:
+                        track.append(autopilot.telemetry.position)
+                    await asyncio.sleep(0.05)
+
+            recorder = asyncio.create_task(record())
+            try:
+                assert await f.fly_path([(EAST[0], EAST[1], ALTITUDE)], stop)
+            finally:
+                recorder.cancel()
+
+        try:
+            await flight.run(mission, asyncio.Event())
+        finally:
+            await autopilot.close()
+    assert left_at, "drone 2 never gave way: the scenario did not happen"
+    return left_at[0], refuges, track
+
+
+def test_a_drone_that_stepped_up_flies_back_down_before_going_on_along_its_segment() -> None:
+    left_at, refuges, track = asyncio.run(_step_up_and_rejoin())
+    assert refuges[0][2] > left_at[2] + STEP_ASIDE_M / 2  # it stepped up
+    highest = max(p[2] for p in track)
+    assert highest > left_at[2] + STEP_ASIDE_M / 2  # and was half-way up when the way cleared
+    # from the top of its step, going on at once, it flew a diagonal after the carrot: 0.3 m further on it was
+    # still 0.23 m above the segment (0.08 m when it flies the step back first)
+    top = max(range(len(track)), key=lambda i: track[i][2])
+    on = [p for p in track[top:] if p[0] > track[top][0] + 0.3]
+    assert on, "it never went on"
+    assert max(p[2] for p in on) < left_at[2] + 0.15
+    assert math.dist(track[-1][:2], EAST[:2]) < 0.6

@@ -182,6 +182,19 @@ def test_observer_builds_leaders_and_trajectories_from_heartbeats(monkeypatch: p
     assert samples["1"][0][1:] == [round(ts[0], 3), 2.0, 1.235]
 
 
+def test_a_connecting_agents_heartbeats_are_not_trajectory_samples(monkeypatch: pytest.MonkeyPatch) -> None:
+    # before telemetry the heartbeat's position is (0, 0, 0): the plot drew a line from the origin to each spawn
+    clock = FakeClock(1000.0)
+    monkeypatch.setattr(observer_module.time, "time", clock)
+    observer = Observer(load_config(None, {}), Path("unused.json"))
+    observer._on_state("k", _heartbeat(1, 1, 1, 0.0, "connecting"))
+    assert observer.trajectories.snapshot() == {}
+    assert observer.agents[1]["phase"] == "connecting"  # the heartbeat itself still counts
+    clock.t += 1.0
+    observer._on_state("k", _heartbeat(1, 1, 2, 3.0, "ready"))
+    assert [s[1] for s in observer.trajectories.snapshot()["1"]] == [3.0]
+
+
 def test_trajectories_keep_one_sample_per_half_second_per_agent() -> None:
     tracks = Trajectories()
     kept = [tracks.add(1, t, (t, 0.0, 1.0)) for t in (0.0, 0.2, 0.49, 0.5, 0.9, 1.1)]
