@@ -90,7 +90,7 @@ class Exploration:
         self.grid: ExplorationGrid | None = None
         self.own: list[Candidate] = []
         self.target: Target | None = None
-        self.path: list[Vec3] = []
+        self.flight: Flight | None = None  # set when the mission starts
         self.visited: list[Vec3] = []  # frontier points this drone went and looked at
         # viewpoints this drone could not plan a path to, and when: its map may shut a door the others see open
         self.unreachable: list[tuple[Vec3, float]] = []
@@ -171,7 +171,7 @@ class Exploration:
         self.decision_ms.append((time.perf_counter() - started) * 1000)
         if self.loops % STATUS_EVERY_LOOPS == 0:  # a trace of quiet stretches (no new target for minutes)
             self.log("explore_status", loops=self.loops, candidates=len(self.own), leader=self.peers.leader,
-                     target=_r(self.target.viewpoint) if self.target else None, path=len(self.path))
+                     target=_r(self.target.viewpoint) if self.target else None, path=len(self._path_ahead()))
 
     def _candidates(self, frontiers: list[Frontier]) -> list[Candidate]:
         own = [Candidate(f.viewpoint, f.point, f.gain, self.id) for f in frontiers[:MAX_CANDIDATES]]
@@ -187,9 +187,10 @@ class Exploration:
         if self.grid is None or self.target is None:
             return
         here = self.position()
+        ahead = self._path_ahead()  # not the waypoints already passed: a line back to them can cross a wall
         # from a cell that is not safe, the path's first leg leads to a safe one: only the rest can be blocked
-        legs = [here, *self.path] if self.grid.planning_grid.is_free(here) else self.path
-        if self.path and not path_is_free(self.grid.planning_grid, legs):
+        legs = [here, *ahead] if self.grid.planning_grid.is_free(here) else ahead
+        if ahead and not path_is_free(self.grid.planning_grid, legs):
             self.log("path_blocked", target=_r(self.target.viewpoint))
             self.retarget.set()
         if not self.grid.is_frontier_near(self.target.point, self.settings.cluster_size_m):
@@ -197,6 +198,9 @@ class Exploration:
             self.target = None
             self.arrived = True  # ask for a new one now
             self.retarget.set()
+
+    def _path_ahead(self) -> list[Vec3]:
+        return self.flight.path_ahead if self.flight is not None else []
 
     def _choose_own(self) -> None:
         """Eq. 3.3 on this drone's own candidates (uncoordinated, or an explorer whose leader went quiet)."""
@@ -333,6 +337,7 @@ class Exploration:
     async def fly(self, flight: Flight, stop: asyncio.Event) -> None:
         """The mission: go to targets as they come until the exploration is done, then return home. The decision
         loop starts here, once airborne, and runs until `close` (a done leader keeps saying so)."""
+        self.flight = flight
         self._decisions = asyncio.create_task(self.decide_forever())
         while not self.done:
             target = self.target
@@ -344,9 +349,7 @@ class Exploration:
             if path is None:
                 self._cannot_reach(target)
                 continue
-            self.path = path
             reached = await flight.fly_path(path, stop, interrupt=self.retarget)
-            self.path = []
             if reached and self.target is target:
                 await flight.face(target.point, self.settings.dwell_s, stop)
                 self._done_with(target)

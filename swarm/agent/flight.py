@@ -124,6 +124,7 @@ class Flight:
         self.heading_to: Vec3 | None = None  # the end of the segment being flown (heartbeats carry it)
         self._last_position: np.ndarray | None = None
         self._carrot: Vec3 | None = None
+        self.path_ahead: list[Vec3] = []  # the waypoints of the path being flown not reached yet
         self._last_check = time.monotonic()
         self._judge_telemetry_after = 0.0
 
@@ -195,12 +196,21 @@ class Flight:
         lasted too long)."""
         # A path is planned from the drone's position. The carrot of an interrupted path can be a metre ahead
         # of the drone, round a corner of that path: a first segment from there is one nobody checked (a drone
-        # cut through a doorway with its top in the lintel).
+        # cut through a doorway with its top in the lintel). So the new carrot starts on the new path, as far
+        # along it as the old one led the drone in that direction: starting at the drone, it braked the drone to
+        # a stop at every new path, and an exploring drone gets one every few seconds.
+        lead = carried_lead(self.ap.telemetry.position, self._carrot, path[0]) if path else 0.0
         self._carrot = None
-        for waypoint in path:
-            if not await self._fly_segment_to(waypoint, stop, interrupt):
-                return False
-        return True
+        self.path_ahead = list(path)
+        try:
+            for waypoint in path:
+                if not await self._fly_segment_to(waypoint, stop, interrupt, lead=lead):
+                    return False
+                lead = 0.0
+                self.path_ahead.pop(0)
+            return True
+        finally:
+            self.path_ahead = []
 
     async def face(self, point: Vec3, seconds: float, stop: asyncio.Event) -> None:
         """Hold position, turn towards `point` and look at it for `seconds` (the camera maps while we wait); a
@@ -220,9 +230,10 @@ class Flight:
             await self._tick(stop, end + 1.0, "the end of a look")
 
     async def _fly_segment_to(self, goal: Vec3, stop: asyncio.Event, interrupt: asyncio.Event | None = None,
-                              tolerance: float | None = None) -> bool:
+                              tolerance: float | None = None, lead: float = 0.0) -> bool:
         """Fly the straight segment from the carrot (else the drone) to `goal`, reached within `tolerance` (by
-        default the waypoint tolerance); False when interrupted or a yield lasted too long."""
+        default the waypoint tolerance), the carrot starting `lead` metres along it; False when interrupted or a
+        yield lasted too long."""
         tolerance = self.settings.waypoint_tolerance_m if tolerance is None else tolerance
         here = np.array(self.ap.telemetry.position)
         start = np.array(self._carrot) if self._carrot is not None else here
@@ -232,7 +243,7 @@ class Flight:
         yaw = math.degrees(math.atan2(segment[1], segment[0])) if length > 0.05 else self.ap.telemetry.yaw_deg
         speed = self.settings.cruise_speed_m_s
         deadline = time.monotonic() + 20.0 + 3.0 * (length + float(np.linalg.norm(start - here))) / speed
-        travelled = 0.0
+        travelled = min(max(lead, 0.0), length)
         held_since: float | None = None
         while True:
             if interrupt is not None and interrupt.is_set():
@@ -519,6 +530,20 @@ def route_mission(route: list[Vec3]) -> Mission:
         await flight.fly_path(route, stop)
 
     return fly
+
+
+def carried_lead(here: Vec3, carrot: Vec3 | None, first_waypoint: Vec3) -> float:
+    """How far along a new path's first segment (from `here` to `first_waypoint`) its carrot starts: the old
+    carrot's lead on the drone in that direction, within LOOKAHEAD_M and the segment; 0 without an old carrot or
+    when it led elsewhere (a U-turn starts from the drone)."""
+    if carrot is None:
+        return 0.0
+    first = np.subtract(first_waypoint, here)
+    length = float(np.linalg.norm(first))
+    if length < 1e-6:
+        return 0.0
+    along = float(np.dot(np.subtract(carrot, here), first)) / length
+    return min(max(along, 0.0), LOOKAHEAD_M, length)
 
 
 def resume_from(here: Vec3, left_at: Vec3, target: Vec3, is_clear: Callable[[Vec3, Vec3], bool]) -> Vec3:

@@ -98,3 +98,34 @@ def test_from_a_cell_that_is_not_safe_the_flight_starts_at_the_nearest_safe_cell
     assert path is not None and len(path) == 2 and path[-1] == goal
     first = np.array(path[0])  # first down to the nearest safe cell centre (the top safe layer, 1.6-1.8 m)
     assert grid.is_free(first) and first[2] == pytest.approx(1.7) and np.linalg.norm(first - (1.0, 1.0, 1.9)) < 0.3
+
+
+def test_a_path_is_checked_from_the_drone_on_not_back_to_the_waypoints_it_passed() -> None:
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from swarm.explore.grid import OccupancyGrid
+
+    walls = np.zeros((12, 12, 1), dtype=bool)  # 2.4 x 2.4 m at 0.2 m, one layer at 1.4-1.6 m
+    walls[:8, 5, 0] = True  # a wall from x 0 to 1.6 m at y 1.0-1.2 m: the path goes round its end
+    grid = OccupancyGrid(np.array([0.0, 0.0, 1.4]), 0.2, walls)
+    events: list[dict[str, Any]] = []
+    exploration = _exploration(events)
+    exploration.grid = SimpleNamespace(  # type: ignore[assignment]  # only these two are read
+        planning_grid=grid, is_frontier_near=lambda point, radius: True)
+    exploration.target = Target((0.5, 1.9, 1.5), (0.3, 2.2, 1.5), "leader")
+    exploration.position = lambda: (1.2, 1.9, 1.5)  # on the last leg, west, back past the wall's end
+    flight = SimpleNamespace(path_ahead=[(0.5, 1.9, 1.5)])  # passed: (0.5, 0.5), (1.9, 0.5), (1.9, 1.9)
+    exploration.flight = flight  # type: ignore[assignment]
+    from swarm.explore.planner import path_is_free
+    whole = [(0.5, 0.5, 1.5), (1.9, 0.5, 1.5), (1.9, 1.9, 1.5), (0.5, 1.9, 1.5)]
+    assert path_is_free(grid, whole) and not path_is_free(grid, [(1.2, 1.9, 1.5), *whole])
+    exploration._check_path()
+    assert [e["event"] for e in events] == []  # the line back to (0.5, 0.5) crosses the wall: not our way
+    assert not exploration.retarget.is_set()
+
+    walls[4, 9, 0] = True  # now something on the way ahead, at (0.9, 1.9)
+    exploration._check_path()
+    assert [e["event"] for e in events] == ["path_blocked"]
+    assert exploration.retarget.is_set()

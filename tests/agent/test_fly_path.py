@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from swarm.agent.autopilot import Autopilot
-from swarm.agent.flight import Flight, distance_to_segment
+from swarm.agent.flight import Flight, carried_lead, distance_to_segment
 from swarm.config import gcs_port
 from swarm.sim.worlds import load_world
 from tests.sim.support import free_port_block, running_sim, sim_config
@@ -72,3 +72,53 @@ def test_a_new_path_starts_from_the_drone_not_from_the_interrupted_paths_setpoin
     assert max(distance_to_segment(p, start, goal) for p in setpoints) < 0.05
     # ... and the drone flies it, carried off only by its momentum
     assert max(distance_to_segment(p, start, goal) for p in flown) < 0.35
+
+
+async def _replanned_straight_on() -> tuple[list[float], float]:
+    """Fly east, and 2 s on (at full speed) replace the path with one that goes on east, as a drone given a new
+    target ahead does; returns the drone's horizontal speeds over the second after the change, and the cruise
+    speed."""
+    config = sim_config(free_port_block(), **{"mission.drones": 1, "sim.spawns": [HOME]})
+    with running_sim(config, load_world("box")):
+        autopilot = Autopilot(f"udpin://127.0.0.1:{gcs_port(config.sim, 1)}", config.mission.origin)
+        settings = config.agent.model_copy(update={"id": 1, "altitude_m": ALTITUDE, "hover_s": 0.0})
+        flight = Flight(autopilot, settings, lambda *a, **kw: None)
+        speeds: list[float] = []
+
+        async def mission(flight: Flight, stop: asyncio.Event) -> None:
+            interrupt = asyncio.Event()
+            asyncio.get_running_loop().call_later(2.0, interrupt.set)
+            assert not await flight.fly_path([(5.2, 1.5, ALTITUDE)], stop, interrupt=interrupt)
+
+            async def record() -> None:
+                for _ in range(20):
+                    vx, vy, _ = flight.ap.telemetry.velocity
+                    speeds.append(float(np.hypot(vx, vy)))
+                    await asyncio.sleep(0.05)
+
+            recorder = asyncio.create_task(record())
+            assert await flight.fly_path([(5.2, 1.6, ALTITUDE)], stop)  # short of the pillar at x 5.8
+            await recorder
+
+        try:
+            await flight.run(mission, asyncio.Event())
+        finally:
+            await flight.ap.close()
+        return speeds, settings.cruise_speed_m_s
+
+
+def test_a_new_path_straight_on_does_not_brake_the_drone() -> None:
+    speeds, cruise = asyncio.run(_replanned_straight_on())
+    assert speeds[0] > 0.6 * cruise  # it was flying
+    # with the new carrot at the drone, the drone braked to 0.34 m/s before going on
+    assert min(speeds) > 0.6 * cruise
+
+
+def test_a_new_carrot_keeps_the_old_ones_lead_in_the_new_direction() -> None:
+    here = (0.0, 0.0, 1.5)
+    assert carried_lead(here, None, (5.0, 0.0, 1.5)) == 0.0
+    assert carried_lead(here, (0.8, 0.0, 1.5), (5.0, 0.0, 1.5)) == pytest.approx(0.8)  # straight on
+    assert carried_lead(here, (0.8, 0.0, 1.5), (5.0, 5.0, 1.5)) == pytest.approx(0.8 / np.sqrt(2))  # 45 degrees
+    assert carried_lead(here, (0.8, 0.0, 1.5), (-5.0, 0.0, 1.5)) == 0.0  # a U-turn starts at the drone
+    assert carried_lead(here, (0.8, 0.0, 1.5), (0.3, 0.0, 1.5)) == pytest.approx(0.3)  # within the segment
+    assert carried_lead(here, (2.0, 0.0, 1.5), (5.0, 0.0, 1.5)) == pytest.approx(1.0)  # within the look-ahead
