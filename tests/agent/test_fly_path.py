@@ -75,9 +75,9 @@ def test_a_new_path_starts_from_the_drone_not_from_the_interrupted_paths_setpoin
 
 
 async def _replanned_straight_on() -> tuple[list[float], float]:
-    """Fly east, and 2 s on (at full speed) replace the path with one that goes on east, as a drone given a new
-    target ahead does; returns the drone's horizontal speeds over the second after the change, and the cruise
-    speed."""
+    """Fly east, and 2 s on (at full speed) replace the path with one that goes on east-north-east, as a drone
+    given a new target ahead does; returns the drone's horizontal speeds over the second after the change (the
+    new path is long enough that its end is not in sight yet), and the cruise speed."""
     config = sim_config(free_port_block(), **{"mission.drones": 1, "sim.spawns": [HOME]})
     with running_sim(config, load_world("box")):
         autopilot = Autopilot(f"udpin://127.0.0.1:{gcs_port(config.sim, 1)}", config.mission.origin)
@@ -97,7 +97,7 @@ async def _replanned_straight_on() -> tuple[list[float], float]:
                     await asyncio.sleep(0.05)
 
             recorder = asyncio.create_task(record())
-            assert await flight.fly_path([(5.2, 1.6, ALTITUDE)], stop)  # short of the pillar at x 5.8
+            assert await flight.fly_path([(7.0, 2.6, ALTITUDE)], stop)  # 0.3 m clear of the pillar
             await recorder
 
         try:
