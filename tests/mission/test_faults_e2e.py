@@ -34,12 +34,11 @@ def test_a_restarted_agent_rejoins_with_a_new_epoch_and_a_frozen_one_catches_up(
     tmp_path: Path, swarm_ports: SwarmPorts
 ) -> None:
     out = tmp_path / "run"
-    restart, freeze = "restart:agent=2@10+2", "freeze:agent=3@8+10"
     # The mission must outlast the freeze: once the drones kept their speed through replans, the others explored
-    # the box and left while drone 3 was still frozen (a peer silent when one lingers is not waited for), and it
-    # had nobody to catch up with. So the freeze comes earlier and the drones fly slower (home takes longer).
-    config = _config(out, swarm_ports, [restart, freeze], **{"agent.cruise_speed_m_s": 0.5})
-    report = run_mission(config, live=False)
+    # the box and left while drone 3 was still frozen at 12 + 10 s (a peer silent when one lingers is not waited
+    # for), and it had nobody to catch up with.
+    restart, freeze = "restart:agent=2@10+2", "freeze:agent=3@6+10"
+    report = run_mission(_config(out, swarm_ports, [restart, freeze]), live=False)
 
     assert report["status"] == "complete", report["reason"]
     assert report["explored_fraction"] >= 0.95
