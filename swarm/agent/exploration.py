@@ -143,11 +143,12 @@ class Exploration:
     # -- decisions ---------------------------------------------------------------------------------------
 
     async def decide_forever(self) -> None:
-        """The decision loop: every loop_s, or at once when woken; keeps announcing `done` once done."""
+        """The decision loop: at once (a drone that has just taken off needs a target, not a loop's wait), then
+        every loop_s, or at once when woken; keeps announcing `done` once done."""
         while True:
+            await self.decide()
             await wait_event(self.wake, self.settings.loop_s)
             self.wake.clear()
-            await self.decide()
 
     async def decide(self) -> None:
         if self.done and self.peers.leader != self.id:

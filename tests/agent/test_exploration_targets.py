@@ -7,6 +7,7 @@ keep the object, or a drone whose leader repeats itself never finishes a target.
 
 from __future__ import annotations
 
+import asyncio
 from typing import Any
 
 import pytest
@@ -16,13 +17,33 @@ from swarm.config import load_config
 from swarm.roles.membership import PeerTable
 
 
-def _exploration(events: list[dict[str, Any]]) -> Exploration:
-    config = load_config(overrides={"agent.id": 2})
+def _exploration(events: list[dict[str, Any]], **overrides: Any) -> Exploration:
+    config = load_config(overrides={"agent.id": 2, **overrides})
     return Exploration(
         config, epoch=1, bus=None, peers=PeerTable(2), mapping=None,  # type: ignore[arg-type]  # unused here
         position=lambda: (0.0, 0.0, 1.5), home=lambda: (0.0, 0.0, 0.0), top_z=3.0,
         log=lambda event, **fields: events.append({"event": event, **fields}),
     )
+
+
+async def test_the_decision_loop_decides_at_once_then_every_loop(monkeypatch) -> None:
+    """A drone that has just taken off has no target: waiting a loop first cost every mission loop_s (3 s)."""
+    exploration = _exploration([], **{"explore.loop_s": 600.0})
+    decided = asyncio.Event()
+
+    async def decide() -> None:
+        decided.set()
+
+    monkeypatch.setattr(exploration, "decide", decide)
+    loop = asyncio.create_task(exploration.decide_forever())
+    try:
+        await asyncio.wait_for(decided.wait(), timeout=10.0)  # far below the 600 s loop
+        decided.clear()
+        exploration.wake.set()  # woken (a drone reached its target): decides again without waiting the loop
+        await asyncio.wait_for(decided.wait(), timeout=10.0)
+    finally:
+        loop.cancel()
+        await asyncio.gather(loop, return_exceptions=True)
 
 
 def test_the_same_spot_assigned_again_keeps_the_target_object() -> None:
