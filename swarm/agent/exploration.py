@@ -91,7 +91,9 @@ class Exploration:
         self.own: list[Candidate] = []
         self.target: Target | None = None
         self.flight: Flight | None = None  # set when the mission starts
-        self.visited: list[Vec3] = []  # frontier points this drone went and looked at
+        # viewpoints this drone went to and looked from: candidates seen from near one are exhausted (it was the
+        # frontier point once, and a point 0.8 m above its viewpoint was never exhausted: the same target forever)
+        self.visited: list[Vec3] = []
         # viewpoints this drone could not plan a path to, and when: its map may shut a door the others see open
         self.unreachable: list[tuple[Vec3, float]] = []
         self.done = False
@@ -410,7 +412,7 @@ class Exploration:
     def _done_with(self, target: Target) -> None:
         """A target reached and looked at, or given up as unreachable: either way nobody is sent there again,
         and the cluster assigns again now."""
-        self.visited.append(target.point)
+        self.visited.append(target.viewpoint)
         if self.target is target:
             self.target = None
         self.arrived = True

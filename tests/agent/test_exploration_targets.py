@@ -14,6 +14,7 @@ import pytest
 
 from swarm.agent.exploration import UNREACHABLE_GIVE_UP, UNREACHABLE_RETRY_S, Exploration, Target
 from swarm.config import load_config
+from swarm.explore.frontiers import Frontier
 from swarm.roles.membership import PeerTable
 
 
@@ -91,8 +92,23 @@ def test_a_target_without_a_path_is_kept_from_this_drone_a_while_then_given_up(m
         assert exploration._recently_unreachable() == []  # and it may be tried again
     exploration._set_target(behind_a_door)
     exploration._cannot_reach(behind_a_door)
-    assert exploration.visited == [behind_a_door.point]  # the last try: nobody is sent there again
+    assert exploration.visited == [behind_a_door.viewpoint]  # the last try: nobody is sent there again
     assert events[-1]["event"] == "unreachable_given_up"
+
+
+def test_a_target_looked_at_is_exhausted_by_its_viewpoint_however_far_its_point_is() -> None:
+    """Found in a box mission: a frontier point 0.82 m above its viewpoint (a ceiling corner the camera cannot
+    see from below) was assigned, reached and assigned again for 80 s, because what the drone remembered as
+    visited was the point, while exhaustion compares viewpoints (`visited_radius_m`, 0.8 m)."""
+    exploration = _exploration([])
+    ceiling_corner = Target((4.7, 3.9, 1.5), (4.7, 4.1, 2.3), "leader")
+    assert exploration._candidates([Frontier(ceiling_corner.point, ceiling_corner.viewpoint, 2.0, 4)])
+    exploration._set_target(ceiling_corner)
+    exploration._done_with(ceiling_corner)
+    assert exploration.visited == [ceiling_corner.viewpoint]
+    assert exploration._candidates([Frontier(ceiling_corner.point, ceiling_corner.viewpoint, 2.0, 4)]) == []
+    elsewhere = Frontier((8.0, 3.9, 1.5), (7.5, 3.9, 1.5), 2.0, 4)
+    assert [c.viewpoint for c in exploration._candidates([elsewhere])] == [elsewhere.viewpoint]
 
 
 def test_from_a_cell_that_is_not_safe_the_flight_starts_at_the_nearest_safe_cell() -> None:
