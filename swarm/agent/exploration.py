@@ -91,8 +91,8 @@ class Exploration:
         self.own: list[Candidate] = []
         self.target: Target | None = None
         self.flight: Flight | None = None  # set when the mission starts
-        # viewpoints this drone went to and looked from: candidates seen from near one are exhausted (it was the
-        # frontier point once, and a point 0.8 m above its viewpoint was never exhausted: the same target forever)
+        # viewpoints this drone looked from, not the frontier points it looked at: exhaustion compares viewpoints,
+        # and a point can lie farther than visited_radius_m from its viewpoint (it was then never exhausted)
         self.visited: list[Vec3] = []
         # viewpoints this drone could not plan a path to, and when: its map may shut a door the others see open
         self.unreachable: list[tuple[Vec3, float]] = []

@@ -112,7 +112,6 @@ def test_a_target_looked_at_is_exhausted_by_its_viewpoint_however_far_its_point_
 
 
 def test_from_a_cell_that_is_not_safe_the_flight_starts_at_the_nearest_safe_cell() -> None:
-    import asyncio
     from types import SimpleNamespace
 
     import numpy as np
