@@ -383,8 +383,13 @@ class ExploreSettings(_Section):
     )
     min_altitude_m: PositiveFloat = Field(0.6, description="lowest flight height above the mission volume's floor")
     ceiling_margin_m: PositiveFloat = Field(0.3, description="highest flight: this far below the mission volume's top")
+    gain_model: Literal["view", "box"] = Field(
+        "view", description="what a candidate is worth: view, the unknown volume its viewpoint's camera would see "
+        "(ray cast); box, the unknown volume in the gain_radius_m cube around its point (Mahdoui's window)"
+    )
     gain_radius_m: PositiveFloat = Field(
-        1.0, description="information gain: unknown cells within this half-width cube around a frontier point"
+        1.0, description="box gain: unknown cells within this half-width cube around a frontier point (also the "
+        "min_gain_m3 test under either model)"
     )
     min_gain_m3: float = Field(
         0.8, ge=0.0, description="frontier clusters with less unknown volume around them than this are ignored"

@@ -30,7 +30,7 @@ from swarm.aio import wait_event
 from swarm.agent.autopilot import TelemetryCache
 from swarm.agent.sensing import DepthSource
 from swarm.config import SwarmConfig, Vec3
-from swarm.explore.frontiers import ExplorationGrid, Frontier
+from swarm.explore.frontiers import ExplorationGrid, Frontier, ViewModel
 from swarm.files import write_atomic
 from swarm.patches.fused import OCCUPIED
 from swarm.patches.mapper import Mapper
@@ -180,7 +180,7 @@ class MappingTask:
             _mark_occupied(states, origin, resolution, point, self.config.sim.drone_radius_m)
         grid = ExplorationGrid.from_states(
             origin, resolution, states, self.config.explore, floor_z, top_z, free_points=[position],
-            occupied_fine=occupied_fine,
+            occupied_fine=occupied_fine, view=ViewModel.from_camera(self.config.camera),
         )
         return grid, grid.frontiers(position)
 

@@ -31,7 +31,14 @@ UNKNOWN, FREE or OCCUPIED per cell, cell (i, j, k) spanning `origin + [i, i+1) x
 - group: a 26-connected component of frontier cells, split by `cluster_size_m` bins of the cell centres; groups
   of fewer than 2 cells are dropped. Its `point` is the group's cell nearest the group's mean.
 - gain: open unknown cells in the (2g+1)^3 cube around a cell, g = round(gain_radius_m / res), times res^3; cells
-  outside the grid do not count. Groups with gain < `min_gain_m3` are dropped.
+  outside the grid do not count. Groups with gain < `min_gain_m3` are dropped: this box gain says whether there
+  is anything worth seeing there.
+- view gain (`explore.gain_model = "view"`, the default): what a candidate is worth is the open unknown volume
+  the camera would see from its viewpoint turned to face its point: rays over the camera's field of view, to
+  its range, each stopped at the first OCCUPIED cell or the grid's edge, the unknown along them integrated as
+  r^2 dr dOmega (unknown space is taken to be see-through, as next-best-view planners do). The box gain ranks a
+  spot on the floor beside the take-off point (1-3 m^3) with a doorway onto an unseen room (4-6 m^3), so drones
+  spent their first half minute on the floor around them; seen from their viewpoints the two differ fifty-fold.
 - viewpoint: the reachable cell nearest `point`, provided the straight line between them crosses no OCCUPIED
   cell (a viewpoint on the far side of a thin wall sees nothing); otherwise the nearest reachable cell within
   `reach_m` that has that line of sight; none, and the group is dropped.
@@ -42,6 +49,7 @@ distance): scipy's exact distance transform alone costs more than the whole budg
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -51,7 +59,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy import ndimage
 
-from swarm.config import ExploreSettings, Vec3
+from swarm.config import CameraSettings, ExploreSettings, Vec3
 from swarm.explore.grid import OccupancyGrid
 from swarm.patches.fused import FREE, OCCUPIED, UNKNOWN
 
@@ -60,6 +68,51 @@ _LINE_OF_SIGHT_STEP = 0.25  # line of sight is sampled every quarter cell: a wal
 _EPS = 1e-9
 _CONNECT_26 = np.ones((3, 3, 3), dtype=bool)
 _BITS = 64
+VIEW_RAY_SPACING_DEG = 6.0  # the view gain's rays: ~250 for a 90 x 74 degree camera, enough to rank candidates
+_VIEW_CHUNK = 16  # candidates ray-cast at once: bounds the temporaries at ~16 x 200 x 40 samples
+LOOK_YAWS = 8  # directions tried for a frontier looked at from its own cell
+LOOK_RAY_SPACING_DEG = 12.0  # ... with a coarser ring of rays all round (most frontiers are such cells)
+LOOK_AHEAD_M = 1.0  # ... whose point then moves this far the best way (what the flight turns to face)
+_VIEW_UNKNOWN, _VIEW_STOP = 1, 2  # a view ray counts the first, ends at the second (an obstacle, the grid's edge)
+
+
+@dataclass(frozen=True)
+class ViewModel:
+    """What a drone's camera sees from a viewpoint: the frustum the view gain integrates over."""
+
+    hfov_deg: float
+    vfov_deg: float
+    pitch_deg: float  # positive looks down
+    min_range_m: float
+    max_range_m: float
+
+    @classmethod
+    def from_camera(cls, camera: CameraSettings) -> ViewModel:
+        half_h = math.radians(camera.hfov_deg) / 2
+        vfov = 2 * math.degrees(math.atan(math.tan(half_h) * camera.height / camera.width))  # square pixels
+        return cls(camera.hfov_deg, vfov, camera.pitch_deg, camera.min_range_m, camera.max_range_m)
+
+    def rays(self, spacing_deg: float = VIEW_RAY_SPACING_DEG, full_circle: bool = False
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Unit ray directions (R, 3) of the camera at yaw 0 (x forward, z up), about `spacing_deg` apart, with
+        each ray's solid angle (R,) and azimuth column (R,): over the field of view, pitched as mounted; or, with
+        `full_circle`, the camera's central column of rays turned all round (columns in azimuth order)."""
+        width = 360.0 if full_circle else self.hfov_deg
+        nh = max(2, math.ceil(width / spacing_deg))
+        nv = max(2, math.ceil(self.vfov_deg / spacing_deg))
+        az = np.radians((np.arange(nh) + 0.5) / nh * width - width / 2)
+        el = np.radians((np.arange(nv) + 0.5) / nv * self.vfov_deg - self.vfov_deg / 2)
+        a, e = (g.ravel() for g in np.meshgrid(az, el, indexing="ij"))
+        solid = math.radians(width / nh) * math.radians(self.vfov_deg / nv) * np.cos(e)
+        across = np.zeros_like(a) if full_circle else a  # the ring turns the central column, not the frustum
+        camera = np.stack([np.cos(e) * np.cos(across), np.cos(e) * np.sin(across), np.sin(e)], axis=1)
+        pitch = math.radians(self.pitch_deg)  # positive looks down: a turn about the camera's left axis
+        pitched = np.stack([camera[:, 0] * math.cos(pitch) + camera[:, 2] * math.sin(pitch), camera[:, 1],
+                            -camera[:, 0] * math.sin(pitch) + camera[:, 2] * math.cos(pitch)], axis=1)
+        if full_circle:
+            pitched = np.stack([pitched[:, 0] * np.cos(a) - pitched[:, 1] * np.sin(a),
+                                pitched[:, 0] * np.sin(a) + pitched[:, 1] * np.cos(a), pitched[:, 2]], axis=1)
+        return pitched, solid, np.repeat(np.arange(nh), nv)
 
 
 @dataclass(frozen=True)
@@ -75,9 +128,10 @@ class ExplorationGrid:
     frontiers are."""
 
     def __init__(self, origin: np.ndarray, resolution: float, states: np.ndarray, safe: np.ndarray,
-                 band: tuple[int, int], settings: ExploreSettings, roomy: np.ndarray | None = None) -> None:
+                 band: tuple[int, int], settings: ExploreSettings, roomy: np.ndarray | None = None,
+                 view: ViewModel | None = None) -> None:
         """Use `from_states`; this only stores what it computed."""
-        self.origin, self.resolution, self.settings = origin, resolution, settings
+        self.origin, self.resolution, self.settings, self.view = origin, resolution, settings, view
         self._occupied = states == OCCUPIED
         self._free = states == FREE
         # Unknown cells touching an obstacle cell are crevices (floor corners, under furniture) that cameras rarely
@@ -93,10 +147,11 @@ class ExplorationGrid:
     @classmethod
     def from_states(cls, origin: ArrayLike, resolution: float, states: np.ndarray, settings: ExploreSettings,
                     floor_z: float, top_z: float, free_points: Sequence[Vec3] = (),
-                    occupied_fine: np.ndarray | None = None) -> ExplorationGrid:
+                    occupied_fine: np.ndarray | None = None, view: ViewModel | None = None) -> ExplorationGrid:
         """The grid for one loop; `states` as `FusedMap.occupancy_grid` exports them (not modified).
         `occupied_fine`: the occupied voxels of the same volume at a resolution f times finer (f an integer),
-        for the clearance test (see the module docstring)."""
+        for the clearance test (see the module docstring). `view`: the camera, for the view gain; without it
+        (or with `gain_model = "box"`) frontiers carry the box gain."""
         origin_ = np.asarray(origin, dtype=float).reshape(3)
         states = np.asarray(states, dtype=np.uint8)
         if states.ndim != 3 or not resolution > 0:
@@ -123,7 +178,8 @@ class ExplorationGrid:
             roomy_cells = max(math.ceil((settings.body_height_m - settings.roomy_clearance_m) / resolution - _EPS), 0)
             wide = _blocked(states, occupied_fine, settings.roomy_clearance_m / resolution)
             roomy = _with_room_above((states == FREE) & ~wide, roomy_cells) & safe
-        return cls(origin_, float(resolution), states, safe, (k0, k1), settings, roomy)
+        view = view if settings.gain_model == "view" else None
+        return cls(origin_, float(resolution), states, safe, (k0, k1), settings, roomy, view)
 
     def reachable(self, position: Vec3) -> np.ndarray:
         """Bool mask of the safe cells 26-connected to the safe cell nearest `position`; all False if none."""
@@ -137,7 +193,8 @@ class ExplorationGrid:
         return mask
 
     def frontiers(self, position: Vec3) -> list[Frontier]:
-        """The frontier groups seen from `position`'s reachable space, by gain, largest first."""
+        """The frontier groups seen from `position`'s reachable space, by gain (the view gain when the grid has
+        a camera, else the box gain), largest first."""
         reach = self.reachable(position)
         if not reach.any():
             return []
@@ -159,7 +216,49 @@ class ExplorationGrid:
             viewpoint = eye if ok else self._seeing_viewpoint(cells[points[g]], reach, offsets)
             if viewpoint is not None:
                 found.append(Frontier(_vec3(target), _vec3(viewpoint), float(gains[g]), int(counts[g])))
-        return found
+        if self.view is None or not found:
+            return found
+        return sorted(self._with_view_gains(found), key=lambda f: -f.gain)
+
+    def _with_view_gains(self, found: list[Frontier]) -> list[Frontier]:
+        """The frontiers with their view gains. A frontier whose viewpoint is its own point (a drone can stand
+        in that frontier cell) gives the camera no direction: it is looked at towards the unknown around it (the
+        middle of the open unknown cells in its gain cube) or, where that lies straight above or below, in the
+        best of LOOK_YAWS directions; its point moves LOOK_AHEAD_M that way, so the flight, which faces the
+        point, looks where the gain was counted. (Facing +x by default, such a spot at the take-off point counted
+        the whole corridor ahead as its own.)"""
+        eyes, points = np.array([f.viewpoint for f in found]), np.array([f.point for f in found])
+        blind = np.flatnonzero(np.hypot(*(points - eyes)[:, :2].T) < self.resolution / 2)
+        towards = self._unknown_direction(points[blind])
+        level = np.hypot(towards[:, 0], towards[:, 1]) >= self.resolution / 2
+        yaw = np.arctan2(towards[:, 1], towards[:, 0])
+        if not level.all():
+            yaw[~level] = self.best_look(eyes[blind[~level]], LOOK_YAWS)[0]
+        points[blind] = eyes[blind] + LOOK_AHEAD_M * np.stack([np.cos(yaw), np.sin(yaw), 0 * yaw], axis=1)
+        worth = self.view_gain(eyes, points)
+        return [dataclasses.replace(f, point=_vec3(p), gain=float(w)) for f, p, w in zip(found, points, worth)]
+
+    def _unknown_direction(self, points: np.ndarray) -> np.ndarray:
+        """(N, 3) from each point to the middle of the open unknown cells in its gain cube (0 where none)."""
+        out = np.zeros((len(points), 3))
+        half = round(self.settings.gain_radius_m / self.resolution)
+        shape = np.array(self._unknown.shape)
+        for row, cell in enumerate(np.floor((points - self.origin) / self.resolution).astype(np.int64)):
+            lo, hi = np.clip(cell - half, 0, shape), np.clip(cell + half + 1, 0, shape)
+            found = np.argwhere(self._unknown[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]])
+            if len(found):
+                out[row] = (found.mean(axis=0) + lo - cell) * self.resolution
+        return out
+
+    def viewpoint_for(self, point: Vec3, position: Vec3) -> Vec3 | None:
+        """Where to look at `point` from: the nearest safe cell reachable from `position`, within reach_m of it,
+        with a line of sight to it; None if there is none (or the point is outside the grid)."""
+        idx = np.floor((np.asarray(point, dtype=float) - self.origin) / self.resolution).astype(np.int64)
+        if not np.all((idx >= 0) & (idx < np.array(self._free.shape))):
+            return None
+        reach = self.reachable(position)
+        seen_from = self._seeing_viewpoint(idx, reach, _ball_offsets(self.settings.reach_m / self.resolution))
+        return None if seen_from is None else _vec3(seen_from)
 
     def gain_at(self, points: np.ndarray) -> np.ndarray:
         """(N,) unknown volume (m^3) in the gain cube around each (N, 3) world point; 0 outside the grid."""
@@ -178,6 +277,70 @@ class ExplorationGrid:
         gains = np.zeros(len(idx))
         gains[inside] = total * self.resolution**3
         return gains
+
+    def view_gain(self, viewpoints: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """(N,) open unknown volume (m^3) the camera sees from each viewpoint turned (in yaw) to face its point:
+        the integral of r^2 dr dOmega over the unknown stretches of rays cast through the frustum, each ray
+        stopped at the first OCCUPIED cell or where it leaves the grid. 0 for every row without a camera."""
+        eyes = np.asarray(viewpoints, dtype=float).reshape(-1, 3)
+        if self.view is None or len(eyes) == 0:
+            return np.zeros(len(eyes))
+        looks = np.asarray(points, dtype=float).reshape(-1, 3) - eyes
+        rays, solid, _ = self.view.rays()
+        return self._ray_volumes(eyes, np.arctan2(looks[:, 1], looks[:, 0]), rays, solid).sum(axis=1)
+
+    def best_look(self, viewpoints: np.ndarray, yaws: int) -> tuple[np.ndarray, np.ndarray]:
+        """For each viewpoint, the best of `yaws` evenly spaced camera headings (radians) and its view gain.
+        One ring of rays all round per viewpoint, summed per heading's field of view."""
+        eyes = np.asarray(viewpoints, dtype=float).reshape(-1, 3)
+        if self.view is None or len(eyes) == 0:
+            return np.zeros(len(eyes)), np.zeros(len(eyes))
+        rays, solid, column = self.view.rays(spacing_deg=LOOK_RAY_SPACING_DEG, full_circle=True)
+        n_az = int(column[-1]) + 1
+        unique, inverse = np.unique(eyes, axis=0, return_inverse=True)  # frontiers often share a viewpoint
+        volumes = self._ray_volumes(unique, np.zeros(len(unique)), rays, solid)
+        ring = np.stack([volumes[:, column == c].sum(axis=1) for c in range(n_az)], axis=1)[inverse.reshape(-1)]
+        columns = (np.arange(n_az) + 0.5) * (2 * math.pi / n_az) - math.pi  # each azimuth column's heading
+        headings = np.arange(yaws) * (2 * math.pi / yaws)
+        off = np.abs((columns[None, :] - headings[:, None] + math.pi) % (2 * math.pi) - math.pi)
+        window = (off <= math.radians(self.view.hfov_deg) / 2).astype(float)  # (yaws, n_az)
+        around = ring @ window.T  # (eyes, yaws)
+        best = np.argmax(around, axis=1)
+        return headings[best], around[np.arange(len(eyes)), best]
+
+    def _ray_volumes(self, eyes: np.ndarray, yaws: np.ndarray, rays: np.ndarray, solid: np.ndarray) -> np.ndarray:
+        """(N, rays) unknown volume along each ray from each eye, the rays (at yaw 0) turned by that eye's yaw.
+
+        Rays are sampled once per cell length: a wall of whole cells is never stepped over (a ray crosses at
+        least a cell's length of it), only the corner of a staircase of cells may leak a sample, which does not
+        change a ranking."""
+        assert self.view is not None
+        step = self.resolution
+        r = np.arange(self.view.min_range_m + step / 2, self.view.max_range_m, step)
+        weight = (solid[:, None] * (r**2 * step)[None, :]).astype(np.float32)  # (rays, steps)
+        codes, strides = self._view_codes
+        out = np.zeros((len(eyes), len(rays)))
+        for start in range(0, len(eyes), _VIEW_CHUNK):
+            cos, sin = np.cos(yaws[start : start + _VIEW_CHUNK, None]), np.sin(yaws[start : start + _VIEW_CHUNK, None])
+            direction = np.stack([rays[:, 0] * cos - rays[:, 1] * sin, rays[:, 0] * sin + rays[:, 1] * cos,
+                                  np.broadcast_to(rays[:, 2], cos.shape[:1] + rays.shape[:1])],
+                                 axis=-1).astype(np.float32)  # (C, rays, 3)
+            # cell coordinates of every sample, in the padded grid (one cell of "outside" all round)
+            eye = ((eyes[start : start + _VIEW_CHUNK] - self.origin) / self.resolution + 1.0).astype(np.float32)
+            cells = eye[:, None, None, :] + (r / self.resolution).astype(np.float32)[None, None, :, None] * (
+                direction[:, :, None, :])
+            cells = np.clip(np.floor(cells), 0, np.array(codes.shape) - 1).astype(np.int64)
+            found = codes.ravel()[cells @ strides]  # (C, rays, steps)
+            seen = (found == _VIEW_UNKNOWN) & ~np.logical_or.accumulate(found == _VIEW_STOP, axis=-1)
+            out[start : start + _VIEW_CHUNK] = np.einsum("crs,rs->cr", seen.astype(np.float32), weight)
+        return out
+
+    @cached_property
+    def _view_codes(self) -> tuple[np.ndarray, np.ndarray]:
+        """What a view ray meets in each cell, padded with a stopping cell all round, and its index strides."""
+        codes = np.where(self._occupied, _VIEW_STOP, np.where(self._unknown, _VIEW_UNKNOWN, 0)).astype(np.uint8)
+        codes = np.pad(codes, 1, constant_values=_VIEW_STOP)
+        return codes, np.array([codes.shape[1] * codes.shape[2], codes.shape[2], 1], dtype=np.int64)
 
     def is_frontier_near(self, point: Vec3, radius: float) -> bool:
         """Some FREE cell bordering UNKNOWN lies within `radius` of `point`, reachable or not.
