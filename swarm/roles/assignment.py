@@ -3,8 +3,8 @@
 Pure functions over `Candidate`s, so the agent, the harness and the tests share one implementation and the
 leader's decision can be replayed from what it received. Each loop the leader turns every member's reported
 candidates into one set G, with `merge_candidates` when maps are shared or `remove_overlapped` when only frontiers
-travel, then `assign_targets` hands G out greedily, one member at a time, and lowers the gains near every target it
-hands out so the next member goes elsewhere. An empty G after processing is the thesis's stop condition (2.7);
+travel, then `assign_targets` hands G out greedily, the best (member, target) pair first, and lowers the gains near
+every target it hands out so the next member goes elsewhere. An empty G after processing is the thesis's stop condition (2.7);
 what to do then is the caller's business.
 
 Deviations from the thesis, all from working in 3D with viewpoints: distances are Euclidean in 3D, to the
@@ -191,17 +191,22 @@ def assign_targets(candidates: Sequence[Candidate], positions: Mapping[int, Vec3
                    current: Mapping[int, Vec3] | None = None, current_bonus: float = 1.0, own_bonus: float = 1.0,
                    keep_radius: float = 1.0, unreachable: Mapping[int, Sequence[Vec3] | np.ndarray] | None = None,
                    unreachable_radius: float = 1.0) -> dict[int, Candidate | None]:
-    """Alg. 3.5, sequentially over members in ascending id (the leader assigns itself too): for each member, the
-    argmax over unassigned candidates of the utility (Euclidean 3D distances from positions to viewpoints;
-    d_others over the other members of `positions`, at their current positions) with the working, scheduled
-    gains, times current_bonus when the candidate's viewpoint is within keep_radius of the member's current
-    target, divided by it when the candidate is another member's current target (so drones keep their targets
-    instead of swapping them between rounds), and times own_bonus when the member reported it; then the candidate is taken out and the gains of the
-    rest are scheduled around its frontier point (Eq. 3.5: the information there overlaps). Scheduling lives
-    for this round only. Members left without a candidate get None. Exact ties go to the first candidate in
-    `merge_candidates`'s order, whatever order the input came in. A member is never given a candidate whose
-    viewpoint lies within unreachable_radius of a viewpoint it could not plan a path to (`unreachable`): that
-    candidate stays for the others."""
+    """Alg. 3.5 with the best pair first: while a member is without a target, the (member, candidate) pair of
+    highest utility over every member still waiting and every unassigned candidate is assigned (the leader
+    assigns itself too); then the candidate is taken out and the gains of the rest are scheduled around its
+    frontier point (Eq. 3.5: the information there overlaps). The thesis goes through the members in
+    ascending id instead, so the leader had the first pick of every round and the last member took what was
+    left; with gains that differ fifty-fold (the view gain) that member was sent across the building and back
+    from round to round.
+
+    Utility: Euclidean 3D distances from positions to viewpoints, d_others over the other members of
+    `positions` at their current positions; times current_bonus when the candidate's viewpoint is within
+    keep_radius of the member's current target, divided by it when the candidate is another member's current
+    target (so drones keep their targets instead of swapping them between rounds), and times own_bonus when the
+    member reported it. Scheduling lives for this round only. Members left without a candidate get None. Exact
+    ties go to the lower id and to the first candidate in `merge_candidates`'s order, whatever order the input
+    came in. A member is never given a candidate whose viewpoint lies within unreachable_radius of a viewpoint
+    it could not plan a path to (`unreachable`): that candidate stays for the others."""
     members = sorted(positions)
     result: dict[int, Candidate | None] = {m: None for m in members}
     pool = sorted(candidates, key=_order_key)
@@ -209,24 +214,27 @@ def assign_targets(candidates: Sequence[Candidate], positions: Mapping[int, Vec3
         return result
     views, points = _array([c.viewpoint for c in pool]), _array([c.point for c in pool])
     owners = np.array([c.owner for c in pool])
-    work = np.array([c.gain for c in pool], dtype=float)
     dist = _pairwise(_array([positions[m] for m in members]), views)  # (members, candidates)
-    free = np.ones(len(pool), dtype=bool)
+    factor = np.ones_like(dist)  # the bonuses: they do not change within the round
+    allowed = np.ones(dist.shape, dtype=bool)
     for row, member in enumerate(members):
-        if not free.any():
-            break
-        d_tot = np.delete(dist, row, axis=0).sum(axis=0)
-        u = _utilities(work, dist[row], d_tot, len(members) - 1, lam)
         target = None if current is None else current.get(member)
-        u = u * _bonus(member, views, owners, target, current_bonus, own_bonus, keep_radius)
+        factor[row] = _bonus(member, views, owners, target, current_bonus, own_bonus, keep_radius)
         for other, theirs in (current or {}).items():
             if other != member and other in positions:  # another drone is on its way there: leave it to it
-                u = np.where(_within(views, theirs, keep_radius), u / current_bonus, u)
-        open_ = free & ~_near_any(views, _array((unreachable or {}).get(member, [])), unreachable_radius)
-        if not open_.any():
-            continue
-        best = int(np.argmax(np.where(open_, u, -np.inf)))
-        result[member] = pool[best]
-        free[best] = False
+                factor[row] = np.where(_within(views, theirs, keep_radius), factor[row] / current_bonus, factor[row])
+        allowed[row] = ~_near_any(views, _array((unreachable or {}).get(member, [])), unreachable_radius)
+    d_tot = dist.sum(axis=0)[None, :] - dist  # each member's d_tot: the other members' distances
+    work = np.array([c.gain for c in pool], dtype=float)
+    waiting = np.ones(len(members), dtype=bool)
+    free = np.ones(len(pool), dtype=bool)
+    while waiting.any() and free.any():
+        u = _utilities(work[None, :], dist, d_tot, len(members) - 1, lam) * factor
+        u = np.where(allowed & waiting[:, None] & free[None, :], u, -np.inf)
+        row, best = np.unravel_index(int(np.argmax(u)), u.shape)  # row-major: ties go to the lower id first
+        if not np.isfinite(u[row, best]):
+            break  # the members still waiting cannot reach anything left
+        result[members[row]] = pool[best]
+        waiting[row], free[best] = False, False
         work = schedule_gain(work, points, pool[best].point, sigma)
     return result

@@ -77,9 +77,19 @@ NEIGHBOURS = {1: (0.0, 0.0, 1.0), 2: (0.6, 0.0, 1.0)}
 
 
 def test_neighbouring_drones_are_spread_over_far_apart_clusters_by_scheduling() -> None:
+    # The best pair is drone 2 (0.6 m nearer) and the east cluster; scheduling then sends drone 1 west.
     got = assign_targets(two_clusters(), NEIGHBOURS, lam=0.2, sigma=3.0)
-    assert got[1] is not None and got[1].viewpoint[0] == 6.0
-    assert got[2] is not None and got[2].viewpoint[0] == -6.0
+    assert got[2] is not None and got[2].viewpoint[0] == 6.0
+    assert got[1] is not None and got[1].viewpoint[0] == -6.0
+
+
+def test_the_best_pair_is_assigned_first_not_the_lowest_id() -> None:
+    # Drone 1 sits between a small target beside drone 2 and a large one far off; drone 2 sits on the large one.
+    # In id order drone 1 would take the large target (its best) and send drone 2 to the small one; the best
+    # pair is drone 2 and the large target, and drone 1 takes the small one.
+    small, large = cand(2.0, 0.0, gain=5.0), cand(10.0, 0.0, gain=50.0)
+    got = assign_targets([small, large], {1: (0.0, 0.0, 1.0), 2: (9.0, 0.0, 1.0)}, lam=0.2, sigma=3.0)
+    assert got == {1: small, 2: large}
 
 
 def test_without_scheduling_both_drones_pick_the_same_cluster() -> None:
@@ -128,8 +138,9 @@ def test_members_beyond_the_number_of_candidates_get_none() -> None:
     positions = {3: (0.0, 0.0, 1.0), 1: (1.0, 0.0, 1.0), 2: (2.0, 0.0, 1.0)}
     got = assign_targets([cand(5.0, 0.0), cand(-5.0, 0.0)], positions, lam=0.2, sigma=3.0)
     assert list(got) == [1, 2, 3]
-    assert got[1] is not None and got[2] is not None and got[1] != got[2]
-    assert got[3] is None
+    # drone 2 is nearest the east target, drone 3 the west one; drone 1, between them, is left without
+    assert got[2] == cand(5.0, 0.0) and got[3] == cand(-5.0, 0.0)
+    assert got[1] is None
     assert assign_targets([], positions, lam=0.2, sigma=3.0) == {1: None, 2: None, 3: None}
 
 
@@ -224,8 +235,8 @@ def test_remove_overlapped_drops_a_drones_frontiers_inside_anothers_outline() ->
 
 
 def test_a_drone_does_not_take_another_drones_current_target() -> None:
-    # Drone 1 is assigned first (lowest id). The candidate next to it is drone 2's current target: without the
-    # penalty drone 1 grabs it and drone 2 must turn round; with it, each keeps heading where it was going.
+    # The candidate next to drone 1 is drone 2's current target: without the penalty it is drone 1's best pair,
+    # drone 1 grabs it and drone 2 must turn round; with it, each keeps heading where it was going.
     near_1 = Candidate((2.0, 0.0, 1.0), (2.5, 0.0, 1.0), 10.0, 1)
     far = Candidate((6.0, 4.0, 1.0), (6.5, 4.0, 1.0), 10.0, 1)
     positions = {1: (0.0, 0.0, 1.0), 2: (4.0, 0.0, 1.0)}
