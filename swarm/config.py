@@ -364,7 +364,10 @@ class ExploreSettings(_Section):
         6.0, description="tau: an explorer with no target from its leader for this long picks its own"
     )
     utility_lambda: float = Field(0.2, ge=0.0, le=1.0, description="lambda of U = I exp(-lambda (d_i + (n_c-1)/d_tot))")
-    sigma_m: PositiveFloat = Field(3.0, description="gain scheduling: gains near an assigned target drop (Eq. 3.5)")
+    sigma_m: PositiveFloat = Field(
+        6.0, description="gain scheduling: gains near an assigned target drop (Eq. 3.5); Mahdoui's 3 m with a 4 m "
+        "sensor, scaled to the 8 m camera (two viewpoints closer than its range see much of the same space)"
+    )
     current_target_bonus: float = Field(
         1.5, ge=1.0, le=10.0, description="utility factor for a drone's current target (fewer U-turns between loops)"
     )
