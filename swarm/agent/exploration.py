@@ -345,17 +345,28 @@ class Exploration:
         while not self.done:
             target = self.target
             if target is None or self.grid is None:
-                await flight.face(self._look_around(flight), WAIT_FOR_TARGET_S, stop)
+                # A new target ends the wait: the turn is only to map while there is nothing better to do. What
+                # set `retarget` before is done with (a target dropped as explored sets it too): left set, every
+                # wait would end at once and this loop would spin without ever yielding.
+                self.retarget.clear()
+                await flight.face(self._look_around(flight), WAIT_FOR_TARGET_S, stop, interrupt=self.retarget)
                 continue
             self.retarget.clear()
             path = await self._plan(target.viewpoint)
+            if path is None:
+                path = await self._plan_to_another_viewpoint(target)
             if path is None:
                 self._cannot_reach(target)
                 continue
             reached = await flight.fly_path(path, stop, interrupt=self.retarget)
             if reached and self.target is target:
+                # The next target is decided while this one is looked at (the look is not cut short by it): an
+                # explorer's next target takes two decisions (its report, its leader's assignment), and waiting
+                # for them after the look left every drone hovering for most of a second at every target.
+                self._looked_at(target)
                 await flight.face(target.point, self.settings.dwell_s, stop)
-                self._done_with(target)
+                if self.target is target:
+                    self.target = None
         home = self.home()
         if self.settings.return_home and home is not None:
             await self._return(flight, stop, home)
@@ -389,6 +400,17 @@ class Exploration:
         self.log("path", waypoints=[_r(p) for p in path])
         return path[1:] if path[0] == here else path
 
+    async def _plan_to_another_viewpoint(self, target: Target) -> list[Vec3] | None:
+        """A path to another place this drone's map lets it look at the target's point from, or None. A
+        viewpoint from another drone's report can be blocked in this drone's map (patches on their way, or the
+        reporter's own position counted as free in its map); the target is still the same one."""
+        assert self.grid is not None
+        seen_from = self.grid.viewpoint_for(target.point, self.position())
+        if seen_from is None or _distance(seen_from, target.viewpoint) < 1e-6:
+            return None
+        self.log("viewpoint_moved", target=_r(target.viewpoint), to=_r(seen_from))
+        return await self._plan(seen_from)
+
     def _cannot_reach(self, target: Target) -> None:
         """No path to the target's viewpoint in this drone's map: it is not given to this drone again for
         UNREACHABLE_RETRY_S (the others may reach it, and the map may open up), and after UNREACHABLE_GIVE_UP
@@ -410,11 +432,15 @@ class Exploration:
         return [v for v, t in self.unreachable if t >= since]
 
     def _done_with(self, target: Target) -> None:
-        """A target reached and looked at, or given up as unreachable: either way nobody is sent there again,
-        and the cluster assigns again now."""
-        self.visited.append(target.viewpoint)
+        """A target given up as unreachable: nobody is sent there again, and the cluster assigns again now."""
+        self._looked_at(target)
         if self.target is target:
             self.target = None
+
+    def _looked_at(self, target: Target) -> None:
+        """A target reached (its look is starting) or given up: it counts as visited, and the cluster assigns
+        again now."""
+        self.visited.append(target.viewpoint)
         self.arrived = True
         self.wake.set()
 

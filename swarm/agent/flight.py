@@ -212,15 +212,17 @@ class Flight:
         finally:
             self.path_ahead = []
 
-    async def face(self, point: Vec3, seconds: float, stop: asyncio.Event) -> None:
+    async def face(self, point: Vec3, seconds: float, stop: asyncio.Event,
+                   interrupt: asyncio.Event | None = None) -> None:
         """Hold position, turn towards `point` and look at it for `seconds` (the camera maps while we wait); a
-        lower id coming close meanwhile is given way to, and the look ends there."""
+        lower id coming close meanwhile is given way to, and the look ends there; so it does when `interrupt` is
+        set."""
         here = self.ap.telemetry.position
         yaw = math.degrees(math.atan2(point[1] - here[1], point[0] - here[0]))
         hold = self._carrot if self._carrot is not None else here
         self.heading_to = None
         end = time.monotonic() + seconds
-        while time.monotonic() < end:
+        while time.monotonic() < end and not (interrupt is not None and interrupt.is_set()):
             position = np.array(self.ap.telemetry.position)
             rival = self._rival(position, position)  # no segment: only a lower id counts
             if rival is not None:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 from typing import Any
 
+import numpy as np
 import pytest
 
 from swarm.agent.exploration import UNREACHABLE_GIVE_UP, UNREACHABLE_RETRY_S, Exploration, Target
@@ -165,3 +166,161 @@ def test_a_path_is_checked_from_the_drone_on_not_back_to_the_waypoints_it_passed
     exploration._check_path()
     assert [e["event"] for e in events] == ["path_blocked"]
     assert exploration.retarget.is_set()
+
+
+class _FakeFlight:
+    """Records what the exploration flies; every path is reached and every look lasts its full time (or until
+    interrupted). Only the calls `Exploration.fly` makes."""
+
+    def __init__(self, exploration: Exploration, on_look: Any = None) -> None:
+        self.exploration, self.on_look, self.looks, self.paths = exploration, on_look, [], []
+        self.path_ahead: list[Any] = []
+        self.ap = type("AP", (), {"telemetry": type("T", (), {"yaw_deg": 0.0})()})()
+
+    async def fly_path(self, path: list[Any], stop: asyncio.Event, interrupt: asyncio.Event | None = None) -> bool:
+        self.paths.append(path)
+        return True
+
+    async def face(self, point: Any, seconds: float, stop: asyncio.Event, interrupt: asyncio.Event | None = None) -> None:
+        self.looks.append((point, list(self.exploration.visited)))
+        if self.on_look is not None:
+            self.on_look(point)
+        await asyncio.sleep(0)
+
+
+async def test_a_target_counts_as_visited_when_its_look_starts_so_the_next_is_decided_meanwhile() -> None:
+    """An explorer's next target takes two decisions (its report, then its leader's assignment): decided only
+    after the look, every target cost most of a second of hovering."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from swarm.explore.grid import OccupancyGrid
+
+    exploration = _exploration([])
+    exploration.grid = SimpleNamespace(planning_grid=OccupancyGrid(np.zeros(3), 0.2, np.zeros((20, 20, 15), bool)))  # type: ignore[assignment]
+    first = Target((1.0, 1.0, 1.5), (1.5, 1.0, 1.5), "leader")
+    second = Target((3.0, 3.0, 1.5), (3.5, 3.0, 1.5), "leader")
+    woken_during_look: list[bool] = []
+
+    def look(point: Any) -> None:
+        if point == first.point:
+            woken_during_look.append(exploration.wake.is_set() and exploration.arrived)
+            exploration._set_target(second)  # the leader's next assignment arrives while we look
+        elif point == second.point:
+            exploration._finish("done")
+
+    flight = _FakeFlight(exploration, look)
+    exploration._set_target(first)
+    exploration._decisions = asyncio.create_task(asyncio.sleep(3600))  # no decision loop here
+    exploration.fly = Exploration.fly.__get__(exploration)
+    stop = asyncio.Event()
+    try:
+        await asyncio.wait_for(_fly_without_decisions(exploration, flight, stop), timeout=10.0)
+    finally:
+        await exploration.close()
+    assert flight.looks[0] == (first.point, [first.viewpoint])  # visited before the look, and asked for more
+    assert woken_during_look == [True]
+    assert [p[-1] for p in flight.paths[:2]] == [first.viewpoint, second.viewpoint]  # straight on to the next
+    assert exploration.visited[:2] == [first.viewpoint, second.viewpoint]
+
+
+async def _fly_without_decisions(exploration: Exploration, flight: Any, stop: asyncio.Event) -> None:
+    """`Exploration.fly` with the decision loop it starts replaced by nothing, and no flight home."""
+    exploration.settings = exploration.settings.model_copy(update={"return_home": False})
+
+    async def no_decisions() -> None:
+        await asyncio.sleep(3600)
+
+    exploration.decide_forever = no_decisions  # type: ignore[method-assign]
+    await exploration.fly(flight, stop)  # type: ignore[arg-type]
+
+
+async def test_waiting_for_a_target_ends_as_soon_as_one_comes() -> None:
+    """A drone with no target turns and maps in WAIT_FOR_TARGET_S looks; a new target ends the look at once."""
+    from swarm.agent.flight import Flight
+
+    class Telemetry:
+        position = (0.0, 0.0, 1.5)
+        yaw_deg = 0.0
+        telemetry_age_s = 0.0
+
+    class AP:
+        telemetry = Telemetry()
+        telemetry_age_s = 0.0
+
+        async def set_setpoint(self, position: Any, yaw: float) -> None:
+            pass
+
+    flight = Flight.__new__(Flight)  # only what `face` reads
+    flight.ap = AP()  # type: ignore[assignment]
+    flight._carrot = None
+    flight.heading_to = None
+    flight.separation_m = 0.0
+    flight.neighbours = list  # type: ignore[assignment]
+    flight._last_check = __import__("time").monotonic()
+    flight._judge_telemetry_after = 0.0
+    flight.airborne = True
+    flight.settings = load_config().agent
+    flight.log = lambda *a, **k: None  # type: ignore[assignment]
+    interrupt = asyncio.Event()
+    asyncio.get_running_loop().call_later(0.2, interrupt.set)
+    started = asyncio.get_running_loop().time()
+    await flight.face((1.0, 0.0, 1.5), 30.0, asyncio.Event(), interrupt=interrupt)
+    assert asyncio.get_running_loop().time() - started < 5.0  # not the 30 s look
+
+
+def test_a_target_whose_viewpoint_is_blocked_here_is_looked_at_from_a_place_this_map_allows() -> None:
+    """A viewpoint from another drone's report can be blocked in this drone's map; the target's point can often
+    still be seen from a safe cell nearby."""
+    from swarm.config import ExploreSettings
+    from swarm.explore.frontiers import ExplorationGrid
+    from tests.explore.synthetic import room_states, set_states
+    from swarm.patches.fused import OCCUPIED
+
+    states = room_states(known_to_x=8.0)
+    set_states(states, (3.0, 2.6, 1.2), (3.4, 3.0, 1.8), OCCUPIED)  # a block where the reporter saw free space
+    grid = ExplorationGrid.from_states((0.0, 0.0, 0.0), 0.2, states, ExploreSettings(body_height_m=0.0), 0.0, 3.0)
+    events: list[dict[str, Any]] = []
+    exploration = _exploration(events)
+    exploration.grid = grid
+    exploration.position = lambda: (1.0, 3.0, 1.5)
+    target = Target((3.1, 2.9, 1.5), (3.9, 2.9, 1.5), "leader")
+    assert asyncio.run(exploration._plan(target.viewpoint)) is None
+    path = asyncio.run(exploration._plan_to_another_viewpoint(target))
+    assert path is not None
+    seen_from = path[-1]
+    assert grid.planning_grid.is_free(seen_from)
+    assert np.linalg.norm(np.subtract(seen_from, target.point)) <= grid.settings.reach_m + 1e-9
+    assert events[-2]["event"] == "viewpoint_moved" and events[-2]["to"] == [round(v, 2) for v in seen_from]
+
+
+async def test_a_drone_whose_target_was_dropped_waits_for_the_next_instead_of_spinning() -> None:
+    """A target dropped as explored sets `retarget`; left set, the wait for the next target ended at once, the
+    flight loop spun without yielding and the agent hung (a 3-drone office mission)."""
+    from types import SimpleNamespace
+
+    exploration = _exploration([])
+    exploration.grid = SimpleNamespace()  # type: ignore[assignment]  # not read while there is no target
+    calls = []
+
+    class Waiting(_FakeFlight):
+        async def face(self, point: Any, seconds: float, stop: asyncio.Event,
+                       interrupt: asyncio.Event | None = None) -> None:
+            calls.append(point)
+            if interrupt is not None and interrupt.is_set():
+                await asyncio.sleep(0)  # the real look returns at once, without even this
+                return
+            try:
+                await asyncio.wait_for(interrupt.wait() if interrupt else asyncio.sleep(seconds), seconds)
+            except asyncio.TimeoutError:
+                pass
+
+    exploration.target = None
+    exploration.retarget.set()  # as `_check_path` leaves it when the target's frontier is gone
+    flying = asyncio.create_task(_fly_without_decisions(exploration, Waiting(exploration), asyncio.Event()))
+    await asyncio.sleep(0.3)
+    exploration._finish("done")
+    await asyncio.wait_for(flying, timeout=5.0)
+    await exploration.close()
+    assert 1 <= len(calls) <= 2  # one wait of WAIT_FOR_TARGET_S (0.5 s), ended by `done`
