@@ -324,7 +324,8 @@ class Exploration:
             self.targets_self_selected += 1
         else:
             self.targets_assigned += 1
-        self.log("target", viewpoint=_r(target.viewpoint), point=_r(target.point), source=target.source)
+        self.log("target", viewpoint=_r(target.viewpoint), point=_r(target.point), source=target.source,
+                 replaces=_r(current.viewpoint) if current is not None else None)
         self.retarget.set()
         return True
 
@@ -363,6 +364,7 @@ class Exploration:
                 # The next target is decided while this one is looked at (the look is not cut short by it): an
                 # explorer's next target takes two decisions (its report, its leader's assignment), and waiting
                 # for them after the look left every drone hovering for most of a second at every target.
+                self.log("target_reached", viewpoint=_r(target.viewpoint))
                 self._looked_at(target)
                 await flight.face(target.point, self.settings.dwell_s, stop)
                 if self.target is target:
