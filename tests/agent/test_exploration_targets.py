@@ -1,4 +1,5 @@
-"""`Exploration._set_target`: how a new assignment replaces (or keeps) the drone's current target.
+"""`Exploration`'s targets: how a new assignment replaces (or keeps) the drone's current target, when a target
+counts as visited, and how the flight loop waits for the next one.
 
 The flight loop knows its target by identity: reaching a target only counts (dwell, "done with it") when the
 target it set out for is still the current one. Re-assigning the same spot at every decision loop must therefore
@@ -8,15 +9,22 @@ keep the object, or a drone whose leader repeats itself never finishes a target.
 from __future__ import annotations
 
 import asyncio
+import time
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 import pytest
 
 from swarm.agent.exploration import UNREACHABLE_GIVE_UP, UNREACHABLE_RETRY_S, Exploration, Target
-from swarm.config import load_config
-from swarm.explore.frontiers import Frontier
+from swarm.agent.flight import Flight
+from swarm.config import ExploreSettings, load_config
+from swarm.explore.frontiers import ExplorationGrid, Frontier
+from swarm.explore.grid import OccupancyGrid
+from swarm.explore.planner import path_is_free
+from swarm.patches.fused import OCCUPIED
 from swarm.roles.membership import PeerTable
+from tests.explore.synthetic import room_states, set_states
 
 
 def _exploration(events: list[dict[str, Any]], **overrides: Any) -> Exploration:
@@ -113,11 +121,7 @@ def test_a_target_looked_at_is_exhausted_by_its_viewpoint_however_far_its_point_
 
 
 def test_from_a_cell_that_is_not_safe_the_flight_starts_at_the_nearest_safe_cell() -> None:
-    from types import SimpleNamespace
 
-    import numpy as np
-
-    from swarm.explore.grid import OccupancyGrid
 
     blocked = np.zeros((20, 20, 15), dtype=bool)  # 4 x 4 x 3 m at 0.2 m
     blocked[:, :, 9:] = True  # nothing is safe above 1.8 m (under a lintel, say)
@@ -138,11 +142,7 @@ def test_from_a_cell_that_is_not_safe_the_flight_starts_at_the_nearest_safe_cell
 
 
 def test_a_path_is_checked_from_the_drone_on_not_back_to_the_waypoints_it_passed() -> None:
-    from types import SimpleNamespace
 
-    import numpy as np
-
-    from swarm.explore.grid import OccupancyGrid
 
     walls = np.zeros((12, 12, 1), dtype=bool)  # 2.4 x 2.4 m at 0.2 m, one layer at 1.4-1.6 m
     walls[:8, 5, 0] = True  # a wall from x 0 to 1.6 m at y 1.0-1.2 m: the path goes round its end
@@ -155,7 +155,6 @@ def test_a_path_is_checked_from_the_drone_on_not_back_to_the_waypoints_it_passed
     exploration.position = lambda: (1.2, 1.9, 1.5)  # on the last leg, west, back past the wall's end
     flight = SimpleNamespace(path_ahead=[(0.5, 1.9, 1.5)])  # passed: (0.5, 0.5), (1.9, 0.5), (1.9, 1.9)
     exploration.flight = flight  # type: ignore[assignment]
-    from swarm.explore.planner import path_is_free
     whole = [(0.5, 0.5, 1.5), (1.9, 0.5, 1.5), (1.9, 1.9, 1.5), (0.5, 1.9, 1.5)]
     assert path_is_free(grid, whole) and not path_is_free(grid, [(1.2, 1.9, 1.5), *whole])
     exploration._check_path()
@@ -191,11 +190,7 @@ class _FakeFlight:
 async def test_a_target_counts_as_visited_when_its_look_starts_so_the_next_is_decided_meanwhile() -> None:
     """An explorer's next target takes two decisions (its report, then its leader's assignment): decided only
     after the look, every target cost most of a second of hovering."""
-    from types import SimpleNamespace
 
-    import numpy as np
-
-    from swarm.explore.grid import OccupancyGrid
 
     exploration = _exploration([])
     exploration.grid = SimpleNamespace(planning_grid=OccupancyGrid(np.zeros(3), 0.2, np.zeros((20, 20, 15), bool)))  # type: ignore[assignment]
@@ -238,7 +233,6 @@ async def _fly_without_decisions(exploration: Exploration, flight: Any, stop: as
 
 async def test_waiting_for_a_target_ends_as_soon_as_one_comes() -> None:
     """A drone with no target turns and maps in WAIT_FOR_TARGET_S looks; a new target ends the look at once."""
-    from swarm.agent.flight import Flight
 
     class Telemetry:
         position = (0.0, 0.0, 1.5)
@@ -258,7 +252,7 @@ async def test_waiting_for_a_target_ends_as_soon_as_one_comes() -> None:
     flight.heading_to = None
     flight.separation_m = 0.0
     flight.neighbours = list  # type: ignore[assignment]
-    flight._last_check = __import__("time").monotonic()
+    flight._last_check = time.monotonic()
     flight._judge_telemetry_after = 0.0
     flight.airborne = True
     flight.settings = load_config().agent
@@ -273,10 +267,6 @@ async def test_waiting_for_a_target_ends_as_soon_as_one_comes() -> None:
 def test_a_target_whose_viewpoint_is_blocked_here_is_looked_at_from_a_place_this_map_allows() -> None:
     """A viewpoint from another drone's report can be blocked in this drone's map; the target's point can often
     still be seen from a safe cell nearby."""
-    from swarm.config import ExploreSettings
-    from swarm.explore.frontiers import ExplorationGrid
-    from tests.explore.synthetic import room_states, set_states
-    from swarm.patches.fused import OCCUPIED
 
     states = room_states(known_to_x=8.0)
     set_states(states, (3.0, 2.6, 1.2), (3.4, 3.0, 1.8), OCCUPIED)  # a block where the reporter saw free space
@@ -298,7 +288,6 @@ def test_a_target_whose_viewpoint_is_blocked_here_is_looked_at_from_a_place_this
 async def test_a_drone_whose_target_was_dropped_waits_for_the_next_instead_of_spinning() -> None:
     """A target dropped as explored sets `retarget`; left set, the wait for the next target ended at once, the
     flight loop spun without yielding and the agent hung (a 3-drone office mission)."""
-    from types import SimpleNamespace
 
     exploration = _exploration([])
     exploration.grid = SimpleNamespace()  # type: ignore[assignment]  # not read while there is no target
