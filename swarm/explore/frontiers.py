@@ -70,9 +70,8 @@ _CONNECT_26 = np.ones((3, 3, 3), dtype=bool)
 _BITS = 64
 VIEW_RAY_SPACING_DEG = 6.0  # the view gain's rays: ~250 for a 90 x 74 degree camera, enough to rank candidates
 _VIEW_CHUNK = 16  # candidates ray-cast at once: bounds the temporaries at ~16 x 200 x 40 samples
-LOOK_YAWS = 8  # directions tried for a frontier looked at from its own cell
-LOOK_RAY_SPACING_DEG = 12.0  # ... with a coarser ring of rays all round (most frontiers are such cells)
-LOOK_AHEAD_M = 1.0  # ... whose point then moves this far the best way (what the flight turns to face)
+LOOK_YAWS = 8  # headings tried for a frontier looked at from its own cell with its unknown straight up or down
+LOOK_AHEAD_M = 1.0  # a frontier looked at from its own cell: its point moves this far the way the camera looks
 _VIEW_UNKNOWN, _VIEW_STOP = 1, 2  # a view ray counts the first, ends at the second (an obstacle, the grid's edge)
 
 
@@ -92,27 +91,20 @@ class ViewModel:
         vfov = 2 * math.degrees(math.atan(math.tan(half_h) * camera.height / camera.width))  # square pixels
         return cls(camera.hfov_deg, vfov, camera.pitch_deg, camera.min_range_m, camera.max_range_m)
 
-    def rays(self, spacing_deg: float = VIEW_RAY_SPACING_DEG, full_circle: bool = False
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Unit ray directions (R, 3) of the camera at yaw 0 (x forward, z up), about `spacing_deg` apart, with
-        each ray's solid angle (R,) and azimuth column (R,): over the field of view, pitched as mounted; or, with
-        `full_circle`, the camera's central column of rays turned all round (columns in azimuth order)."""
-        width = 360.0 if full_circle else self.hfov_deg
-        nh = max(2, math.ceil(width / spacing_deg))
-        nv = max(2, math.ceil(self.vfov_deg / spacing_deg))
-        az = np.radians((np.arange(nh) + 0.5) / nh * width - width / 2)
+    def rays(self) -> tuple[np.ndarray, np.ndarray]:
+        """Unit ray directions (R, 3) over the field of view of the camera at yaw 0 (x forward, z up), pitched as
+        mounted, about VIEW_RAY_SPACING_DEG apart, and each ray's solid angle (R,)."""
+        nh = max(2, math.ceil(self.hfov_deg / VIEW_RAY_SPACING_DEG))
+        nv = max(2, math.ceil(self.vfov_deg / VIEW_RAY_SPACING_DEG))
+        az = np.radians((np.arange(nh) + 0.5) / nh * self.hfov_deg - self.hfov_deg / 2)
         el = np.radians((np.arange(nv) + 0.5) / nv * self.vfov_deg - self.vfov_deg / 2)
         a, e = (g.ravel() for g in np.meshgrid(az, el, indexing="ij"))
-        solid = math.radians(width / nh) * math.radians(self.vfov_deg / nv) * np.cos(e)
-        across = np.zeros_like(a) if full_circle else a  # the ring turns the central column, not the frustum
-        camera = np.stack([np.cos(e) * np.cos(across), np.cos(e) * np.sin(across), np.sin(e)], axis=1)
+        solid = math.radians(self.hfov_deg / nh) * math.radians(self.vfov_deg / nv) * np.cos(e)
+        camera = np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)], axis=1)
         pitch = math.radians(self.pitch_deg)  # positive looks down: a turn about the camera's left axis
         pitched = np.stack([camera[:, 0] * math.cos(pitch) + camera[:, 2] * math.sin(pitch), camera[:, 1],
                             -camera[:, 0] * math.sin(pitch) + camera[:, 2] * math.cos(pitch)], axis=1)
-        if full_circle:
-            pitched = np.stack([pitched[:, 0] * np.cos(a) - pitched[:, 1] * np.sin(a),
-                                pitched[:, 0] * np.sin(a) + pitched[:, 1] * np.cos(a), pitched[:, 2]], axis=1)
-        return pitched, solid, np.repeat(np.arange(nh), nv)
+        return pitched, solid
 
 
 @dataclass(frozen=True)
@@ -233,10 +225,18 @@ class ExplorationGrid:
         level = np.hypot(towards[:, 0], towards[:, 1]) >= self.resolution / 2
         yaw = np.arctan2(towards[:, 1], towards[:, 0])
         if not level.all():
-            yaw[~level] = self.best_look(eyes[blind[~level]], LOOK_YAWS)[0]
+            yaw[~level] = self._best_heading(eyes[blind[~level]])
         points[blind] = eyes[blind] + LOOK_AHEAD_M * np.stack([np.cos(yaw), np.sin(yaw), 0 * yaw], axis=1)
         worth = self.view_gain(eyes, points)
         return [dataclasses.replace(f, point=_vec3(p), gain=float(w)) for f, p, w in zip(found, points, worth)]
+
+    def _best_heading(self, eyes: np.ndarray) -> np.ndarray:
+        """(N,) the best of LOOK_YAWS evenly spaced headings (radians) for the camera at each eye, by view gain."""
+        headings = np.arange(LOOK_YAWS) * (2 * math.pi / LOOK_YAWS)
+        ahead = np.stack([np.cos(headings), np.sin(headings), np.zeros(LOOK_YAWS)], axis=1)
+        looks = (eyes[:, None, :] + ahead[None, :, :]).reshape(-1, 3)
+        gains = self.view_gain(np.repeat(eyes, LOOK_YAWS, axis=0), looks).reshape(len(eyes), LOOK_YAWS)
+        return headings[np.argmax(gains, axis=1)]
 
     def _unknown_direction(self, points: np.ndarray) -> np.ndarray:
         """(N, 3) from each point to the middle of the open unknown cells in its gain cube (0 where none)."""
@@ -286,27 +286,8 @@ class ExplorationGrid:
         if self.view is None or len(eyes) == 0:
             return np.zeros(len(eyes))
         looks = np.asarray(points, dtype=float).reshape(-1, 3) - eyes
-        rays, solid, _ = self.view.rays()
+        rays, solid = self.view.rays()
         return self._ray_volumes(eyes, np.arctan2(looks[:, 1], looks[:, 0]), rays, solid).sum(axis=1)
-
-    def best_look(self, viewpoints: np.ndarray, yaws: int) -> tuple[np.ndarray, np.ndarray]:
-        """For each viewpoint, the best of `yaws` evenly spaced camera headings (radians) and its view gain.
-        One ring of rays all round per viewpoint, summed per heading's field of view."""
-        eyes = np.asarray(viewpoints, dtype=float).reshape(-1, 3)
-        if self.view is None or len(eyes) == 0:
-            return np.zeros(len(eyes)), np.zeros(len(eyes))
-        rays, solid, column = self.view.rays(spacing_deg=LOOK_RAY_SPACING_DEG, full_circle=True)
-        n_az = int(column[-1]) + 1
-        unique, inverse = np.unique(eyes, axis=0, return_inverse=True)  # frontiers often share a viewpoint
-        volumes = self._ray_volumes(unique, np.zeros(len(unique)), rays, solid)
-        ring = np.stack([volumes[:, column == c].sum(axis=1) for c in range(n_az)], axis=1)[inverse.reshape(-1)]
-        columns = (np.arange(n_az) + 0.5) * (2 * math.pi / n_az) - math.pi  # each azimuth column's heading
-        headings = np.arange(yaws) * (2 * math.pi / yaws)
-        off = np.abs((columns[None, :] - headings[:, None] + math.pi) % (2 * math.pi) - math.pi)
-        window = (off <= math.radians(self.view.hfov_deg) / 2).astype(float)  # (yaws, n_az)
-        around = ring @ window.T  # (eyes, yaws)
-        best = np.argmax(around, axis=1)
-        return headings[best], around[np.arange(len(eyes)), best]
 
     def _ray_volumes(self, eyes: np.ndarray, yaws: np.ndarray, rays: np.ndarray, solid: np.ndarray) -> np.ndarray:
         """(N, rays) unknown volume along each ray from each eye, the rays (at yaw 0) turned by that eye's yaw.
