@@ -106,6 +106,8 @@ def build_report(
         "converged": converged(summaries, sealed_patch_ids(plan.out / "agents" / "patches")),
         "bandwidth": bandwidth(summaries),
         "collision_events": (sim or {}).get("collision_events", []),
+        # the simulator's loop ran this late (its process or the machine did not run): no telemetry meanwhile
+        "sim_stalls": (sim or {}).get("stalls", []),
         "agents": agents,
         "presence_timeline": (observer or {}).get("timeline", []),
         "mission": {

@@ -30,6 +30,8 @@ from swarm.sim.worlds import World, load_world, spawn_points
 
 STATUS_PERIOD_S = 0.5
 MAX_CATCHUP_STEPS = 10  # after a longer stall (e.g. the machine was suspended) the simulation skips time
+STALL_REPORT_S = 0.5  # a loop iteration this late is reported in the status (`stalls`)
+MAX_STALLS_KEPT = 100
 
 
 class SimServer:
@@ -52,6 +54,7 @@ class SimServer:
         self._sockets: dict[int, socket.socket] = {}
         self._lock = threading.Lock()
         self._t = 0.0
+        self.stalls: list[dict[str, float]] = []  # late loop iterations (see _note_stall)
         self._ready = False
         self._control_mtime: int | None = None
         self._done = False
@@ -172,9 +175,12 @@ class SimServer:
                 selector.register(sock, selectors.EVENT_READ, self.vehicles[vid])
             next_step = time.monotonic()
             next_status = next_step
+            last = next_step
             while not stop.is_set():
                 ready = selector.select(max(0.0, next_step - time.monotonic()))
                 now = time.monotonic()
+                self._note_stall(now - last)
+                last = now
                 with self._lock:
                     for key, _ in ready:
                         _drain(key.fileobj, key.data, now)
@@ -197,6 +203,13 @@ class SimServer:
         if status_path is not None:
             self.write_status(status_path)
         return self.status()
+
+    def _note_stall(self, gap: float) -> None:
+        """Remember a loop iteration that came this late: the process (or the machine) did not run meanwhile,
+        and no vehicle sent anything. Agents whose telemetry stops for telemetry_timeout_s fail safe, so a
+        mission that ends in failsafe landings is told apart from one where the simulator stalled."""
+        if gap >= STALL_REPORT_S and len(self.stalls) < MAX_STALLS_KEPT:
+            self.stalls.append({"t": round(self._t, 2), "s": round(gap, 2)})
 
     def step(self, dt: float, now: float) -> None:
         """One physics step of every vehicle at time `now` (monotonic seconds), then the collision check."""
@@ -241,6 +254,7 @@ class SimServer:
                 "world": self.world.name,
                 "collisions": self.collisions.total,
                 "collision_events": [e.to_json() for e in self.collisions.events],
+                "stalls": list(self.stalls),
                 "vehicles": vehicles,
             }
 

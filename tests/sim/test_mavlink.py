@@ -263,3 +263,16 @@ def test_port_in_use(port_base: int, box_world: World, taken: str) -> None:
         probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         probe.bind(("127.0.0.1", vehicle_port(config.sim, k)))
         probe.close()
+
+
+def test_a_stalled_simulator_loop_is_reported_in_its_status(port_base: int, box_world: World) -> None:
+    """A mission whose agents all failed safe at once had its simulator silent for 2 s; the status now says when
+    the loop ran late (the process or the machine did not run) and for how long."""
+    with running_sim(sim_config(port_base), box_world) as server, gcs(gcs_port(server.config.sim, 1)) as ground:
+        ground.heartbeat()
+        assert server.status()["stalls"] == []
+        with server._lock:  # the loop cannot step, answer or send while we hold it
+            time.sleep(0.8)
+        wait_until(lambda: server.status()["stalls"] != [], 2.0, "the stall to be reported")
+        [stall] = server.status()["stalls"]
+        assert 0.7 <= stall["s"] < 2.0
