@@ -68,7 +68,7 @@ _LINE_OF_SIGHT_STEP = 0.25  # line of sight is sampled every quarter cell: a wal
 _EPS = 1e-9
 _CONNECT_26 = np.ones((3, 3, 3), dtype=bool)
 _BITS = 64
-VIEW_RAY_SPACING_DEG = 6.0  # the view gain's rays: ~250 for a 90 x 74 degree camera, enough to rank candidates
+VIEW_RAY_SPACING_DEG = 6.0  # the view gain's rays: 195 for a 90 x 74 degree camera, enough to rank candidates
 _VIEW_CHUNK = 16  # candidates ray-cast at once: bounds the temporaries at ~16 x 200 x 40 samples
 LOOK_YAWS = 8  # headings tried for a frontier looked at from its own cell with its unknown straight up or down
 LOOK_AHEAD_M = 1.0  # a frontier looked at from its own cell: its point moves this far the way the camera looks
