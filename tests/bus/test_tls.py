@@ -19,7 +19,7 @@ from swarm.bus.session import zenoh_config
 from swarm.config import BusSettings, ConfigError, load_config
 from swarm.deploy.certs import make_certs
 from swarm.errors import BusError
-from tests.bus.helpers import LEASE_MS, free_tcp_port, make_state, wait_until
+from tests.bus.helpers import LEASE_MS, free_tcp_port, make_state
 
 MISSION = "tls"
 ROUNDS = 20
