@@ -121,8 +121,6 @@ def test_a_target_looked_at_is_exhausted_by_its_viewpoint_however_far_its_point_
 
 
 def test_from_a_cell_that_is_not_safe_the_flight_starts_at_the_nearest_safe_cell() -> None:
-
-
     blocked = np.zeros((20, 20, 15), dtype=bool)  # 4 x 4 x 3 m at 0.2 m
     blocked[:, :, 9:] = True  # nothing is safe above 1.8 m (under a lintel, say)
     grid = OccupancyGrid(np.zeros(3), 0.2, blocked)
@@ -142,8 +140,6 @@ def test_from_a_cell_that_is_not_safe_the_flight_starts_at_the_nearest_safe_cell
 
 
 def test_a_path_is_checked_from_the_drone_on_not_back_to_the_waypoints_it_passed() -> None:
-
-
     walls = np.zeros((12, 12, 1), dtype=bool)  # 2.4 x 2.4 m at 0.2 m, one layer at 1.4-1.6 m
     walls[:8, 5, 0] = True  # a wall from x 0 to 1.6 m at y 1.0-1.2 m: the path goes round its end
     grid = OccupancyGrid(np.array([0.0, 0.0, 1.4]), 0.2, walls)
