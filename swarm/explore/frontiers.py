@@ -39,6 +39,7 @@ UNKNOWN, FREE or OCCUPIED per cell, cell (i, j, k) spanning `origin + [i, i+1) x
   r^2 dr dOmega (unknown space is taken to be see-through, as next-best-view planners do). The box gain ranks a
   spot on the floor beside the take-off point (1-3 m^3) with a doorway onto an unseen room (4-6 m^3), so drones
   spent their first half minute on the floor around them; seen from their viewpoints the two differ fifty-fold.
+  Candidates whose view gain is under `min_view_gain_m3` are dropped: not worth a trip.
 - viewpoint: the reachable cell nearest `point`, provided the straight line between them crosses no OCCUPIED
   cell (a viewpoint on the far side of a thin wall sees nothing); otherwise the nearest reachable cell within
   `reach_m` that has that line of sight; none, and the group is dropped.
@@ -64,6 +65,8 @@ from swarm.explore.grid import OccupancyGrid
 from swarm.patches.fused import FREE, OCCUPIED, UNKNOWN
 
 START_SEARCH_RADIUS_M = 1.5  # a position's reachable set starts at the safe cell nearest it, this far at most
+POCKET_M3 = 0.5  # a reachable set smaller than this is a pocket the map closed round the drone, not its space
+ESCAPE_RADIUS_M = 3.0  # how far a drone in a pocket looks for the open space it came from
 _LINE_OF_SIGHT_STEP = 0.25  # line of sight is sampled every quarter cell: a wall a cell thick is never skipped
 _EPS = 1e-9
 _CONNECT_26 = np.ones((3, 3, 3), dtype=bool)
@@ -184,6 +187,35 @@ class ExplorationGrid:
         mask[:, :, k0:k1] = self._labels == self._labels[i, j, k - k0]
         return mask
 
+    def in_pocket(self, position: Vec3) -> bool:
+        """The space reachable from `position` is a pocket (under POCKET_M3, or none at all): a drone that stepped
+        aside, or whose map grew round it, and that must get out before calling anything unreachable (from a
+        pocket every plan fails after a few cells, and every frontier would be given up)."""
+        start = self.planning_grid.nearest_free(position, START_SEARCH_RADIUS_M)
+        if start is None:
+            return True
+        i, j, k = self.planning_grid.indices_of(start[None, :])[0]
+        label = self._labels[i, j, k - self._band[0]]
+        return bool(self._component_sizes[label] * self.resolution**3 < POCKET_M3)
+
+    def escape(self, position: Vec3) -> Vec3 | None:
+        """Centre of the safe cell nearest `position`, within ESCAPE_RADIUS_M, that is not in a pocket; None."""
+        big = self._component_sizes * self.resolution**3 >= POCKET_M3
+        big[0] = False  # label 0: not safe
+        k0, k1 = self._band
+        mask = np.zeros(self._free.shape, dtype=bool)
+        mask[:, :, k0:k1] = big[self._labels]
+        p = np.asarray(position, dtype=float)
+        lo = np.maximum(np.floor((p - ESCAPE_RADIUS_M - self.origin) / self.resolution), 0).astype(np.int64)
+        hi = np.minimum(np.floor((p + ESCAPE_RADIUS_M - self.origin) / self.resolution) + 1, mask.shape)
+        cells = np.argwhere(mask[lo[0] : int(hi[0]), lo[1] : int(hi[1]), lo[2] : int(hi[2])]) + lo
+        if len(cells) == 0:
+            return None
+        centres = self._centre(cells)
+        distance = np.linalg.norm(centres - p, axis=1)
+        best = int(np.argmin(distance))
+        return _vec3(centres[best]) if distance[best] <= ESCAPE_RADIUS_M else None
+
     def frontiers(self, position: Vec3) -> list[Frontier]:
         """The frontier groups seen from `position`'s reachable space, by gain (the view gain when the grid has
         a camera, else the box gain), largest first."""
@@ -210,7 +242,8 @@ class ExplorationGrid:
                 found.append(Frontier(_vec3(target), _vec3(viewpoint), float(gains[g]), int(counts[g])))
         if self.view is None or not found:
             return found
-        return sorted(self._with_view_gains(found), key=lambda f: -f.gain)
+        worth = [f for f in self._with_view_gains(found) if f.gain >= self.settings.min_view_gain_m3]
+        return sorted(worth, key=lambda f: -f.gain)
 
     def _with_view_gains(self, found: list[Frontier]) -> list[Frontier]:
         """The frontiers with their view gains. A frontier whose viewpoint is its own point (a drone can stand
@@ -344,6 +377,11 @@ class ExplorationGrid:
         k0, k1 = self._band
         labels, _ = ndimage.label(~self.planning_grid.occupied[:, :, k0:k1], structure=_CONNECT_26)
         return labels
+
+    @cached_property
+    def _component_sizes(self) -> np.ndarray:
+        """Cells per label of `_labels` (label 0, the cells that are not safe, included)."""
+        return np.bincount(self._labels.ravel())
 
     @cached_property
     def _frontier_cells(self) -> np.ndarray:

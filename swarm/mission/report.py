@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 from swarm import __version__
 from swarm.files import write_json_atomic
-from swarm.mission.plots import PLOT_NAMES, write_plots
+from swarm.mission.plots import COVERAGE_TARGET, PLOT_NAMES, write_plots
 from swarm.mission.report_md import REPORT_PAGE, write_report_page
 from swarm.patches.digest import PatchDigest
 
@@ -67,6 +67,8 @@ def build_report(
                 "traffic": summary.get("traffic", {}),
                 "targets_assigned": int(summary.get("targets_assigned", 0)),
                 "targets_self_selected": int(summary.get("targets_self_selected", 0)),
+                "exploration_done_reason": summary.get("exploration_done_reason") or None,
+                "frontiers_given_up": summary.get("frontiers_given_up", []),
             }
         )
         summaries[k] = summary
@@ -78,6 +80,9 @@ def build_report(
     lo, hi = plan.volume
     explored_timeline = (observer or {}).get("explored_timeline", [])
     explore = getattr(plan.config, "explore", None)
+    explored = float((observer or {}).get("explored_fraction", 0.0))
+    if status == "complete" and _judged_by_coverage(plan.config) and explored < COVERAGE_TARGET:
+        status, state.reason = "incomplete", _why_short(explored, agents)
     links = state.links.report() if getattr(state, "links", None) is not None else {}
     return {
         "status": status,
@@ -89,7 +94,7 @@ def build_report(
         # unix time of the mission clock's zero: an agent log's `t` minus this is the report's mission time
         "started_at": round(getattr(state, "started_wall", 0.0), 3),
         "collisions": int((sim or {}).get("collisions", 0)),
-        "explored_fraction": float((observer or {}).get("explored_fraction", 0.0)),
+        "explored_fraction": explored,
         "explored_timeline": explored_timeline,
         "time_to": time_to(explored_timeline),
         "explored_by_agent": (observer or {}).get("explored_by_agent", {}),
@@ -124,6 +129,21 @@ def build_report(
         "report_page": None,
         "swarm_version": __version__,
     }
+
+
+def _judged_by_coverage(config: Any) -> bool:
+    """Missions whose drones explore with a camera end `complete` only at COVERAGE_TARGET explored: below it,
+    "exploration done" is a verdict the ground truth contradicts (scripted routes and camera-less runs are not
+    judged by it)."""
+    explore, camera = getattr(config, "explore", None), getattr(config, "camera", None)
+    return getattr(explore, "strategy", "scripted") != "scripted" and getattr(camera, "source", "none") != "none"
+
+
+def _why_short(explored: float, agents: list[dict[str, Any]]) -> str:
+    reasons = sorted({a["exploration_done_reason"] for a in agents if a.get("exploration_done_reason")})
+    given_up = sum(len(a.get("frontiers_given_up") or []) for a in agents)
+    return (f"exploration ended at {explored:.1%} explored, below {COVERAGE_TARGET:.0%}: "
+            f"{'; '.join(reasons) or 'no agent said why'}; {given_up} frontier(s) given up (agents[].frontiers_given_up)")
 
 
 def time_to(

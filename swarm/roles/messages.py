@@ -37,8 +37,8 @@ def _check_points(name: str, points: np.ndarray, limit: int) -> None:
 
 class FrontierReport(WireMessage):
     """An agent's candidate targets this loop (each a viewpoint, the frontier point it looks at, and the
-    unknown volume around that point), the frontier points it has already gone and looked at, and whether it
-    has just reached its target (which makes the leader assign again without waiting for the loop)."""
+    unknown volume around that point), the viewpoints it has already looked from and what it looked at, and
+    whether it has just reached its target (which makes the leader assign again without waiting for the loop)."""
 
     KIND = "frontiers"
 
@@ -50,15 +50,20 @@ class FrontierReport(WireMessage):
     points: _Points = EMPTY_POINTS
     gains: _Gains = EMPTY_GAINS
     visited: _Points = EMPTY_POINTS
+    looked_at: _Points = EMPTY_POINTS  # the point each visited viewpoint looked at (empty: every way)
     unreachable: _Points = EMPTY_POINTS  # viewpoints it recently could not plan a path to: not to be assigned to it
     arrived: bool = False
+    in_pocket: bool = False  # its map shuts it in where it is: its empty candidate list says nothing yet
 
     @model_validator(mode="after")
     def _shapes(self) -> FrontierReport:
         _check_points("viewpoints", self.viewpoints, MAX_CANDIDATES)
         _check_points("points", self.points, MAX_CANDIDATES)
         _check_points("visited", self.visited, MAX_VISITED)
+        _check_points("looked_at", self.looked_at, MAX_VISITED)
         _check_points("unreachable", self.unreachable, MAX_VISITED)
+        if len(self.looked_at) not in (0, len(self.visited)):
+            raise ValueError("looked_at must be empty or as long as visited")
         if not (len(self.viewpoints) == len(self.points) == len(self.gains)):
             raise ValueError("viewpoints, points and gains must have the same length")
         if not (np.isfinite(self.gains).all() and (self.gains >= 0).all()):

@@ -1,9 +1,9 @@
-"""`Exploration`'s targets: how a new assignment replaces (or keeps) the drone's current target, when a target
-counts as visited, and how the flight loop waits for the next one.
+"""`Exploration`'s flight side: when a target counts as visited, how the flight loop waits for the next one,
+where paths start and which part of them is checked. The decisions themselves are the core's
+(tests/roles/test_protocol.py).
 
 The flight loop knows its target by identity: reaching a target only counts (dwell, "done with it") when the
-target it set out for is still the current one. Re-assigning the same spot at every decision loop must therefore
-keep the object, or a drone whose leader repeats itself never finishes a target.
+target it set out for is still the current one.
 """
 
 from __future__ import annotations
@@ -16,15 +16,23 @@ from typing import Any
 import numpy as np
 import pytest
 
-from swarm.agent.exploration import UNREACHABLE_GIVE_UP, UNREACHABLE_RETRY_S, Exploration, Target
+from swarm.agent.exploration import Exploration, Target
 from swarm.agent.flight import Flight
 from swarm.config import ExploreSettings, load_config
-from swarm.explore.frontiers import ExplorationGrid, Frontier
+from swarm.explore.frontiers import ExplorationGrid
 from swarm.explore.grid import OccupancyGrid
 from swarm.explore.planner import path_is_free
 from swarm.patches.fused import OCCUPIED
 from swarm.roles.membership import PeerTable
+from swarm.roles.protocol import Effects
 from tests.explore.synthetic import room_states, set_states
+
+
+def _give(exploration: Exploration, target: Target) -> None:
+    """A target from the leader, as `_on_assignment` hands it over."""
+    effects = Effects()
+    exploration.core.set_target(effects, target)
+    exploration._apply(effects)
 
 
 def _exploration(events: list[dict[str, Any]], **overrides: Any) -> Exploration:
@@ -54,70 +62,6 @@ async def test_the_decision_loop_decides_at_once_then_every_loop(monkeypatch) ->
     finally:
         loop.cancel()
         await asyncio.gather(loop, return_exceptions=True)
-
-
-def test_the_same_spot_assigned_again_keeps_the_target_object() -> None:
-    events: list[dict[str, Any]] = []
-    exploration = _exploration(events)
-    assert exploration._set_target(Target((1.0, 1.0, 1.5), (1.5, 1.0, 1.5), "self"))
-    flying_to = exploration.target
-    exploration.retarget.clear()
-    kept = exploration._set_target(Target((1.3, 1.2, 1.5), (1.9, 1.2, 1.5), "leader"))  # 0.36 m away
-    assert kept is False
-    assert exploration.target is flying_to  # the flight loop still recognises it when it arrives
-    assert flying_to.viewpoint == (1.0, 1.0, 1.5) and flying_to.point == (1.9, 1.2, 1.5)
-    assert flying_to.source == "leader"  # the leader has confirmed it: tau no longer applies
-    assert not exploration.retarget.is_set()
-    assert (exploration.targets_self_selected, exploration.targets_assigned) == (1, 0)
-    assert [e["event"] for e in events] == ["target"]
-
-
-def test_a_different_spot_replaces_the_target_and_interrupts_the_flight() -> None:
-    events: list[dict[str, Any]] = []
-    exploration = _exploration(events)
-    exploration._set_target(Target((1.0, 1.0, 1.5), (1.5, 1.0, 1.5), "leader"))
-    first = exploration.target
-    exploration.retarget.clear()
-    assert exploration._set_target(Target((4.0, 1.0, 1.5), (4.5, 1.0, 1.5), "leader"))
-    assert exploration.target is not first and exploration.target.viewpoint == (4.0, 1.0, 1.5)
-    assert exploration.retarget.is_set()
-    assert exploration.targets_assigned == 2
-    assert [e["event"] for e in events] == ["target", "target"]
-
-
-def test_a_target_without_a_path_is_kept_from_this_drone_a_while_then_given_up(monkeypatch) -> None:
-    events: list[dict[str, Any]] = []
-    exploration = _exploration(events)
-    clock = [100.0]
-    monkeypatch.setattr("swarm.agent.exploration.time.monotonic", lambda: clock[0])
-    behind_a_door = Target((5.0, 1.0, 1.5), (5.5, 1.0, 1.5), "leader")
-    for _ in range(1, UNREACHABLE_GIVE_UP):
-        exploration._set_target(behind_a_door)
-        exploration._cannot_reach(behind_a_door)
-        assert exploration.target is None and exploration.arrived  # asks for another target now
-        assert exploration._recently_unreachable() == [behind_a_door.viewpoint]
-        assert exploration.visited == []  # the others may still be sent there
-        clock[0] += UNREACHABLE_RETRY_S + 1.0
-        assert exploration._recently_unreachable() == []  # and it may be tried again
-    exploration._set_target(behind_a_door)
-    exploration._cannot_reach(behind_a_door)
-    assert exploration.visited == [behind_a_door.viewpoint]  # the last try: nobody is sent there again
-    assert events[-1]["event"] == "unreachable_given_up"
-
-
-def test_a_target_looked_at_is_exhausted_by_its_viewpoint_however_far_its_point_is() -> None:
-    """Found in a box mission: a frontier point 0.82 m above its viewpoint (a ceiling corner the camera cannot
-    see from below) was assigned, reached and assigned again for 80 s, because what the drone remembered as
-    visited was the point, while exhaustion compares viewpoints (`visited_radius_m`, 0.8 m)."""
-    exploration = _exploration([])
-    ceiling_corner = Target((4.7, 3.9, 1.5), (4.7, 4.1, 2.3), "leader")
-    assert exploration._candidates([Frontier(ceiling_corner.point, ceiling_corner.viewpoint, 2.0, 4)])
-    exploration._set_target(ceiling_corner)
-    exploration._done_with(ceiling_corner)
-    assert exploration.visited == [ceiling_corner.viewpoint]
-    assert exploration._candidates([Frontier(ceiling_corner.point, ceiling_corner.viewpoint, 2.0, 4)]) == []
-    elsewhere = Frontier((8.0, 3.9, 1.5), (7.5, 3.9, 1.5), 2.0, 4)
-    assert [c.viewpoint for c in exploration._candidates([elsewhere])] == [elsewhere.viewpoint]
 
 
 def test_from_a_cell_that_is_not_safe_the_flight_starts_at_the_nearest_safe_cell() -> None:
@@ -196,13 +140,13 @@ async def test_a_target_counts_as_visited_when_its_look_starts_so_the_next_is_de
 
     def look(point: Any) -> None:
         if point == first.point:
-            woken_during_look.append(exploration.wake.is_set() and exploration.arrived)
-            exploration._set_target(second)  # the leader's next assignment arrives while we look
+            woken_during_look.append(exploration.wake.is_set() and exploration.core.arrived)
+            _give(exploration, second)  # the leader's next assignment arrives while we look
         elif point == second.point:
             exploration._finish("done")
 
     flight = _FakeFlight(exploration, look)
-    exploration._set_target(first)
+    _give(exploration, first)
     exploration._decisions = asyncio.create_task(asyncio.sleep(3600))  # no decision loop here
     exploration.fly = Exploration.fly.__get__(exploration)
     stop = asyncio.Event()
@@ -309,3 +253,48 @@ async def test_a_drone_whose_target_was_dropped_waits_for_the_next_instead_of_sp
     await asyncio.wait_for(flying, timeout=5.0)
     await exploration.close()
     assert 1 <= len(calls) <= 2  # one wait of WAIT_FOR_TARGET_S (0.5 s), ended by `done`
+
+
+async def test_a_drone_in_a_pocket_gets_out_before_it_calls_its_target_unreachable() -> None:
+    """From a pocket every plan fails after a few cells: counted as unreachable, every target was given up."""
+    events: list[dict[str, Any]] = []
+    exploration = _exploration(events)
+    out = (2.0, 1.0, 1.5)
+
+    class PocketGrid:
+        planning_grid = OccupancyGrid(np.zeros(3), 0.2, np.ones((20, 20, 15), bool))  # no plan succeeds
+        pocket = True
+
+        def in_pocket(self, position: Any) -> bool:
+            return self.pocket
+
+        def escape(self, position: Any) -> Any:
+            return out
+
+        def viewpoint_for(self, point: Any, position: Any) -> None:
+            return None
+
+        def gain_at(self, points: Any) -> np.ndarray:
+            return np.zeros(len(points))
+
+    grid = PocketGrid()
+    exploration.grid = grid  # type: ignore[assignment]
+
+    class Escaping(_FakeFlight):
+        async def fly_path(self, path: list[Any], stop: asyncio.Event, interrupt: asyncio.Event | None = None) -> bool:
+            self.paths.append(path)
+            grid.pocket = False  # out: the next failure counts
+            return True
+
+        async def face(self, point: Any, seconds: float, stop: asyncio.Event,
+                       interrupt: asyncio.Event | None = None) -> None:
+            exploration._finish("done")  # waiting for a new target: end the test's mission
+            await asyncio.sleep(0)
+
+    flight = Escaping(exploration)
+    _give(exploration, Target((5.0, 1.0, 1.5), (5.5, 1.0, 1.5), "leader"))
+    await asyncio.wait_for(_fly_without_decisions(exploration, flight, asyncio.Event()), timeout=10.0)
+    await exploration.close()
+    assert flight.paths == [[out]]  # first out of the pocket ...
+    assert [u.viewpoint for u in exploration.core.unreachable] == [(5.0, 1.0, 1.5)]  # ... then one failure counted
+    assert [e["event"] for e in events].count("in_pocket") == 1

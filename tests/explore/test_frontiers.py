@@ -619,3 +619,19 @@ def test_inflation_matches_a_brute_force_dilation(shape: tuple[int, int, int]) -
                 occupied[max(-dx, 0) : nx - max(dx, 0), max(-dy, 0) : ny - max(dy, 0), max(-dz, 0) : nz - max(dz, 0)]
             )
         assert np.array_equal(_inflate(occupied, radius), expected), radius
+
+
+def test_a_drone_shut_in_a_pocket_of_its_map_is_told_so_and_where_the_open_space_is() -> None:
+    """A planner started in a pocket fails after a few cells ("unreachable from start, 2-4 cells searched"), and
+    every frontier would be given up from there: the drone must know it is in one, and where to get out."""
+    states = room_states(known_to_x=8.0)
+    set_states(states, (4.6, 2.0, 0.8), (6.8, 4.2, 2.2), OCCUPIED)  # a hollow block round (5.7, 3.1, 1.5)
+    set_states(states, (4.8, 2.2, 1.0), (6.6, 4.0, 2.0), FREE)  # ... whose inside holds a few safe cells
+    grid = _grid(states)
+    inside = (5.7, 3.1, 1.5)
+    assert grid.reachable(inside).any() and grid.in_pocket(inside)
+    assert not grid.in_pocket(LEFT)
+    out = grid.escape(inside)
+    assert out is not None and not grid.in_pocket(out) and grid.planning_grid.is_free(out)
+    assert grid.reachable(out)[_cell(LEFT)]  # the room's space, not another pocket
+    assert grid.escape((4.1, 3.0, -5.0)) is None  # nothing open within ESCAPE_RADIUS_M
