@@ -208,15 +208,15 @@ class _Planner:
         if area <= target and long_side <= 2.5 * math.sqrt(self.target_area):
             storey.rooms.append(region)
             return
-        if depth > 0 and area <= 8 * self.target_area and min(region[2] - region[0], region[3] - region[1]) >= 8.0:
-            if self.rng.random() < 0.12:
-                storey.rooms.append(region)
-                storey.halls.append(region)
-                return
+        short_side = min(region[2] - region[0], region[3] - region[1])
+        if depth > 0 and area <= 8 * self.target_area and short_side >= 8.0 and self.rng.random() < 0.12:
+            storey.rooms.append(region)
+            storey.halls.append(region)
+            return
         long_axis = 0 if region[2] - region[0] >= region[3] - region[1] else 1
-        if area >= 5 * self.target_area and self.rng.random() < 0.8:
-            if self._corridor(storey, region, zones, 1 - long_axis, depth):
-                return
+        corridor = area >= 5 * self.target_area and self.rng.random() < 0.8
+        if corridor and self._corridor(storey, region, zones, 1 - long_axis, depth):
+            return
         axes = [long_axis, 1 - long_axis] if self.rng.random() < 0.85 else [1 - long_axis, long_axis]
         for axis in axes:
             if self._split(storey, region, zones, axis, depth):
@@ -370,7 +370,7 @@ def generate(
 
 
 def _draw(rng: np.random.Generator, lo: float, hi: float, step: float = 0.5) -> float:
-    return round(float(lo + step * rng.integers(0, int(round((hi - lo) / step)) + 1)), 2)
+    return round(float(lo + step * rng.integers(0, round((hi - lo) / step) + 1)), 2)
 
 
 def _holes(rng: np.random.Generator, inner: Rect, storeys: int) -> list[_Hole]:

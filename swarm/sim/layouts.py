@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from itertools import pairwise
 
 Vec3 = tuple[float, float, float]
 AxisBox = tuple[Vec3, Vec3]  # (min corner, max corner)
@@ -114,9 +115,9 @@ def slab_pieces(sx: float, sy: float, holes: Sequence[Rect]) -> list[Rect]:
     xs = sorted({0.0, sx, *(v for h in holes for v in (h[0], h[2]))})
     ys = sorted({0.0, sy, *(v for h in holes for v in (h[1], h[3]))})
     pieces: list[Rect] = []
-    for y0, y1 in zip(ys, ys[1:]):
+    for y0, y1 in pairwise(ys):
         run: float | None = None
-        for x0, x1 in zip(xs, xs[1:]):
+        for x0, x1 in pairwise(xs):
             cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
             in_hole = any(h[0] < cx < h[2] and h[1] < cy < h[3] for h in holes)
             if in_hole and run is not None:
