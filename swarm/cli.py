@@ -91,7 +91,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     run = sub.add_parser("run", help="fly a simulated swarm in a world and write a report")
     run.add_argument("--drones", type=_positive_int, help="number of drones (default 3)")
-    run.add_argument("--world", help="built-in world (office, warehouse, box) or a .ply/.obj/.stl mesh")
+    run.add_argument("--world", help="built-in world (office, warehouse, box, atrium, hall), gen:SEED[:options] "
+                     "or a .ply/.obj/.stl mesh")
     run.add_argument("--start", type=_vec3, help="take-off area x,y,z in world metres")
     run.add_argument("--out", type=Path, help="run directory (default runs/<time>-<world>)")
     run.add_argument("--max-time", type=float, dest="max_time", help="mission time limit in seconds")
@@ -114,6 +115,10 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--vehicles", type=_positive_int, help="number of vehicles")
     sim.add_argument("--start", type=_vec3, help="take-off area x,y,z")
     _add_config_flags(sim)
+
+    world = sub.add_parser("world", help="load or generate a world: size, storeys, start, triangles; write its mesh")
+    world.add_argument("spec", help="built-in world, gen:SEED[:size=WxD,storeys=N,rooms=N,furniture=0|1] or mesh")
+    world.add_argument("--out", type=Path, help="write the mesh to this .ply/.obj/.stl file")
 
     agent = sub.add_parser("agent", help="run one drone's agent (next to a real or simulated autopilot)")
     agent.add_argument("--id", type=_positive_int, help="drone id (also its MAVLink system id)")
@@ -285,6 +290,10 @@ def _dispatch(args: argparse.Namespace) -> int:
         from swarm.sim.server import sim_command
 
         return sim_command(config)
+    if args.command == "world":
+        from swarm.sim.worlds import world_command
+
+        return world_command(args.spec, args.out)
     if args.command == "agent":
         config = _config_from(args, {"agent.id": args.id, "agent.autopilot": args.autopilot})
         from swarm.agent.main import agent_command

@@ -112,7 +112,10 @@ class MissionSettings(_Section):
 
     name: str = Field("default", description="mission name; every key expression lives under swarm/<name>/")
     drones: int = Field(3, ge=1, le=16)
-    world: str = Field("office", description="a built-in world name or a path to a .ply/.obj/.stl mesh")
+    world: str = Field(
+        "office", description="a built-in world name, a generated building gen:SEED[:options] or a path to a "
+        ".ply/.obj/.stl mesh"
+    )
     start: Vec3 | None = Field(None, description="take-off area centre; the world's default when unset")
     spawn_spacing_m: PositiveFloat = 1.5
     volume: Box | None = Field(None, description="mission volume; the world mesh bounds when unset")

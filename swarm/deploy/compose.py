@@ -38,7 +38,7 @@ from pydantic import ValidationError
 from swarm.config import ConfigError, SwarmConfig, dump_config, vehicle_port
 from swarm.deploy import yamltext
 from swarm.errors import SwarmError
-from swarm.sim.worlds import BUILTIN_WORLDS, load_world, mission_time_limit_s, mission_volume, spawn_points
+from swarm.sim.worlds import is_mesh_file, load_world, mission_time_limit_s, mission_volume, spawn_points
 
 RADIO_SUBNET = ipaddress.ip_network("10.77.1.0/24")
 CONTROL_SUBNET = ipaddress.ip_network("10.77.2.0/24")
@@ -146,7 +146,7 @@ def plan(
 
     worlds: list[Path] = []
     world_ref = m.world
-    if m.world not in BUILTIN_WORLDS:  # a mesh file: the containers read their copy
+    if is_mesh_file(m.world):  # the containers read their copy; built-in and generated worlds they build
         worlds.append(Path(m.world))
         world_ref = f"{CONFIG_DIR}/worlds/{Path(m.world).name}"
     base = config.model_copy(

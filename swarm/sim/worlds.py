@@ -1,6 +1,7 @@
 """Worlds: z-up triangle meshes in metres (x east, y north, z up), with the geometric queries the simulator needs.
 
-A world is a built-in procedural layout (`office`, `warehouse`, `box`) or a mesh file (.ply/.obj/.stl).
+A world is a built-in layout (`layouts.LAYOUTS`), a generated building (`gen:SEED[:options]`, `buildings.py`) or a
+mesh file (.ply/.obj/.stl).
 Queries run on a cached Open3D `RaycastingScene`. "Inside a solid" is decided by ray parity and is only
 meaningful for closed meshes (every edge shared by exactly two triangles, as the built-in box worlds are); for an
 open mesh nothing is inside, and only the distance to its surface counts.
@@ -10,6 +11,7 @@ from __future__ import annotations
 
 import math
 import os
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -19,7 +21,7 @@ import open3d as o3d
 
 from swarm.config import Box, MissionSettings
 from swarm.errors import WorldError
-from swarm.sim import layouts
+from swarm.sim import buildings, layouts
 
 MESH_EXTENSIONS = (".ply", ".obj", ".stl")
 MAX_WORLD_SIZE_M = 1000.0
@@ -167,11 +169,14 @@ def boxes_to_mesh(boxes: list[layouts.AxisBox], exact: int = 1) -> tuple[np.ndar
     return vertices.reshape(-1, 3), triangles.reshape(-1, 3).astype(np.int32)
 
 
+def world_from_layout(lay: layouts.Layout) -> World:
+    vertices, triangles = boxes_to_mesh(lay.boxes)  # the floor slab is added first and stays exact
+    return World(lay.name, vertices, triangles, lay.default_start)
+
+
 def _from_layout(make: Callable[[], layouts.Layout]) -> Callable[[], World]:
     def build() -> World:
-        lay = make()
-        vertices, triangles = boxes_to_mesh(lay.boxes)  # the floor slab is added first and stays exact
-        return World(lay.name, vertices, triangles, lay.default_start)
+        return world_from_layout(make())
 
     build.__doc__ = make.__doc__
     return build
@@ -183,16 +188,27 @@ BUILTIN_WORLDS: dict[str, Callable[[], World]] = {name: _from_layout(f) for name
 # --- loading ---------------------------------------------------------------------------------------------------
 
 
+def is_mesh_file(spec: str) -> bool:
+    """The world spec names a mesh file (not a built-in world or a generated building)."""
+    return spec not in BUILTIN_WORLDS and not buildings.is_spec(spec)
+
+
 def load_world(spec: str) -> World:
-    """A built-in world by name, or a .ply/.obj/.stl mesh file; raise WorldError (one line) when unusable."""
+    """A built-in world by name, a generated building (`gen:SEED[:options]`, see `buildings`) or a .ply/.obj/.stl
+    mesh file; raise WorldError (one line) when unusable."""
     if spec in BUILTIN_WORLDS:
         return BUILTIN_WORLDS[spec]()
+    if buildings.is_spec(spec):
+        return world_from_layout(buildings.layout_from_spec(spec))
     path = Path(spec)
     names = ", ".join(BUILTIN_WORLDS)
     if not path.exists():
         if path.suffix.lower() in MESH_EXTENSIONS or os.sep in spec:
             raise WorldError(f"world file {path} does not exist (built-in worlds: {names})")
-        raise WorldError(f"world '{spec}' is neither a built-in world ({names}) nor an existing mesh file")
+        raise WorldError(
+            f"world '{spec}' is neither a built-in world ({names}), a generated one ({buildings.SPEC_HELP}) "
+            "nor an existing mesh file"
+        )
     if path.suffix.lower() not in MESH_EXTENSIONS:
         raise WorldError(f"world file {path} has unsupported extension '{path.suffix}' (use .ply, .obj or .stl)")
     try:
@@ -220,6 +236,28 @@ def load_world(spec: str) -> World:
     world = World(path.stem, vertices, triangles, (0.0, 0.0, 0.0))
     world.default_start = find_default_start(world)
     return world
+
+
+def world_command(spec: str, out: Path | None) -> int:
+    """`swarm world SPEC [--out FILE]`: load or generate the world, print what it is, write its mesh."""
+    if out is not None and out.suffix.lower() not in MESH_EXTENSIONS:
+        raise WorldError(f"cannot save world as '{out.suffix}': use one of {', '.join(MESH_EXTENSIONS)}")
+    started = time.perf_counter()
+    world = load_world(spec)
+    built_s = time.perf_counter() - started
+    lo, hi = world.bounds
+    size = hi - lo
+    floors = floor_levels(world)
+    x, y, z = world.default_start
+    print(
+        f"world {world.name}: {size[0]:.1f} x {size[1]:.1f} x {size[2]:.1f} m, {len(floors)} {'storey' if len(floors) == 1 else 'storeys'} (floors at z "
+        f"{', '.join(f'{f:g}' for f in floors) or '?'} m), start ({x:g}, {y:g}, {z:g}), {len(world.triangles)} "
+        f"triangles, {'closed' if world.closed else 'open'}, loaded in {built_s:.2f} s"
+    )
+    if out is not None:
+        world.save(out)
+        print(f"wrote {out} (load it back with --world {out})")
+    return 0
 
 
 def find_default_start(world: World, clearance: float = 0.5, column_height: float = 2.0) -> tuple[float, float, float]:
@@ -250,6 +288,24 @@ def find_default_start(world: World, clearance: float = 0.5, column_height: floa
         raise WorldError(f"world '{world.name}' has no free floor point with {clearance} m clearance")
     x, y, z = feet[np.argmax(ok)]
     return float(x), float(y), _mm(z)
+
+
+def floor_levels(world: World, min_share: float = 0.25) -> list[float]:
+    """Heights (m) of the world's floors: levels where upward-facing surfaces cover at least `min_share` of the
+    footprint, less the top of the roof (within 0.5 m of the mesh's top). An estimate for any mesh; exact for
+    box worlds, whose slabs are the only such surfaces."""
+    corners = world.vertices[world.triangles]
+    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    area = np.linalg.norm(normals, axis=1) / 2
+    up = (normals[:, 2] > 0.99 * np.maximum(np.linalg.norm(normals, axis=1), 1e-12)) & (area > 0)
+    lo, hi = world.bounds
+    footprint = float((hi[0] - lo[0]) * (hi[1] - lo[1]))
+    levels = np.round(corners[up, :, 2].mean(axis=1) / 0.05) * 0.05
+    floors: list[float] = []
+    for level in np.unique(levels):
+        if level < hi[2] - 0.5 and area[up][levels == level].sum() >= min_share * footprint:
+            floors.append(round(float(level), 2) + 0.0)
+    return floors
 
 
 # --- spawn points ----------------------------------------------------------------------------------------------

@@ -249,6 +249,14 @@ def test_non_empty_output_directory_is_refused(tmp_path: Path) -> None:
     assert [p.name for p in tmp_path.iterdir()] == ["keep.txt"]
 
 
+def test_a_generated_world_is_built_by_the_containers_not_copied(tmp_path: Path) -> None:
+    out = tmp_path / "gen"
+    spec = "gen:3:size=20x15"
+    deploy_compose_command(load_config(None, {"mission.world": spec}), 2, 0.0, out, DEFAULT_IMAGE)
+    assert not (out / "config" / "worlds").exists()
+    assert all(c.mission.world == spec for c in configs(out).values())
+
+
 def test_unknown_world_is_one_line(tmp_path: Path) -> None:
     out = tmp_path / "out"
     with pytest.raises(WorldError) as info:

@@ -16,7 +16,7 @@ def test_builtin_world_is_sane(name: str) -> None:
     assert world.name == name
     assert world.vertices.dtype == np.float64 and world.triangles.dtype == np.int32
     assert 50 < len(world.triangles) < 20000
-    assert 5 < size[0] < 50 and 5 < size[1] < 30 and 2.5 < size[2] < 7
+    assert 5 < size[0] < 50 and 5 < size[1] < 40 and 2.5 < size[2] < 7
     assert world.closed
     start = np.array(world.default_start)
     assert start[2] == 0.0
