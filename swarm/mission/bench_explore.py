@@ -289,15 +289,14 @@ def _print(console: Console, config: SwarmConfig, worlds: list[str], summary: li
            oracle: dict[str, dict[str, Any]], repeats: int) -> None:
     where = f"'{worlds[0]}'" if len(worlds) == 1 else f"{len(worlds)} worlds"
     table = Table(title=f"exploring {where} (seed {config.mission.seed}), {repeats} mission(s) per world and row: "
-                        "medians (quartiles)")
-    columns = ("strategy", "drones", "success", "complete < 95 %", "time to 95 %, s", "time to done, s",
-               "vs 1 drone", "vs oracle", "explored", "distance/drone, m", "overlap", "kB/agent-s", "collisions",
-               "closest to world, m")
+                        "medians (quartiles); vs 1 and vs oracle: medians over worlds of the per-world ratios")
+    columns = ("strategy", "drones", "success", "done < 95 %", "to 95 %, s", "to done, s", "vs 1", "vs oracle",
+               "explored", "m/drone", "overlap", "kB/agent-s", "collisions", "closest, m")
     for column in columns:
         table.add_column(column, justify="right")
     for c in summary:
         table.add_row(
-            c["strategy"] + (f" (= {c['same_as']})" if c["same_as"] else ""), str(c["drones"]),
+            c["strategy"] + (f" (= {c['same_as'][:5]}.)" if c["same_as"] else ""), str(c["drones"]),
             f"{c['success']}/{c['missions']}", str(len(c["complete_below_95"])), _fmt_spread(c["time_to_95_s"]),
             _fmt_spread(c["time_to_done_s"]), _ratio(c["vs_1_drone"]), _ratio(c["vs_oracle"]),
             f"{100 * c['explored_fraction']:.1f} %", f"{c['distance_per_drone_m']:.1f}", f"{c['overlap_fraction']:.2f}",
