@@ -5,6 +5,7 @@ missions themselves are real in every other test, the oracle in test_oracle)."""
 from __future__ import annotations
 
 import json
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -13,6 +14,7 @@ from swarm.config import SwarmConfig, load_config
 from swarm.errors import WorldError
 from swarm.mission.bench_explore import bench_explore, expand_worlds, oracle_times, summarise
 from swarm.mission.run import INTERRUPTED
+from tests.helpers import swarm_cmd
 
 
 def _run(strategy: str, drones: int, t95: float | None, duration: float = 300.0, **extra: object) -> dict:
@@ -180,3 +182,16 @@ def test_the_oracle_is_computed_once_per_world_and_size_and_then_read_from_the_c
     slower = config.model_copy(update={"agent": config.agent.model_copy(update={"cruise_speed_m_s": 0.5})})
     with pytest.raises(AssertionError, match="computed again"):
         oracle_times(slower, [1], tmp_path)  # another setting the oracle depends on: not the cached plan
+
+
+@pytest.mark.parametrize("worlds, says", [("gen:5..2", "backwards"), ("gen:x..y", "gen:A..B"),
+                                          ("box,atlantis", "atlantis")])
+def test_bad_worlds_on_the_command_line_are_one_line_and_a_non_zero_exit_before_any_mission(
+    tmp_path: Path, worlds: str, says: str
+) -> None:
+    out = tmp_path / "bench"
+    result = subprocess.run(swarm_cmd("bench", "explore", "--worlds", worlds, "--drones", "1", "--out", str(out)),
+                            capture_output=True, text=True, timeout=120)
+    lines = result.stderr.strip().splitlines()
+    assert result.returncode != 0 and len(lines) == 1 and says in lines[0], result.stderr
+    assert not (out / "bench-explore.json").exists()
