@@ -49,6 +49,7 @@ pruning and sweep per size); a 40 x 30 x 3 m floor should take ~10 s.
 from __future__ import annotations
 
 import heapq
+import itertools
 import math
 import time
 from dataclasses import asdict, dataclass, field
@@ -214,7 +215,7 @@ class Oracle:
         levels = base + k * self.level_spacing_m
         levels = levels[(levels >= band[0]) & (levels <= band[1])]
         layer_z = np.unique(centres[:, 2])
-        chosen_z = np.unique(layer_z[np.abs(layer_z[None, :] - levels[:, None]).argmin(axis=1)]) if len(levels) else []
+        chosen_z: np.ndarray = np.unique(layer_z[np.abs(layer_z[None, :] - levels[:, None]).argmin(axis=1)]) if len(levels) else np.zeros(0)
         keep = on_grid & np.isin(centres[:, 2], chosen_z) & (centres[:, 2] >= band[0]) & (centres[:, 2] <= band[1])
         pick = np.flatnonzero(keep)
         for lift in (0.0, ex.body_height_m / 2, ex.body_height_m):
@@ -264,7 +265,6 @@ class Oracle:
         todo = [int(n) for n in np.unique(nodes) if int(n) not in self._panos]
         if not todo:
             return
-        el_lo, rows = self._elevations
         dirs = self._pano_dirs
         eyes = self.nodes.centres[todo]
         chunk = max(1, 4_000_000 // len(dirs))
@@ -429,8 +429,7 @@ class Oracle:
                 chosen, routes, t95, method = sweep, sweep_routes, sweep_t95, "sweep"
         dist = self._distances([n for n, _ in chosen] + spawns)[0]
         k = len(chosen)
-        views = [OracleView(tuple(float(x) for x in self.nodes.centres[n]),  # type: ignore[misc]
-                            round(360.0 * h / self.headings, 3)) for n, h in chosen]
+        views = [OracleView(_vec3(self.nodes.centres[n]), round(360.0 * h / self.headings, 3)) for n, h in chosen]
         route_m = [_route_length(dist, k + i, r) for i, r in enumerate(routes)]
         drone_s = [self._drone_time(m, len(r)) for m, r in zip(route_m, routes)]
         notes = [f"plan: {method}"]
@@ -538,7 +537,7 @@ class Oracle:
             t, here, heading = takeoff, start, 0
             for v in route:
                 path = _path(preds[here], nodes[here], nodes[v])
-                for a, b in zip(path, path[1:]):
+                for a, b in itertools.pairwise(path):
                     step = self.nodes.centres[b] - self.nodes.centres[a]
                     t += float(np.linalg.norm(step)) / speed
                     if np.hypot(step[0], step[1]) > 1e-9:
@@ -582,6 +581,10 @@ class Oracle:
 _FORWARD_OFFSETS = [np.array(d) - 1 for d in np.ndindex(3, 3, 3) if [c - 1 for c in d] > [0, 0, 0]]
 
 
+def _vec3(p: np.ndarray) -> tuple[float, float, float]:
+    return float(p[0]), float(p[1]), float(p[2])
+
+
 def _path(pred: np.ndarray, source: int, target: int) -> list[int]:
     """Nodes from source to target along a Dijkstra predecessor row of `source`."""
     out = [target]
@@ -594,7 +597,7 @@ def _path(pred: np.ndarray, source: int, target: int) -> list[int]:
 
 def _route_length(dist: np.ndarray, start: int, route: list[int]) -> float:
     path = [start, *route]
-    return float(sum(dist[a, b] for a, b in zip(path, path[1:])))
+    return float(sum(dist[a, b] for a, b in itertools.pairwise(path)))
 
 
 def _cost(dist: np.ndarray, start: int, route: list[int], view_cost: float) -> float:

@@ -47,7 +47,7 @@ def test_every_view_is_reachable_and_keeps_the_airframe_clear(box_oracle: Oracle
     for lift in (0.0, config.explore.body_height_m):
         gaps = box_oracle.world.distance(positions + [0.0, 0.0, lift])
         assert np.all(gaps >= config.explore.clearance_m)
-    lo, hi = mission_volume(box_oracle.world, None)
+    lo, _ = mission_volume(box_oracle.world, None)
     assert np.all(positions[:, 2] >= lo[2] + config.explore.min_altitude_m)
 
 
