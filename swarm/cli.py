@@ -163,7 +163,9 @@ def build_parser() -> argparse.ArgumentParser:
     explore.add_argument("--drones", type=_int_list, default=[1, 2, 3], help="swarm sizes, e.g. 1,2,3,5")
     explore.add_argument("--strategies", type=_strategy_list, default=["coordinated", "uncoordinated"],
                          help="comma-separated, e.g. coordinated,uncoordinated,frontier-only")
-    explore.add_argument("--world", default="office")
+    explore.add_argument("--world", help="one world (default office)")
+    explore.add_argument("--worlds", help="several: SPEC[,SPEC...], a spec a built-in name, a mesh file or "
+                         "gen:A..B[:options] (generated worlds A to B)")
     explore.add_argument("--repeat", type=_positive_int, default=1,
                          help="missions per strategy and size (the table gives medians and ranges; default 1)")
     explore.add_argument("--out", type=Path, help="where to keep the runs (default a temp dir)")
@@ -328,10 +330,13 @@ def _dispatch(args: argparse.Namespace) -> int:
         config = _config_from(args, {"mission.world": args.world})
         return bench_sync(config, args.drones, args.out, mission=not args.no_mission)
     if args.command == "bench" and args.bench == "explore":
-        from swarm.mission.bench_explore import bench_explore
+        from swarm.mission.bench_explore import bench_explore, expand_worlds
 
-        config = _config_from(args, {"mission.world": args.world})
-        return bench_explore(config, args.drones, args.strategies, args.out, repeats=args.repeat)
+        if args.world and args.worlds:
+            raise ConfigError("give --world or --worlds, not both")
+        worlds = expand_worlds(args.worlds) if args.worlds else None
+        config = _config_from(args, {"mission.world": args.world or (worlds[0] if worlds else None)})
+        return bench_explore(config, args.drones, args.strategies, args.out, repeats=args.repeat, worlds=worlds)
     if args.command == "experiment" and args.experiment == "dropout":
         from swarm.mission.experiment import experiment_dropout
 

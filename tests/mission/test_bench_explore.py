@@ -1,16 +1,25 @@
-"""`swarm bench explore`: the summary of repeated missions (fed rows shaped like `_row`'s), and the order of the
-missions with a fake `run_mission` (the missions themselves are real in every other test)."""
+"""`swarm bench explore`: the world list, the summary of repeated missions over several worlds (fed rows shaped
+like `_row`'s), the oracle's cache, and the order of the missions with a fake `run_mission` and oracle (the
+missions themselves are real in every other test, the oracle in test_oracle)."""
 
 from __future__ import annotations
 
 import json
+import subprocess
 from pathlib import Path
 
 import pytest
 
 from swarm.config import SwarmConfig, load_config
-from swarm.mission.bench_explore import bench_explore, summarise
+from swarm.errors import WorldError
+from swarm.mission.bench_explore import (
+    bench_explore,
+    expand_worlds,
+    oracle_times,
+    summarise,
+)
 from swarm.mission.run import INTERRUPTED
+from tests.helpers import swarm_cmd
 
 
 def _run(strategy: str, drones: int, t95: float | None, duration: float = 300.0, **extra: object) -> dict:
@@ -27,7 +36,8 @@ def test_cells_take_medians_and_ranges_and_ratios_use_the_one_drone_median() -> 
         _run("coordinated", 3, 50.0), _run("coordinated", 3, 70.0), _run("coordinated", 3, 60.0, collisions=1),
     ]
     one, three = summarise(rows)
-    assert (one["drones"], one["missions"], one["time_to_95_s"]) == (1, 3, {"median": 140.0, "min": 100.0, "max": 180.0})
+    assert (one["drones"], one["missions"]) == (1, 3)
+    assert one["time_to_95_s"] == {"median": 140.0, "q1": 120.0, "q3": 160.0, "min": 100.0, "max": 180.0}
     assert one["vs_1_drone"] == 1.0
     assert three["time_to_95_s"]["median"] == 60.0
     assert three["vs_1_drone"] == round(60.0 / 140.0, 3)
@@ -47,7 +57,7 @@ def test_a_mission_that_never_reached_95_percent_counts_as_its_whole_duration_an
             _run("uncoordinated", 2, 90.0)]
     (cell,) = summarise(rows)
     assert cell["reached_95"] == 2 and cell["complete"] == 2
-    assert cell["time_to_95_s"] == {"median": 90.0, "min": 80.0, "max": 420.0}
+    assert (cell["time_to_95_s"]["median"], cell["time_to_95_s"]["min"], cell["time_to_95_s"]["max"]) == (90.0, 80.0, 420.0)
     assert cell["vs_1_drone"] is None  # no one-drone cell for this strategy
 
 
@@ -70,9 +80,15 @@ def _report(cfg: SwarmConfig, reason: str = "") -> dict:
     }
 
 
+def _no_oracle(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr("swarm.mission.bench_explore.oracle_times",
+                        lambda cfg, sizes, cache: {str(n): {"time_to_95_s": 50.0 / n, "views": 9} for n in sizes})
+
+
 def test_the_single_drone_missions_are_flown_once_and_an_interrupted_mission_ends_the_bench(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    _no_oracle(monkeypatch)
     flown: list[tuple[str, int]] = []
 
     def fake_run(cfg: SwarmConfig, live: bool | None = None) -> dict:  # stands in for the missions only
@@ -92,6 +108,7 @@ def test_the_single_drone_missions_are_flown_once_and_an_interrupted_mission_end
 def test_every_mission_is_flown_in_order_and_one_drone_only_for_the_first_strategy(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    _no_oracle(monkeypatch)
     flown: list[tuple[str, int]] = []
 
     def fake_run(cfg: SwarmConfig, live: bool | None = None) -> dict:
@@ -100,8 +117,86 @@ def test_every_mission_is_flown_in_order_and_one_drone_only_for_the_first_strate
 
     monkeypatch.setattr("swarm.mission.bench_explore.run_mission", fake_run)
     assert bench_explore(load_config(), [1, 3], ["coordinated", "uncoordinated"], tmp_path, repeats=2) == 0
+    assert (tmp_path / "bench-explore.png").stat().st_size > 0
     assert flown == [("coordinated", 1)] * 2 + [("coordinated", 3)] * 2 + [("uncoordinated", 3)] * 2
     runs = json.loads((tmp_path / "bench-explore.json").read_text())["runs"]
     copies = [r for r in runs if r.get("same_as")]
     assert [(r["strategy"], r["drones"], r["repeat"], r["same_as"]) for r in copies] == [
         ("uncoordinated", 1, 1, "coordinated"), ("uncoordinated", 1, 2, "coordinated")]
+
+
+def test_a_seed_range_expands_to_each_seed_and_keeps_its_options() -> None:
+    assert expand_worlds("gen:1..3") == ["gen:1", "gen:2", "gen:3"]
+    assert expand_worlds("office, gen:7..8:size=30x20,hall.ply,gen:4") == [
+        "office", "gen:7:size=30x20", "gen:8:size=30x20", "hall.ply", "gen:4"]
+    assert expand_worlds("gen:5..5") == ["gen:5"]
+
+
+@pytest.mark.parametrize("bad, says", [("gen:5..2", "backwards"), ("gen:x..y", "whole numbers"),
+                                       ("gen:1..", "whole numbers"), ("office,,box", "empty")])
+def test_a_malformed_world_list_is_one_clear_error(bad: str, says: str) -> None:
+    with pytest.raises(WorldError, match=says) as info:
+        expand_worlds(bad)
+    assert "\n" not in str(info.value)
+
+
+def test_an_unknown_world_stops_the_bench_before_any_mission(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    flown: list[str] = []
+    monkeypatch.setattr("swarm.mission.bench_explore.run_mission", lambda cfg, live=None: flown.append("x"))
+    _no_oracle(monkeypatch)
+    with pytest.raises(WorldError, match="atlantis"):
+        bench_explore(load_config(), [1], ["coordinated"], tmp_path, worlds=["box", "atlantis"])
+    assert flown == [] and not (tmp_path / "bench-explore.json").exists()
+
+
+def test_over_several_worlds_ratios_are_per_world_then_the_median_and_early_completions_are_named() -> None:
+    rows = [
+        _run("coordinated", 1, 100.0, world="a"), _run("coordinated", 3, 40.0, world="a"),
+        _run("coordinated", 1, 200.0, world="b"), _run("coordinated", 3, 100.0, world="b"),
+        _run("coordinated", 1, 50.0, world="c"), _run("coordinated", 3, 30.0, world="c", collisions=1),
+        _run("coordinated", 1, None, world="d", explored_fraction=0.3, duration=15.0, repeat=2),
+    ]
+    oracle = {"a": {"1": {"time_to_95_s": 50.0}, "3": {"time_to_95_s": 20.0}},
+              "b": {"1": {"time_to_95_s": 100.0}, "3": {"time_to_95_s": 40.0}},
+              "c": {"1": {"time_to_95_s": 50.0}, "3": {"time_to_95_s": None}},
+              "d": {"1": {"time_to_95_s": 30.0}}}
+    one, three = summarise(rows, oracle)
+    assert (one["worlds"], one["missions"], one["success"]) == (4, 4, 3)
+    assert one["success_rate"] == 0.75
+    assert one["complete_below_95"] == ["d #2: 30.0 %"]  # complete at 30 %: never hidden
+    assert one["vs_oracle"] == 1.5  # median of 2.0, 2.0, 1.0, 0.5
+    assert one["time_to_done_s"]["median"] == 300.0 and one["time_to_done_s"]["min"] == 15.0
+    assert three["vs_1_drone"] == 0.5  # median of 0.4, 0.5, 0.6
+    assert three["vs_oracle"] == 2.25  # worlds a (2.0) and b (2.5); c has no oracle time
+    assert (three["success"], three["collisions"], three["complete_below_95"]) == (2, 1, [])
+
+
+def test_the_oracle_is_computed_once_per_world_and_size_and_then_read_from_the_cache(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    config = load_config(overrides={"mission.world": "box"})
+    first = oracle_times(config, [1, 2], tmp_path)
+    assert first["1"]["time_to_95_s"] >= first["2"]["time_to_95_s"] > 0
+    assert len(list(tmp_path.glob("box-*.json"))) == 2
+
+    def no_oracle(*args: object, **kwargs: object) -> None:
+        raise AssertionError("computed again")
+
+    monkeypatch.setattr("swarm.mission.oracle.Oracle", no_oracle)
+    assert oracle_times(config, [1, 2], tmp_path) == first
+    slower = config.model_copy(update={"agent": config.agent.model_copy(update={"cruise_speed_m_s": 0.5})})
+    with pytest.raises(AssertionError, match="computed again"):
+        oracle_times(slower, [1], tmp_path)  # another setting the oracle depends on: not the cached plan
+
+
+@pytest.mark.parametrize("worlds, says", [("gen:5..2", "backwards"), ("gen:x..y", "gen:A..B"),
+                                          ("box,atlantis", "atlantis")])
+def test_bad_worlds_on_the_command_line_are_one_line_and_a_non_zero_exit_before_any_mission(
+    tmp_path: Path, worlds: str, says: str
+) -> None:
+    out = tmp_path / "bench"
+    result = subprocess.run(swarm_cmd("bench", "explore", "--worlds", worlds, "--drones", "1", "--out", str(out)),
+                            capture_output=True, text=True, timeout=120, check=False)
+    lines = result.stderr.strip().splitlines()
+    assert result.returncode != 0 and len(lines) == 1 and says in lines[0], result.stderr
+    assert not (out / "bench-explore.json").exists()
