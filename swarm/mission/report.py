@@ -108,6 +108,7 @@ def build_report(
         "collision_events": (sim or {}).get("collision_events", []),
         # the simulator's loop ran this late (its process or the machine did not run): no telemetry meanwhile
         "sim_stalls": (sim or {}).get("stalls", []),
+        "priority": run_priority(plan, state),
         "agents": agents,
         "presence_timeline": (observer or {}).get("timeline", []),
         "mission": {
@@ -124,6 +125,15 @@ def build_report(
         "report_page": None,
         "swarm_version": __version__,
     }
+
+
+def run_priority(plan: RunPlan, state: RunState) -> dict[str, Any]:
+    """The niceness asked for the simulator and the agents, the one each got, and whether every one got it."""
+    m = plan.config.mission
+    got = {"sim": state.sim.nice if state.sim is not None else None,
+           "agents": {k: child.nice for k, child in state.agents.items()}}
+    granted = got["sim"] == m.sim_nice and all(n == m.agent_nice for n in got["agents"].values())
+    return {"asked": {"sim": m.sim_nice, "agents": m.agent_nice}, "got": got, "granted": granted}
 
 
 def time_to(
