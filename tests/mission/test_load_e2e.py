@@ -99,7 +99,8 @@ def test_a_3_s_load_of_both_cores_in_mid_flight_neither_stalls_the_swarm_nor_lan
     print(f"load {load.ended_wall - load.started_wall:.2f} s, cores busy {load.busy_fraction:.1%}, load CPU "
           f"{sum(load.cpu_s):.2f} s, sim stalls {report['sim_stalls']}, priority {report['priority']}")
     assert load.ended_wall - load.started_wall >= LOAD_S
-    assert load.busy_fraction > 0.95, f"the cores were not fully loaded: {load.busy_fraction:.1%} busy"
+    # the window opens before the loops start and closes when a supervision tick (every 0.25 s) sees them gone
+    assert load.busy_fraction > 0.9, f"the cores were not fully loaded: {load.busy_fraction:.1%} busy"
     assert report["priority"]["granted"], report["priority"]
     assert report["status"] == "complete", report["reason"]
     assert report["explored_fraction"] >= 0.9
