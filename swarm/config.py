@@ -139,6 +139,14 @@ class MissionSettings(_Section):
         False, description="swarm run: a fresh CA and certificates in OUT/certs; every session on mutual TLS with "
         "access control (a drone publishes only under its own id)"
     )
+    # The simulator stands in for each drone's autopilot, which on a real drone runs on its own processor and is
+    # never starved by the companion computer's load; the agents stand in for those companion computers. Above
+    # the rest of the machine (niceness 0), a burst of other processes does not stall their telemetry.
+    sim_nice: int = Field(
+        -10, ge=-20, le=19, description="swarm run: the simulator's niceness (below 0 needs root or CAP_SYS_NICE; "
+        "when not permitted it runs at the harness's, and the report says so)"
+    )
+    agent_nice: int = Field(-5, ge=-20, le=19, description="swarm run: each agent's niceness (as sim_nice)")
 
     def time_limit_s(self, volume_m3: float) -> float:
         """`max_time_s`, or when unset the default for a mission volume of `volume_m3` and these drones."""

@@ -18,7 +18,9 @@ for any drone under it to move off, and lands beside one that sits on the ground
 
 Fail safe: if position telemetry stops for `telemetry_timeout_s` while airborne, the drone is told to hold,
 then to land, and the flight ends in phase `failsafe`; if telemetry comes back, the agent watches the landing
-through as after a normal flight. A stop request (SIGINT/SIGTERM) ends the route early and lands.
+through as after a normal flight. Only silence this process was awake to hear counts: a gap while it was
+stopped or starved of CPU is no evidence of a lost link (`swarm.agent.watchdog`). A stop request
+(SIGINT/SIGTERM) ends the route early and lands.
 
 Landing is watched, not assumed: a command the autopilot did not answer in time is retried by MAVSDK and may
 arrive after LAND (a late HOLD leaves the drone hovering), so while the drone is airborne and not in LAND the
@@ -37,6 +39,7 @@ from typing import NamedTuple
 import numpy as np
 
 from swarm.agent.autopilot import Autopilot, FlightError
+from swarm.agent.watchdog import LoopMonitor
 from swarm.config import AgentSettings, Vec3
 
 LOOKAHEAD_M = 1.0
@@ -126,7 +129,8 @@ class Flight:
         self._carrot: Vec3 | None = None
         self.path_ahead: list[Vec3] = []  # the waypoints of the path being flown not reached yet
         self._last_check = time.monotonic()
-        self._judge_telemetry_after = 0.0
+        self.loop_monitor = LoopMonitor()  # what this process did not hear is not silence (swarm.agent.watchdog)
+        self._excused_sample: float | None = None  # the last sample after which a gap was excused (logged once)
 
     @property
     def setpoint(self) -> Vec3 | None:
@@ -140,6 +144,14 @@ class Flight:
 
     async def run(self, mission: Mission, stop: asyncio.Event) -> Phase:
         """Fly the whole mission; returns the final phase (LANDED, FAILSAFE or FAILED)."""
+        monitor = asyncio.create_task(self.loop_monitor.run())
+        try:
+            return await self._run(mission, stop)
+        finally:
+            monitor.cancel()
+            await asyncio.gather(monitor, return_exceptions=True)
+
+    async def _run(self, mission: Mission, stop: asyncio.Event) -> Phase:
         s = self.settings
         try:
             await self.ap.connect(s.connect_timeout_s)
@@ -504,15 +516,20 @@ class Flight:
             raise StopRequested
         now = time.monotonic()
         if now - self._last_check > STALL_S:
-            # This process did not run for a while (SIGSTOP, or starved): telemetry that queued up meanwhile has
-            # not been read yet, so its age says nothing about the link until the timeout has passed again.
-            self.log("stalled", seconds=round(now - self._last_check, 2))
-            self._judge_telemetry_after = now + self.settings.telemetry_timeout_s
+            self.log("stalled", seconds=round(now - self._last_check, 2))  # SIGSTOP, starved, or a long plan
         self._last_check = now
-        if now < self._judge_telemetry_after:
-            return
-        if self.airborne and self.ap.telemetry_age_s > self.settings.telemetry_timeout_s:
-            raise TelemetryLost(f"no position telemetry for {self.ap.telemetry_age_s:.1f} s")
+        timeout = self.settings.telemetry_timeout_s
+        if self.airborne and self.ap.telemetry_age_s > timeout:
+            # Telemetry is old; but while this process did not run (SIGSTOP, starved) samples queued up unread,
+            # so only the silence it was awake to hear counts (swarm.agent.watchdog).
+            last_sample = self.ap.telemetry.updated
+            heard = self.loop_monitor.heard_silence(now, last_sample)
+            if heard > timeout:
+                raise TelemetryLost(f"no position telemetry for {self.ap.telemetry_age_s:.1f} s "
+                                    f"({heard:.1f} s of it heard)")
+            if self._excused_sample != last_sample:
+                self._excused_sample = last_sample
+                self.log("telemetry_gap_unheard", age=round(self.ap.telemetry_age_s, 2), heard=round(heard, 2))
 
     def update_distance(self) -> None:
         """Accumulate travelled distance from telemetry; called at the heartbeat rate."""

@@ -2,6 +2,11 @@
 
 Each child gets PR_SET_PDEATHSIG, so the kernel sends it SIGTERM if the orchestrator dies without cleaning up
 (even by SIGKILL). `stop()` asks politely (SIGTERM, which makes an airborne agent land), then kills.
+
+A child may be asked to run at a niceness below the harness's (a higher scheduling priority, `nice`): it is set
+between fork and exec, so every thread the program starts inherits it. Lowering niceness needs root or
+CAP_SYS_NICE; without them the child runs as the harness does, and `Child.nice` (read back from the kernel
+after the start) says which one it got.
 """
 
 from __future__ import annotations
@@ -12,6 +17,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
@@ -37,6 +43,7 @@ class Child:
     popen: subprocess.Popen[bytes]
     log_path: Path
     _log: IO[bytes] = field(repr=False)
+    nice: int = 0  # the niceness the kernel gave it (the one asked for, or the harness's when not permitted)
 
     @property
     def pid(self) -> int:
@@ -71,15 +78,33 @@ class Child:
         return code
 
 
-def start_child(name: str, argv: list[str], log_path: Path, env: dict[str, str] | None = None) -> Child:
+def _prepare_child(nice: int | None) -> Callable[[], None]:
+    def prepare() -> None:
+        _die_with_parent()
+        if nice is not None:
+            try:
+                os.setpriority(os.PRIO_PROCESS, 0, nice)
+            except OSError:
+                pass  # not permitted: the child keeps the harness's niceness, and Child.nice says so
+    return prepare
+
+
+def start_child(
+    name: str, argv: list[str], log_path: Path, env: dict[str, str] | None = None, nice: int | None = None
+) -> Child:
+    """Start `argv` with its output in `log_path`; at niceness `nice` when given and permitted."""
     log_path.parent.mkdir(parents=True, exist_ok=True)
     log = open(log_path, "wb")
     child_env = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1", **(env or {})}
     popen = subprocess.Popen(
         argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=child_env,
-        preexec_fn=_die_with_parent,
+        preexec_fn=_prepare_child(nice),
     )
-    return Child(name, popen, log_path, log)
+    try:
+        got = os.getpriority(os.PRIO_PROCESS, popen.pid)  # exec has happened: Popen returns after it
+    except OSError:
+        got = os.getpriority(os.PRIO_PROCESS, 0)  # already gone (it failed at once): what it would have had
+    return Child(name, popen, log_path, log, got)
 
 
 def stop_all(children: list[Child], grace_s: float) -> dict[str, int]:

@@ -113,6 +113,7 @@ def build_report(
         "collision_events": (sim or {}).get("collision_events", []),
         # the simulator's loop ran this late (its process or the machine did not run): no telemetry meanwhile
         "sim_stalls": (sim or {}).get("stalls", []),
+        "priority": run_priority(plan, state),
         "agents": agents,
         "presence_timeline": (observer or {}).get("timeline", []),
         "mission": {
@@ -144,6 +145,15 @@ def _why_short(explored: float, agents: list[dict[str, Any]]) -> str:
     given_up = sum(len(a.get("frontiers_given_up") or []) for a in agents)
     return (f"exploration ended at {explored:.1%} explored, below {COVERAGE_TARGET:.0%}: "
             f"{'; '.join(reasons) or 'no agent said why'}; {given_up} frontier(s) given up (agents[].frontiers_given_up)")
+
+
+def run_priority(plan: RunPlan, state: RunState) -> dict[str, Any]:
+    """The niceness asked for the simulator and the agents, the one each got, and whether every one got it."""
+    m = plan.config.mission
+    got = {"sim": state.sim.nice if state.sim is not None else None,
+           "agents": {k: child.nice for k, child in state.agents.items()}}
+    granted = got["sim"] == m.sim_nice and all(n == m.agent_nice for n in got["agents"].values())
+    return {"asked": {"sim": m.sim_nice, "agents": m.agent_nice}, "got": got, "granted": granted}
 
 
 def time_to(

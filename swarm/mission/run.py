@@ -23,6 +23,7 @@ from __future__ import annotations
 import datetime as dt
 import shutil
 import signal
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -40,7 +41,7 @@ from swarm.mission.links import LinkController
 from swarm.mission.ports import ensure_free
 from swarm.mission.processes import Child, start_child, stop_all, swarm_command
 from swarm.mission.progress import ProgressView
-from swarm.mission.report import build_report, read_json, write_report
+from swarm.mission.report import build_report, read_json, run_priority, write_report
 from swarm.mission.routes import ScriptedRoute, scripted_routes
 from swarm.netem.commands import NetemUnavailable, check_prerequisites
 from swarm.netem.network import SwarmNetwork
@@ -187,6 +188,7 @@ def run_mission(
             state.links = LinkController(state.net, plan.scenario, plan.config.mission.drones)
         _start_simulator(plan, state)
         _start_swarm(plan, state)
+        _warn_unless_prioritised(plan, state)
         if plan.config.mission.faults:
             state.faults = FaultInjector(
                 plan.config.mission.faults, _control_path(plan), lambda k, n: _restart_agent(plan, state, k, n)
@@ -228,7 +230,8 @@ def _start_simulator(plan: RunPlan, state: RunState) -> None:
     if plan.config.mission.faults:
         sim_config.sim.control_path = _control_path(plan)
     path = _write_config(plan.out / "config" / "sim.toml", sim_config)
-    state.sim = start_child("sim", swarm_command("sim", "--config", str(path)), plan.out / "logs" / "sim.log")
+    state.sim = start_child("sim", swarm_command("sim", "--config", str(path)), plan.out / "logs" / "sim.log",
+                            nice=plan.config.mission.sim_nice)
     deadline = time.monotonic() + SIM_READY_TIMEOUT_S
     while True:
         status = read_json(plan.out / "sim.json")
@@ -301,7 +304,16 @@ def _start_swarm(plan: RunPlan, state: RunState) -> None:
         if net is not None:
             argv = net.exec_argv(k, argv)
         state.agent_argv[k] = argv
-        state.agents[k] = start_child(f"agent-{k}", argv, plan.out / "logs" / f"agent-{k}.log", _agent_env(plan))
+        state.agents[k] = start_child(f"agent-{k}", argv, plan.out / "logs" / f"agent-{k}.log", _agent_env(plan),
+                                      nice=config.mission.agent_nice)
+
+
+def _warn_unless_prioritised(plan: RunPlan, state: RunState) -> None:
+    p = run_priority(plan, state)
+    if not p["granted"]:
+        print(f"swarm run: warning: niceness {p['asked']} asked, {p['got']} given (lowering it needs root or "
+              "CAP_SYS_NICE): a burst of load on this machine can stall the simulator's telemetry for longer than "
+              "the agents' telemetry timeout and land every drone", file=sys.stderr, flush=True)
 
 
 def _control_path(plan: RunPlan) -> Path:
@@ -312,7 +324,7 @@ def _restart_agent(plan: RunPlan, state: RunState, k: int, restart: int) -> Chil
     """A restart fault: agent k again, with the same config and a log of its own (the new process takes a new
     epoch and takes its drone over in the air)."""
     return start_child(f"agent-{k}", state.agent_argv[k], plan.out / "logs" / f"agent-{k}.restart{restart}.log",
-                       _agent_env(plan))
+                       _agent_env(plan), nice=plan.config.mission.agent_nice)
 
 
 def _agent_env(plan: RunPlan) -> dict[str, str]:

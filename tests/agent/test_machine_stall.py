@@ -1,0 +1,51 @@
+"""A stall of the whole machine is not a lost link: the simulator and an airborne agent, both real processes, are
+stopped together for 1.8 s (as when the machine does not run them) and continued; the agent, which did not run
+either, does not count that silence and flies on. The other half of the rule, a link that stops while the agent
+listens, is `test_failsafe.py`."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.helpers import kill_all, log_events, swarm_cmd
+from tests.sim.support import free_port_block, wait_until
+
+pytestmark = pytest.mark.timeout(120)
+
+FREEZE_S = 1.8  # longer than the 1.5 s telemetry timeout, shorter than the 2 s that counted as a stall before
+
+
+def test_a_stall_of_simulator_and_agent_together_is_not_taken_for_a_lost_link(tmp_path: Path) -> None:
+    base = free_port_block()
+    ports = ["--set", f"sim.vehicle_base_port={base}", "--set", f"sim.gcs_base_port={base + 20}"]
+    sim_log, log = tmp_path / "sim.log", tmp_path / "agent.log"
+    sim = subprocess.Popen(swarm_cmd("sim", "--world", "box", "--vehicles", "1", *ports),
+                           stdout=sim_log.open("w"), stderr=subprocess.STDOUT)
+    agent = subprocess.Popen(
+        swarm_cmd("agent", "--id", "1", "--autopilot", f"udpin://127.0.0.1:{base + 20}", *ports,
+                  "--set", "agent.hover_s=12", "--set", "agent.altitude_m=2.0", "--set", "explore.strategy=scripted"),
+        stdout=log.open("w"), stderr=subprocess.STDOUT,
+    )
+    try:
+        wait_until(lambda: any(e.get("phase") == "hovering" for e in log_events(log)), 60, "hovering")
+        for proc in (sim, agent):
+            proc.send_signal(signal.SIGSTOP)
+        time.sleep(FREEZE_S)
+        for proc in (agent, sim):  # the agent first: it may look at its telemetry before the vehicle sends
+            proc.send_signal(signal.SIGCONT)
+        assert agent.wait(timeout=60) == 0, log.read_text()
+        events = log_events(log)
+        assert not [e for e in events if e["event"].startswith("failsafe")], log.read_text()
+        [gap] = [e for e in events if e["event"] == "telemetry_gap_unheard"]
+        assert gap["age"] > 1.5 and gap["heard"] < 0.5, gap
+        assert [e["phase"] for e in events if e["event"] == "phase"][-2:] == ["landing", "landed"]
+    finally:
+        kill_all([agent])
+        sim.send_signal(signal.SIGCONT)
+        sim.send_signal(signal.SIGINT)
+        kill_all([sim])
