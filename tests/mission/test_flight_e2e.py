@@ -59,7 +59,7 @@ def test_two_agents_fly_see_each_other_and_land(tmp_path: Path, swarm_ports: Swa
     together = [e for e in report["leaders"] if sorted(e["members"]) == [1, 2]]
     assert together and all(e["leader"] == 1 for e in together), report["leaders"]
     summaries = {k: json.loads((out / "agents" / f"agent-{k}.json").read_text()) for k in (1, 2)}
-    assert summaries[1]["exploration_done"] and "no candidate left" in summaries[1]["exploration_done_reason"]
+    assert summaries[1]["exploration_done"] and "no reachable frontier left" in summaries[1]["exploration_done_reason"]
     assert summaries[2]["exploration_done"] and "leader 1 declared" in summaries[2]["exploration_done_reason"]
     assert set(report["plots"]) == {"explored.png", "trajectories.png", "leaders.png", "bytes.png"}
     assert all((out / name).stat().st_size > 0 for name in report["plots"])
