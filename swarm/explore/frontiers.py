@@ -67,6 +67,7 @@ from swarm.patches.fused import FREE, OCCUPIED, UNKNOWN
 START_SEARCH_RADIUS_M = 1.5  # a position's reachable set starts at the safe cell nearest it, this far at most
 POCKET_M3 = 0.5  # a reachable set smaller than this is a pocket the map closed round the drone, not its space
 ESCAPE_RADIUS_M = 3.0  # how far a drone in a pocket looks for the open space it came from
+_ESCAPE_TRIES = 4096  # nearest open cells tried for a straight, known-free way out
 _LINE_OF_SIGHT_STEP = 0.25  # line of sight is sampled every quarter cell: a wall a cell thick is never skipped
 _EPS = 1e-9
 _CONNECT_26 = np.ones((3, 3, 3), dtype=bool)
@@ -199,7 +200,8 @@ class ExplorationGrid:
         return bool(self._component_sizes[label] * self.resolution**3 < POCKET_M3)
 
     def escape(self, position: Vec3) -> Vec3 | None:
-        """Centre of the safe cell nearest `position`, within ESCAPE_RADIUS_M, that is not in a pocket; None."""
+        """Centre of the safe cell nearest `position`, within ESCAPE_RADIUS_M, that is not in a pocket and is
+        reached by a straight line through known FREE cells (the drone's own cell is FREE: `free_points`); None."""
         big = self._component_sizes * self.resolution**3 >= POCKET_M3
         big[0] = False  # label 0: not safe
         k0, k1 = self._band
@@ -213,8 +215,22 @@ class ExplorationGrid:
             return None
         centres = self._centre(cells)
         distance = np.linalg.norm(centres - p, axis=1)
-        best = int(np.argmin(distance))
-        return _vec3(centres[best]) if distance[best] <= ESCAPE_RADIUS_M else None
+        order = np.argsort(distance, kind="stable")
+        order = order[distance[order] <= ESCAPE_RADIUS_M][:_ESCAPE_TRIES]
+        # the way out is flown straight: only through cells the map knows to be FREE
+        clear = self._known_free_line(np.repeat(p[None, :], len(order), axis=0), centres[order])
+        return _vec3(centres[order[np.argmax(clear)]]) if clear.any() else None
+
+    def _known_free_line(self, eyes: np.ndarray, targets: np.ndarray) -> np.ndarray:
+        """(M,) whether each segment crosses FREE cells only (sampled as `_sees`)."""
+        if len(eyes) == 0:
+            return np.zeros(0, dtype=bool)
+        rays = targets - eyes
+        longest = float(np.max(np.linalg.norm(rays, axis=1)))
+        steps = np.linspace(0.0, 1.0, max(2, math.ceil(longest / (self.resolution * _LINE_OF_SIGHT_STEP)) + 1))
+        idx = np.floor((eyes[:, None, :] + steps[None, :, None] * rays[:, None, :] - self.origin) / self.resolution)
+        idx = np.clip(idx.astype(np.int64), 0, np.array(self._free.shape) - 1)
+        return self._free[idx[..., 0], idx[..., 1], idx[..., 2]].all(axis=1)
 
     def frontiers(self, position: Vec3) -> list[Frontier]:
         """The frontier groups seen from `position`'s reachable space, by gain (the view gain when the grid has

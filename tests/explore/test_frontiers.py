@@ -627,11 +627,14 @@ def test_a_drone_shut_in_a_pocket_of_its_map_is_told_so_and_where_the_open_space
     states = room_states(known_to_x=8.0)
     set_states(states, (4.6, 2.0, 0.8), (6.8, 4.2, 2.2), OCCUPIED)  # a hollow block round (5.7, 3.1, 1.5)
     set_states(states, (4.8, 2.2, 1.0), (6.6, 4.0, 2.0), FREE)  # ... whose inside holds a few safe cells
-    grid = _grid(states)
     inside = (5.7, 3.1, 1.5)
+    assert _grid(states).escape(inside) is None  # walled in: no straight way out through known free space
+    set_states(states, (6.6, 3.0, 1.4), (6.8, 3.2, 1.6), FREE)  # a slot in its east wall, too narrow to be safe
+    grid = _grid(states)
     assert grid.reachable(inside).any() and grid.in_pocket(inside)
     assert not grid.in_pocket(LEFT)
     out = grid.escape(inside)
     assert out is not None and not grid.in_pocket(out) and grid.planning_grid.is_free(out)
+    assert out[0] > 6.8  # out through the slot
     assert grid.reachable(out)[_cell(LEFT)]  # the room's space, not another pocket
     assert grid.escape((4.1, 3.0, -5.0)) is None  # nothing open within ESCAPE_RADIUS_M
