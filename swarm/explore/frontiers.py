@@ -223,14 +223,7 @@ class ExplorationGrid:
 
     def _known_free_line(self, eyes: np.ndarray, targets: np.ndarray) -> np.ndarray:
         """(M,) whether each segment crosses FREE cells only (sampled as `_sees`)."""
-        if len(eyes) == 0:
-            return np.zeros(0, dtype=bool)
-        rays = targets - eyes
-        longest = float(np.max(np.linalg.norm(rays, axis=1)))
-        steps = np.linspace(0.0, 1.0, max(2, math.ceil(longest / (self.resolution * _LINE_OF_SIGHT_STEP)) + 1))
-        idx = np.floor((eyes[:, None, :] + steps[None, :, None] * rays[:, None, :] - self.origin) / self.resolution)
-        idx = np.clip(idx.astype(np.int64), 0, np.array(self._free.shape) - 1)
-        return self._free[idx[..., 0], idx[..., 1], idx[..., 2]].all(axis=1)
+        return self._segments_within(eyes, targets, self._free)
 
     def frontiers(self, position: Vec3) -> list[Frontier]:
         """The frontier groups seen from `position`'s reachable space, by gain (the view gain when the grid has
@@ -395,6 +388,10 @@ class ExplorationGrid:
         return labels
 
     @cached_property
+    def _not_occupied(self) -> np.ndarray:
+        return ~self._occupied
+
+    @cached_property
     def _component_sizes(self) -> np.ndarray:
         """Cells per label of `_labels` (label 0, the cells that are not safe, included)."""
         return np.bincount(self._labels.ravel())
@@ -443,6 +440,10 @@ class ExplorationGrid:
 
     def _sees(self, eyes: np.ndarray, targets: np.ndarray) -> np.ndarray:
         """(M,) whether each segment from eyes (M, 3) to targets (M, 3 or 3,) crosses no OCCUPIED cell (sampled)."""
+        return self._segments_within(eyes, targets, self._not_occupied)
+
+    def _segments_within(self, eyes: np.ndarray, targets: np.ndarray, allowed: np.ndarray) -> np.ndarray:
+        """(M,) whether every sample of each segment (every quarter cell) lies in an `allowed` cell."""
         if len(eyes) == 0:
             return np.zeros(0, dtype=bool)
         rays = np.broadcast_to(targets, eyes.shape) - eyes
@@ -450,8 +451,8 @@ class ExplorationGrid:
         steps = np.linspace(0.0, 1.0, max(2, math.ceil(longest / (self.resolution * _LINE_OF_SIGHT_STEP)) + 1))
         samples = eyes[:, None, :] + steps[None, :, None] * rays[:, None, :]
         idx = np.floor((samples - self.origin) / self.resolution).astype(np.int64)
-        idx = np.clip(idx, 0, np.array(self._occupied.shape) - 1)  # both ends are in the grid; guard rounding
-        return ~self._occupied[idx[..., 0], idx[..., 1], idx[..., 2]].any(axis=1)
+        idx = np.clip(idx, 0, np.array(allowed.shape) - 1)  # both ends are in the grid; guard rounding
+        return allowed[idx[..., 0], idx[..., 1], idx[..., 2]].all(axis=1)
 
     def _centre(self, idx: np.ndarray) -> np.ndarray:
         return self.origin + (np.asarray(idx, dtype=float) + 0.5) * self.resolution
