@@ -168,7 +168,7 @@ class Exploration:
 
     def _finish(self, reason: str) -> None:
         effects = Effects()
-        self.core._finish(effects, reason)
+        self.core.finish(effects, reason)
         self._apply(effects)
 
     # -- flight ------------------------------------------------------------------------------------------

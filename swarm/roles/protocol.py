@@ -169,7 +169,7 @@ class ExplorationCore:
         if assignment.leader != leader or self.done:
             return effects  # not (or no longer) our leader: ignore
         if assignment.done:
-            self._finish(effects, f"leader {assignment.leader} declared the cluster done")
+            self.finish(effects, f"leader {assignment.leader} declared the cluster done")
             return effects
         mine = assignment.target_of(self.id)
         if mine is not None:
@@ -310,7 +310,7 @@ class ExplorationCore:
         confirmed = all(k in self.reports and self.reports[k][0] > self.empty_since
                         and not self.reports[k][1].in_pocket for k in others)
         if confirmed and now - self.empty_since >= self.settings.loop_s:
-            self._finish(effects, reason)
+            self.finish(effects, reason)
             if situation.leader == self.id and self.strategy != "uncoordinated":
                 effects.publish.append(self._done_message(members))
 
@@ -339,7 +339,7 @@ class ExplorationCore:
         effects.retarget = True
         return True
 
-    def _finish(self, effects: Effects, reason: str) -> None:
+    def finish(self, effects: Effects, reason: str) -> None:
         if not self.done:
             self.done, self.done_reason = True, reason
             effects.log("exploration_done", reason=reason, loops=self.loops,
