@@ -169,6 +169,8 @@ def build_parser() -> argparse.ArgumentParser:
     explore.add_argument("--repeat", type=_positive_int, default=1,
                          help="missions per strategy and size (the table gives medians and ranges; default 1)")
     explore.add_argument("--out", type=Path, help="where to keep the runs (default a temp dir)")
+    explore.add_argument("--resume", action="store_true", help="keep the missions already flown to their end in "
+                         "--out (same world, drones, strategy and seed) and fly only the rest")
     _add_config_flags(explore)
 
     experiment = sub.add_parser("experiment", help="several missions compared, with a table and figures")
@@ -334,9 +336,12 @@ def _dispatch(args: argparse.Namespace) -> int:
 
         if args.world and args.worlds:
             raise ConfigError("give --world or --worlds, not both")
+        if args.resume and args.out is None:
+            raise ConfigError("--resume needs the --out of the bench to resume")
         worlds = expand_worlds(args.worlds) if args.worlds else None
         config = _config_from(args, {"mission.world": args.world or (worlds[0] if worlds else None)})
-        return bench_explore(config, args.drones, args.strategies, args.out, repeats=args.repeat, worlds=worlds)
+        return bench_explore(config, args.drones, args.strategies, args.out, repeats=args.repeat, worlds=worlds,
+                            resume=args.resume)
     if args.command == "experiment" and args.experiment == "dropout":
         from swarm.mission.experiment import experiment_dropout
 

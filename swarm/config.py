@@ -435,6 +435,10 @@ class ExploreSettings(_Section):
         1.0, ge=1.0, le=10.0, description="utility factor for a drone's own frontier points (Mahdoui 3.7; 1 = none)"
     )
     return_home: bool = Field(True, description="when the mission is done, fly back above the take-off point")
+    idle_home_s: float = Field(
+        6.0, ge=0.0, le=600.0, description="with return_home, a drone left without a target this long heads home "
+        "while the others finish (a new target stops it), so that it lands soon after its cluster is done"
+    )
 
 
 class SwarmConfig(_Section):

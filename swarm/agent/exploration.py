@@ -9,7 +9,7 @@ publishes what it says and interrupts the flight when the target changes. Strate
 The flight side (`fly`) plans a path on the latest grid to the current target's viewpoint, flies it (the
 decision loop interrupts it when the target changes or the path becomes blocked), turns to the frontier point
 for `dwell_s`, and reports that it arrived. A drone whose map shuts it in where it is (a pocket) gets out
-before it calls a target unreachable. When the mission is done it returns above its take-off point.
+before it calls a target unreachable, and instead of waiting for a target that cannot come. When the mission is done it returns above its take-off point.
 """
 
 from __future__ import annotations
@@ -178,6 +178,7 @@ class Exploration:
         loop starts here, once airborne, and runs until `close` (a done leader keeps saying so)."""
         self.flight = flight
         self._decisions = asyncio.create_task(self.decide_forever())
+        idle_since: float | None = None  # when the drone was last left without a target
         while not self.done:
             target = self.target
             if target is None or self.grid is None:
@@ -185,8 +186,16 @@ class Exploration:
                 # set `retarget` before is done with (a target dropped as explored sets it too): left set, every
                 # wait would end at once and this loop would spin without ever yielding.
                 self.retarget.clear()
-                await flight.face(self._look_around(flight), WAIT_FOR_TARGET_S, stop, interrupt=self.retarget)
+                idle_since = time.monotonic() if idle_since is None else idle_since
+                # From a pocket no frontier worth a target may be in sight (the take-off spot, with the unseen
+                # cone above it, is one): waiting there would wait for ever.
+                if self.grid is not None and await self._out_of_pocket(flight, stop):
+                    continue
+                idle = time.monotonic() - idle_since >= self.settings.idle_home_s
+                if not (idle and await self._head_home(flight, stop)):
+                    await flight.face(self._look_around(flight), WAIT_FOR_TARGET_S, stop, interrupt=self.retarget)
                 continue
+            idle_since = None
             self.retarget.clear()
             path = await self._plan(target.viewpoint)
             if path is None:
@@ -262,6 +271,26 @@ class Exploration:
         else:
             await flight.fly_path([out], stop, interrupt=self.retarget)
         self.wake.set()
+        return True
+
+    def _above_home(self) -> Vec3 | None:
+        home = self.home()
+        return None if home is None else (home[0], home[1], home[2] + self.config.agent.altitude_m)
+
+    async def _head_home(self, flight: Flight, stop: asyncio.Event) -> bool:
+        """While there is nothing to explore for this drone, fly towards home until a new target (or the end of
+        the mission) interrupts: the return is then mostly flown while the others finish. False when there is
+        no home to go to or no path (the caller waits in place instead) or the drone is there already."""
+        above = self._above_home()
+        if not self.settings.return_home or above is None or self.grid is None:
+            return False
+        if math.dist(self.position(), above) <= self.settings.arrive_tolerance_m:
+            return False
+        path = await self._plan(above)
+        if path is None:
+            return False
+        self.log("heading_home", idle_s=self.settings.idle_home_s)
+        await flight.fly_path(path, stop, interrupt=self.retarget)  # a target, or `done`, sets retarget
         return True
 
     async def _return(self, flight: Flight, stop: asyncio.Event, home: Vec3) -> None:

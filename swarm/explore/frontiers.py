@@ -201,7 +201,8 @@ class ExplorationGrid:
 
     def escape(self, position: Vec3) -> Vec3 | None:
         """Centre of the safe cell nearest `position`, within ESCAPE_RADIUS_M, that is not in a pocket and is
-        reached by a straight line through known FREE cells (the drone's own cell is FREE: `free_points`); None."""
+        reached by a straight line through known FREE cells (the drone's own cell is FREE: `free_points`) with no
+        OCCUPIED cell along the airframe's top; None."""
         big = self._component_sizes * self.resolution**3 >= POCKET_M3
         big[0] = False  # label 0: not safe
         k0, k1 = self._band
@@ -217,13 +218,14 @@ class ExplorationGrid:
         distance = np.linalg.norm(centres - p, axis=1)
         order = np.argsort(distance, kind="stable")
         order = order[distance[order] <= ESCAPE_RADIUS_M][:_ESCAPE_TRIES]
-        # the way out is flown straight: only through cells the map knows to be FREE
-        clear = self._known_free_line(np.repeat(p[None, :], len(order), axis=0), centres[order])
+        # The way out is flown straight: at the drone's height only through cells the map knows to be FREE, and
+        # with no obstacle the top of the airframe would meet. Above the drone it may be unknown: a camera that
+        # looks ahead never sees the cone right above it (which is what makes a take-off spot a pocket).
+        starts = np.repeat(p[None, :], len(order), axis=0)
+        clear = self._segments_within(starts, centres[order], self._free)
+        top = np.array([0.0, 0.0, self.settings.body_height_m])
+        clear &= self._segments_within(starts + top, centres[order] + top, ~self._occupied)
         return _vec3(centres[order[np.argmax(clear)]]) if clear.any() else None
-
-    def _known_free_line(self, eyes: np.ndarray, targets: np.ndarray) -> np.ndarray:
-        """(M,) whether each segment crosses FREE cells only (sampled as `_sees`)."""
-        return self._segments_within(eyes, targets, self._free)
 
     def frontiers(self, position: Vec3) -> list[Frontier]:
         """The frontier groups seen from `position`'s reachable space, by gain (the view gain when the grid has

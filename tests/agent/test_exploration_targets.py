@@ -230,7 +230,7 @@ async def test_a_drone_whose_target_was_dropped_waits_for_the_next_instead_of_sp
     flight loop spun without yielding and the agent hung (a 3-drone office mission)."""
 
     exploration = _exploration([])
-    exploration.grid = SimpleNamespace()  # type: ignore[assignment]  # not read while there is no target
+    exploration.grid = SimpleNamespace(in_pocket=lambda here: False)  # type: ignore[assignment]
     calls = []
 
     class Waiting(_FakeFlight):
@@ -298,3 +298,87 @@ async def test_a_drone_in_a_pocket_gets_out_before_it_calls_its_target_unreachab
     assert flight.paths == [[out]]  # first out of the pocket ...
     assert [u.viewpoint for u in exploration.core.unreachable] == [(5.0, 1.0, 1.5)]  # ... then one failure counted
     assert [e["event"] for e in events].count("in_pocket") == 1
+
+
+async def test_a_drone_with_no_target_in_a_pocket_gets_out_instead_of_waiting() -> None:
+    """From its take-off spot, under the cone its camera never saw, a drone may have no frontier worth a target in
+    sight: waiting there for one waited the whole flight (gen:11, one drone, 8.7 % explored)."""
+    events: list[dict[str, Any]] = []
+    exploration = _exploration(events)
+    out = (2.0, 1.0, 1.5)
+    looks: list[Any] = []
+
+    class PocketGrid:
+        pocket = True
+
+        def in_pocket(self, position: Any) -> bool:
+            return self.pocket
+
+        def escape(self, position: Any) -> Any:
+            return out
+
+    grid = PocketGrid()
+    exploration.grid = grid  # type: ignore[assignment]
+
+    class Escaping(_FakeFlight):
+        async def fly_path(self, path: list[Any], stop: asyncio.Event, interrupt: asyncio.Event | None = None) -> bool:
+            self.paths.append(path)
+            grid.pocket = False
+            return True
+
+        async def face(self, point: Any, seconds: float, stop: asyncio.Event,
+                       interrupt: asyncio.Event | None = None) -> None:
+            looks.append(point)
+            exploration._finish("done")
+            await asyncio.sleep(0)
+
+    flight = Escaping(exploration)
+    exploration.target = None
+    await asyncio.wait_for(_fly_without_decisions(exploration, flight, asyncio.Event()), timeout=10.0)
+    await exploration.close()
+    assert flight.paths[0] == [out]  # out first, then the wait (out of the pocket: a look round)
+    assert len(looks) == 1
+    assert [e["event"] for e in events].count("in_pocket") == 1
+
+
+@pytest.mark.parametrize("idle_home_s", [0.0, 600.0])
+async def test_a_drone_left_without_a_target_heads_home_until_a_new_target_comes(idle_home_s: float) -> None:
+    """A drone with nothing left to explore flew home only once its cluster was done: the return (15-24 s in the
+    office) came after the last frontier. Idle for `idle_home_s`, it heads home; a new target turns it round."""
+    events: list[dict[str, Any]] = []
+    exploration = _exploration(events, **{"explore.idle_home_s": idle_home_s})
+    exploration.position = lambda: (3.0, 3.0, 1.5)
+    exploration.grid = SimpleNamespace(  # type: ignore[assignment]  # only these are read
+        planning_grid=OccupancyGrid(np.zeros(3), 0.2, np.zeros((25, 25, 15), bool)), in_pocket=lambda here: False)
+    above_home = (0.0, 0.0, exploration.config.agent.altitude_m)
+    late = Target((4.0, 1.0, 1.5), (4.5, 1.0, 1.5), "leader")
+
+    class Homing(_FakeFlight):
+        async def fly_path(self, path: list[Any], stop: asyncio.Event, interrupt: asyncio.Event | None = None) -> bool:
+            self.paths.append(path)
+            if path[-1] == above_home and exploration.target is None and not exploration.done:
+                _give(exploration, late)  # on the way home, the leader finds work for it after all
+                return not (interrupt is not None and interrupt.is_set())
+            if path[-1] == late.viewpoint:
+                exploration._finish("done")
+            return True
+
+        async def face(self, point: Any, seconds: float, stop: asyncio.Event,
+                       interrupt: asyncio.Event | None = None) -> None:
+            if point != late.point:  # waiting: the wait ends with a target after a while
+                _give(exploration, late)
+            await asyncio.sleep(0)
+
+    flight = Homing(exploration)
+    exploration.target = None
+    exploration.decide_forever = lambda: asyncio.sleep(3600)  # type: ignore[method-assign,assignment,return-value]
+    await asyncio.wait_for(exploration.fly(flight, asyncio.Event()), timeout=10.0)  # type: ignore[arg-type]
+    await exploration.close()
+    ends = [p[-1] for p in flight.paths]
+    headed_home = [e for e in events if e["event"] == "heading_home"]
+    if idle_home_s == 0.0:
+        assert ends == [above_home, late.viewpoint, above_home]  # home, turned round, home again when done
+        assert len(headed_home) == 1
+    else:
+        assert ends == [late.viewpoint, above_home]  # not idle long enough: waited in place for the target
+        assert headed_home == []

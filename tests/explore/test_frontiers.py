@@ -638,3 +638,21 @@ def test_a_drone_shut_in_a_pocket_of_its_map_is_told_so_and_where_the_open_space
     assert out[0] > 6.8  # out through the slot
     assert grid.reachable(out)[_cell(LEFT)]  # the room's space, not another pocket
     assert grid.escape((4.1, 3.0, -5.0)) is None  # nothing open within ESCAPE_RADIUS_M
+
+
+def test_a_take_off_spot_under_the_cone_the_camera_never_saw_is_a_pocket_with_a_way_out_under_no_obstacle() -> None:
+    """A camera that looks ahead never sees the space right above it: after take-off the cells round the drone
+    have unknown space where the airframe would be, so the drone's safe space is a pocket (gen:11, one drone,
+    waited there for the whole flight). It gets out along known free cells; the unknown above is allowed, an
+    obstacle where the top of the airframe would pass is not."""
+    settings = ExploreSettings()
+    here, open_space = (2.0, 3.0, 1.3), (6.0, 3.0, 1.3)
+    states = room_states(known_to_x=8.0)
+    set_states(states, (0.2, 0.2, 1.5), (3.79, 5.8, 2.8), UNKNOWN)  # unseen above the drone, wall to wall in y
+    grid = _grid(states, settings)
+    assert grid.in_pocket(here) and not grid.in_pocket(open_space)
+    out = grid.escape(here)
+    assert out is not None and not grid.in_pocket(out) and grid.reachable(out)[_cell(open_space)]
+    # a beam across the way out, above the drone's own height but low enough to meet any way out's airframe top
+    set_states(states, (3.0, 0.2, 1.41), (3.19, 5.8, 2.8), OCCUPIED)
+    assert _grid(states, settings).escape(here) is None

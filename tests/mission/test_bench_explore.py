@@ -200,3 +200,34 @@ def test_bad_worlds_on_the_command_line_are_one_line_and_a_non_zero_exit_before_
     lines = result.stderr.strip().splitlines()
     assert result.returncode != 0 and len(lines) == 1 and says in lines[0], result.stderr
     assert not (out / "bench-explore.json").exists()
+
+
+def test_resume_keeps_the_missions_flown_to_their_end_and_flies_the_rest(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A bench of 40 missions takes hours; one stopped half way (Ctrl-C) picks up where it stopped."""
+    _no_oracle(monkeypatch)
+    flown: list[tuple[str, int, str]] = []
+    stop_at = [3]
+
+    def fake_run(cfg: SwarmConfig, live: bool | None = None) -> dict:  # writes report.json as a mission does
+        flown.append((cfg.explore.strategy, cfg.mission.drones, cfg.mission.world))
+        report = {**_report(cfg, INTERRUPTED if len(flown) == stop_at[0] else ""), "drones": cfg.mission.drones,
+                  "mission": {"world": cfg.mission.world, "strategy": cfg.explore.strategy, "seed": cfg.mission.seed}}
+        assert cfg.mission.out is not None
+        cfg.mission.out.mkdir(parents=True, exist_ok=True)
+        (cfg.mission.out / "report.json").write_text(json.dumps(report))
+        return report
+
+    monkeypatch.setattr("swarm.mission.bench_explore.run_mission", fake_run)
+    worlds = ["office", "warehouse"]
+    assert bench_explore(load_config(), [1, 3], ["coordinated"], tmp_path, worlds=worlds) == 1  # stopped at 3
+    first = list(flown)
+    stop_at[0] = 0
+    assert bench_explore(load_config(), [1, 3], ["coordinated"], tmp_path, worlds=worlds, resume=True) == 0
+    assert first == [("coordinated", 1, "office"), ("coordinated", 3, "office"), ("coordinated", 1, "warehouse")]
+    # the interrupted mission is flown again, the two finished ones are not
+    assert flown[3:] == [("coordinated", 1, "warehouse"), ("coordinated", 3, "warehouse")]
+    runs = json.loads((tmp_path / "bench-explore.json").read_text())["runs"]
+    assert [(r["world"], r["drones"]) for r in runs] == [("office", 1), ("office", 3), ("warehouse", 1),
+                                                         ("warehouse", 3)]
