@@ -190,7 +190,7 @@ def _within(views: np.ndarray, point: Vec3, radius: float) -> np.ndarray:
 def assign_targets(candidates: Sequence[Candidate], positions: Mapping[int, Vec3], *, lam: float, sigma: float,
                    current: Mapping[int, Vec3] | None = None, current_bonus: float = 1.0, own_bonus: float = 1.0,
                    keep_radius: float = 1.0, unreachable: Mapping[int, Sequence[Vec3] | np.ndarray] | None = None,
-                   unreachable_radius: float = 1.0) -> dict[int, Candidate | None]:
+                   unreachable_radius: float = 1.0, min_gain: float = 0.0) -> dict[int, Candidate | None]:
     """Alg. 3.5 with the best pair first: while a member is without a target, the (member, candidate) pair of
     highest utility over every member still waiting and every unassigned candidate is assigned (the leader
     assigns itself too); then the candidate is taken out and the gains of the rest are scheduled around its
@@ -206,7 +206,10 @@ def assign_targets(candidates: Sequence[Candidate], positions: Mapping[int, Vec3
     member reported it. Scheduling lives for this round only. Members left without a candidate get None. Exact
     ties go to the lower id and to the first candidate in `merge_candidates`'s order, whatever order the input
     came in. A member is never given a candidate whose viewpoint lies within unreachable_radius of a viewpoint
-    it could not plan a path to (`unreachable`): that candidate stays for the others."""
+    it could not plan a path to (`unreachable`): that candidate stays for the others. A candidate whose
+    scheduled gain falls under `min_gain` is left for this round: what a drone already sent near it will see
+    leaves it not worth another drone's trip (at the end of the office mission, three drones were sent one by
+    one to leftover floor frontiers 2-4 m apart in the same far corner)."""
     members = sorted(positions)
     result: dict[int, Candidate | None] = {m: None for m in members}
     pool = sorted(candidates, key=_order_key)
@@ -237,4 +240,5 @@ def assign_targets(candidates: Sequence[Candidate], positions: Mapping[int, Vec3
         result[members[row]] = pool[best]
         waiting[row], free[best] = False, False
         work = schedule_gain(work, points, pool[best].point, sigma)
+        free &= work >= min_gain
     return result

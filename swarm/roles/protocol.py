@@ -280,7 +280,7 @@ class ExplorationCore:
             assignable, positions, lam=self.settings.utility_lambda, sigma=self.settings.sigma_m,
             current={k: v for k, v in self.assigned_current.items() if k in positions},
             current_bonus=self.settings.current_target_bonus, own_bonus=self.settings.own_frontier_bonus,
-            keep_radius=KEEP_RADIUS_M, unreachable_radius=radius, unreachable=blocked,
+            keep_radius=KEEP_RADIUS_M, unreachable_radius=radius, unreachable=blocked, min_gain=self._trip_gain(),
         )
         assigned = {k: c for k, c in choice.items() if c is not None}
         self.assigned_current = {k: c.viewpoint for k, c in assigned.items()}
@@ -295,6 +295,11 @@ class ExplorationCore:
         mine = assigned.get(self.id)
         if mine is not None:
             self.set_target(effects, Target(mine.viewpoint, mine.point, "leader", mine.gain))
+
+    def _trip_gain(self) -> float:
+        """The least gain worth a trip, in the unit of the candidates' gains."""
+        s = self.settings
+        return s.min_view_gain_m3 if s.gain_model == "view" else s.min_gain_m3
 
     def _maybe_done(self, now: float, effects: Effects, situation: Situation, reason: str, members: list[int],
                     reports: dict[int, FrontierReport] | None = None) -> None:

@@ -99,6 +99,20 @@ def test_without_scheduling_both_drones_pick_the_same_cluster() -> None:
     assert got[1].viewpoint[0] == got[2].viewpoint[0] == 6.0  # ...but its neighbour in the cluster is next best
 
 
+def test_a_leftover_near_one_drones_target_is_not_worth_a_second_drone_but_a_far_one_is() -> None:
+    """The tail of the office mission: three drones sent one by one to floor frontiers 2-4 m apart in one corner
+    20 m away. What the first drone will see there leaves the rest under the trip's worth for the others."""
+    corner = [cand(20.0, 0.0, gain=5.0), cand(20.0, 3.0, gain=4.0)]
+    drones = {1: (16.0, 0.0, 1.0), 2: (0.0, 0.0, 1.0), 3: (0.0, 2.0, 1.0)}
+    every = assign_targets(corner, drones, lam=0.2, sigma=6.0)
+    assert sum(c is not None for c in every.values()) == 2  # without a minimum: a second drone goes 20 m
+    got = assign_targets(corner, drones, lam=0.2, sigma=6.0, min_gain=2.0)
+    assert got == {1: corner[0], 2: None, 3: None}  # 4 m3 x (1 - exp(-9 / 72)) = 0.47 m3 left for the others
+    far = cand(0.0, 10.0, gain=4.0)  # one at the other end is still another drone's
+    got = assign_targets([*corner, far], drones, lam=0.2, sigma=6.0, min_gain=2.0)
+    assert got[1] == corner[0] and got[3] == far and got[2] is None
+
+
 def test_single_drone_gets_the_nearest_of_equal_gain_candidates() -> None:
     near = cand(0.0, 2.0)
     others = [cand(3.0, 0.0), cand(-5.0, 0.0), cand(0.0, -4.0, z=2.0)]
