@@ -8,31 +8,16 @@ frame and attaching the pose (plus its fixed mounting transform), with depth con
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
 
 from swarm.config import CameraSettings, SwarmConfig, Vec3
+from swarm.sensing.frames import DepthFrame
 from swarm.sim.camera import DepthCamera
 from swarm.sim.worlds import World, load_world
 
-
-@dataclass(frozen=True)
-class DepthFrame:
-    index: int  # frame counter of the agent
-    t: float  # capture time, seconds (the agent's clock)
-    depth: np.ndarray  # (H, W) float32 z-depth, metres; 0 = invalid
-    K: np.ndarray  # 3x3 pinhole intrinsics
-    T_world_cam: np.ndarray  # 4x4 camera-to-world; camera x right, y down, z forward
-
-    def world_points(self) -> np.ndarray:
-        """(N, 3) world points of the valid pixels (back-projected through the pixel centres)."""
-        v, u = np.nonzero(self.depth > 0)
-        z = self.depth[v, u].astype(np.float64)
-        (fx, _, cx), (_, fy, cy) = self.K[0], self.K[1]
-        cam = np.stack([(u + 0.5 - cx) / fx * z, (v + 0.5 - cy) / fy * z, z], axis=1)
-        return cam @ self.T_world_cam[:3, :3].T + self.T_world_cam[:3, 3]
+__all__ = ["DepthFrame", "DepthSource", "SimulatedDepthSource", "make_depth_source"]
 
 
 class DepthSource(Protocol):

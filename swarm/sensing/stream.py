@@ -1,0 +1,113 @@
+"""Camera frames from a stream of ROS 2 messages: depth images, camera info and poses, in any order.
+
+`FrameAssembler` is sans-I/O (as `PullScheduler` is for patch sync): whatever carries the messages (rclpy, a
+Zenoh subscription, a bag) hands it their CDR bytes or decoded messages, and it hands back `DepthFrame`s with the
+camera pose at each image's stamp. An image that arrives before the pose sample after its stamp waits (at most
+`max_pending` images) for it. Every message it cannot use is counted under its reason (`dropped`) and never
+reaches the map: a malformed message, an image before any camera info, an image whose size differs from the
+camera info's, a stamp with no pose (stale, too new, across a gap).
+"""
+
+from __future__ import annotations
+
+from collections import Counter, deque
+from typing import Any
+
+import numpy as np
+
+from swarm.sensing.frames import DepthFrame, camera_to_world, pixel_centre_intrinsics
+from swarm.sensing.messages import (
+    CAMERA_INFO,
+    IMAGE,
+    Intrinsics,
+    Pose,
+    SensorInputError,
+    deserialize,
+    depth_of,
+    intrinsics_of,
+    pose_of,
+)
+from swarm.sensing.poses import Miss, PoseBuffer
+
+
+class FrameAssembler:
+    def __init__(self, mount: np.ndarray, poses: PoseBuffer | None = None, max_pending: int = 4) -> None:
+        self.mount = np.asarray(mount, dtype=np.float64)
+        self.poses = poses if poses is not None else PoseBuffer()  # an empty buffer is falsy
+        self.max_pending = max_pending
+        self.intrinsics: Intrinsics | None = None
+        self._K: np.ndarray | None = None
+        self._pending: deque[tuple[float, np.ndarray]] = deque()
+        self._ready: list[DepthFrame] = []
+        self.frames = 0
+        self.dropped: Counter[str] = Counter()
+
+    # -- input ---------------------------------------------------------------------------------------------
+
+    def on_camera_info(self, message: Any) -> None:
+        try:
+            self.intrinsics = intrinsics_of(_decoded(message, CAMERA_INFO))
+        except SensorInputError:
+            self.dropped["bad camera info"] += 1
+            return
+        self._K = pixel_centre_intrinsics(self.intrinsics)
+
+    def on_pose(self, message: Any, msgtype: str | None = None) -> None:
+        """A pose message (Odometry or PoseStamped; `msgtype` needed only for CDR bytes), or a `Pose`."""
+        try:
+            pose = message if isinstance(message, Pose) else pose_of(_decoded(message, msgtype))
+        except SensorInputError:
+            self.dropped["bad pose"] += 1
+            return
+        if not self.poses.add(pose):
+            self.dropped["pose out of order"] += 1
+            return
+        self._resolve()
+
+    def on_image(self, message: Any) -> None:
+        try:
+            stamp, depth = depth_of(_decoded(message, IMAGE))
+        except SensorInputError:
+            self.dropped["bad image"] += 1
+            return
+        if self.intrinsics is None:
+            self.dropped["image before camera info"] += 1
+            return
+        if depth.shape != (self.intrinsics.height, self.intrinsics.width):
+            self.dropped["image size differs from camera info"] += 1
+            return
+        self._pending.append((stamp, depth))
+        while len(self._pending) > self.max_pending:
+            self._pending.popleft()
+            self.dropped["no pose in time"] += 1
+        self._resolve()
+
+    # -- output --------------------------------------------------------------------------------------------
+
+    def take(self) -> list[DepthFrame]:
+        """The frames assembled since the last call, oldest first."""
+        ready, self._ready = self._ready, []
+        return ready
+
+    def _resolve(self) -> None:
+        """Turn the pending images whose pose is known into frames; drop those that will never have one."""
+        while self._pending:
+            stamp, depth = self._pending[0]
+            pose = self.poses.at(stamp)
+            if pose is Miss.FUTURE or pose is Miss.EMPTY:
+                return  # the pose after this stamp may still come (images are in stamp order: so for the rest)
+            self._pending.popleft()
+            if isinstance(pose, Miss):
+                self.dropped[f"pose {pose.name.lower()}"] += 1
+                continue
+            assert self._K is not None
+            self._ready.append(DepthFrame(self.frames, stamp, depth, self._K.copy(), camera_to_world(pose, self.mount)))
+            self.frames += 1
+
+
+def _decoded(message: Any, msgtype: str | None) -> Any:
+    if isinstance(message, (bytes, bytearray, memoryview)):
+        if msgtype is None:
+            raise SensorInputError("CDR bytes without their message type")
+        return deserialize(message, msgtype)
+    return message
