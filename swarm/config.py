@@ -274,6 +274,39 @@ class BusSettings(_Section):
         return self
 
 
+_ROS_NAME = r"^/?[A-Za-z_~][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$"
+
+
+class CameraMount(_Section):
+    """Where the camera sits on the vehicle: its link in the body frame (FLU), URDF-style (docs: "Mapping")."""
+
+    translation_m: Vec3 = Field((0.0, 0.0, 0.0), description="camera link origin in the body frame, metres")
+    rpy_deg: Vec3 = Field((0.0, 0.0, 0.0), description="roll, pitch (positive looks down), yaw of the link, deg")
+
+
+class SensorStreamSettings(_Section):
+    """Where a camera on ROS 2 publishes, as seen through Zenoh (camera.source = "zenoh")."""
+
+    layout: Literal["rmw_zenoh", "bridge"] = Field(
+        "rmw_zenoh", description="rmw_zenoh: keys <domain>/<topic>/<type>/<hash> (hash matched by *); bridge: "
+        "zenoh-bridge-ros2dds, keys [<namespace>/]<topic>"
+    )
+    domain_id: int = Field(0, ge=0, le=232, description="ROS_DOMAIN_ID (rmw_zenoh layout)")
+    namespace: str = Field("", pattern=r"^([A-Za-z0-9_]+(/[A-Za-z0-9_]+)*)?$", description="bridge key prefix")
+    depth_topic: str = Field("/camera/depth/image_rect_raw", pattern=_ROS_NAME, description="sensor_msgs/Image")
+    info_topic: str = Field("/camera/depth/camera_info", pattern=_ROS_NAME, description="sensor_msgs/CameraInfo")
+    pose_topic: str = Field("/odom", pattern=_ROS_NAME, description="the vehicle's pose in the world frame (ENU)")
+    pose_type: Literal["odometry", "pose_stamped"] = Field("odometry", description="nav_msgs/Odometry or "
+                                                           "geometry_msgs/PoseStamped")
+    mode: Literal["peer", "client"] = Field("peer", description="the sensor session's Zenoh mode")
+    connect: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"],
+                               description="Zenoh endpoints of the camera's side (rmw_zenohd listens on 7447)")
+    listen: list[str] = Field(default_factory=list, description="Zenoh endpoints this session listens on")
+    max_gap_s: PositiveFloat = Field(0.25, description="an image between poses further apart is dropped")
+    max_hold_s: float = Field(0.05, ge=0.0, le=1.0, description="an image this much newer than the newest pose "
+                              "takes that pose; newer ones wait for the next")
+
+
 class CameraSettings(_Section):
     """The depth camera (simulated by ray casting the world mesh, or a real one behind the same interface)."""
 
@@ -287,6 +320,8 @@ class CameraSettings(_Section):
     noise: Literal["off", "stereo"] = "off"
     stereo_sigma_coeff: PositiveFloat = Field(0.002418, description="sigma(z) = coeff * z^2, metres")
     pitch_deg: float = Field(0.0, ge=-90.0, le=90.0, description="camera pitch, positive looks down")
+    mount: CameraMount = CameraMount()
+    stream: SensorStreamSettings = SensorStreamSettings()
 
     @model_validator(mode="after")
     def _ranges(self) -> CameraSettings:
