@@ -298,7 +298,11 @@ class SensorStreamSettings(_Section):
     pose_topic: str = Field("/odom", pattern=_ROS_NAME, description="the vehicle's pose in the world frame (ENU)")
     pose_type: Literal["odometry", "pose_stamped"] = Field("odometry", description="nav_msgs/Odometry or "
                                                            "geometry_msgs/PoseStamped")
-    mode: Literal["peer", "client"] = Field("peer", description="the sensor session's Zenoh mode")
+    mode: Literal["peer", "client"] = Field(
+        "client", description="the sensor session's Zenoh mode: client, through the router it connects to (rmw_zenohd "
+        "or the simulator's); peer, straight to the endpoints (a peer behind a router with no listen endpoint of "
+        "its own heard nothing from the other peers in a test here)"
+    )
     connect: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"],
                                description="Zenoh endpoints of the camera's side (rmw_zenohd listens on 7447)")
     listen: list[str] = Field(default_factory=list, description="Zenoh endpoints this session listens on")

@@ -1,0 +1,145 @@
+"""The simulated vehicles' sensors as a robot's ROS 2 side publishes them: each vehicle's pose (odometry, what a
+VIO or the autopilot bridge gives) and each vehicle's depth camera (image and camera info, what a camera driver
+gives), on Zenoh in the key layout of `camera.stream` (rmw_zenoh by default) under the namespace /drone<k>.
+
+`CameraDriver` hears each vehicle's odometry and, at `camera.rate_hz`, publishes a depth image rendered from the
+world at that pose, times the camera's mount, stamped with the pose's stamp: the agent, which never loads the
+world, interpolates its own copy of the odometry at that stamp and gets the very pose the image was rendered at.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import zenoh
+from scipy.spatial.transform import Rotation
+
+from swarm.config import CameraSettings, SensorStreamSettings
+from swarm.sensing import messages as m
+from swarm.sensing.frames import camera_to_world, mount_transform
+from swarm.sensing.zenoh_source import POSE_TYPES, session_config, topic_key
+from swarm.sim.camera import DepthCamera
+from swarm.sim.worlds import World
+
+# ENU <- NED and FRD <- FLU: the same axes swapped and flipped (PX4's attitude is NED / FRD, ROS's ENU / FLU)
+_ENU_FROM_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+_FRD_FROM_FLU = np.diag([1.0, -1.0, -1.0])
+
+
+def body_pose(t: float, position_enu: np.ndarray, roll: float, pitch: float, yaw_ned: float) -> m.Pose:
+    """The ROS pose (ENU world, FLU body) of a vehicle with PX4 attitude roll, pitch, yaw (rad, FRD body in NED)."""
+    ned_from_frd = Rotation.from_euler("ZYX", [yaw_ned, pitch, roll]).as_matrix()
+    enu_from_flu = _ENU_FROM_NED @ ned_from_frd @ _FRD_FROM_FLU
+    return m.Pose(t, np.asarray(position_enu, dtype=np.float64).copy(), Rotation.from_matrix(enu_from_flu).as_quat())
+
+
+def vehicle_stream(base: SensorStreamSettings, vehicle_id: int) -> SensorStreamSettings:
+    """`base` with every topic under /drone<k>: one camera and one odometry per vehicle."""
+    return base.model_copy(update={
+        name: f"/drone{vehicle_id}/{getattr(base, name).lstrip('/')}"
+        for name in ("depth_topic", "info_topic", "pose_topic")
+    })
+
+
+def camera_mount(camera: CameraSettings) -> np.ndarray:
+    """The mount of `camera`: camera.mount, with camera.pitch_deg added to its pitch."""
+    roll, pitch, yaw = camera.mount.rpy_deg
+    return mount_transform(camera.mount.translation_m, (roll, pitch + camera.pitch_deg, yaw))
+
+
+class StreamPublisher:
+    """Puts ROS 2 messages on Zenoh under the keys a ROS 2 node would (rmw_zenoh: with the type hash and an
+    attachment of sequence number, source time and GID, as rmw_zenoh sends them)."""
+
+    def __init__(self, session: zenoh.Session, settings: SensorStreamSettings, gid: int) -> None:
+        self.session, self.settings = session, settings
+        self._gid = gid.to_bytes(16, "little")
+        self._seq = 0
+
+    def put(self, topic: str, message: Any) -> None:
+        msgtype = message.__msgtype__
+        key = topic_key(self.settings, topic, msgtype)
+        if self.settings.layout == "rmw_zenoh":
+            key = key.replace("*", m.typestore().hash_rihs01(msgtype))
+        self._seq += 1
+        attachment = struct.pack("<qqB", self._seq, time.time_ns(), 16) + self._gid
+        self.session.put(key, m.serialize(message), attachment=attachment)
+
+
+class CameraDriver:
+    def __init__(self, world: World, camera: CameraSettings, vehicle_ids: list[int], seed: int = 0,
+                 log: Callable[[str], None] | None = None) -> None:
+        self.camera_settings = camera
+        self.streams = {k: vehicle_stream(camera.stream, k) for k in vehicle_ids}
+        self.cameras = {k: DepthCamera(world, camera, seed * 1000 + k) for k in vehicle_ids}
+        self.mount = camera_mount(camera)
+        self.intrinsics = m.Intrinsics(camera.width, camera.height, self._ros_K())
+        self._poses: dict[int, m.Pose] = {}
+        self._lock = threading.Lock()
+        self.published = {k: 0 for k in vehicle_ids}
+        self.render_s = 0.0
+        self.log = log or (lambda text: None)
+
+    def _ros_K(self) -> np.ndarray:
+        """The rendering camera's K in the ROS convention (pixel centres at integers)."""
+        K = np.array(next(iter(self.cameras.values())).intrinsics, dtype=np.float64)
+        K[0, 2] -= 0.5
+        K[1, 2] -= 0.5
+        return K
+
+    def run(self, stop: threading.Event) -> None:
+        """Subscribe to every vehicle's odometry and publish its camera at camera.rate_hz until `stop`."""
+        base = self.camera_settings.stream
+        session = zenoh.open(session_config(base))
+        try:
+            subscribers = [session.declare_subscriber(topic_key(s, s.pose_topic, POSE_TYPES[s.pose_type]),
+                                                      self._on_pose(k)) for k, s in self.streams.items()]
+            publishers = {k: StreamPublisher(session, s, gid=1000 + k) for k, s in self.streams.items()}
+            period = 1.0 / self.camera_settings.rate_hz
+            next_tick = time.monotonic()
+            while not stop.is_set():
+                for k, publisher in publishers.items():
+                    self._publish(k, publisher)
+                next_tick += period
+                delay = next_tick - time.monotonic()
+                if delay < 0:
+                    next_tick += math.ceil(-delay / period) * period
+                    delay = next_tick - time.monotonic()
+                stop.wait(max(delay, 0.0))
+            for subscriber in subscribers:
+                subscriber.undeclare()
+        finally:
+            session.close()
+
+    def _on_pose(self, vehicle_id: int) -> Callable[[zenoh.Sample], None]:
+        msgtype = POSE_TYPES[self.streams[vehicle_id].pose_type]
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            try:
+                pose = m.pose_of(m.deserialize(sample.payload.to_bytes(), msgtype))
+            except m.SensorInputError as exc:
+                self.log(f"camera driver: drone {vehicle_id}: {exc}")
+                return
+            with self._lock:
+                self._poses[vehicle_id] = pose
+
+        return on_sample
+
+    def _publish(self, vehicle_id: int, publisher: StreamPublisher) -> None:
+        with self._lock:
+            pose = self._poses.get(vehicle_id)
+        if pose is None:
+            return
+        started = time.perf_counter()
+        depth = self.cameras[vehicle_id].render(camera_to_world(pose, self.mount))
+        self.render_s += time.perf_counter() - started
+        s = self.streams[vehicle_id]
+        publisher.put(s.info_topic, m.camera_info_message(pose.t, self.intrinsics))
+        publisher.put(s.depth_topic, m.image_message(pose.t, depth))
+        self.published[vehicle_id] += 1
