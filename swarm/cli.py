@@ -110,6 +110,11 @@ def build_parser() -> argparse.ArgumentParser:
                      help="mutual TLS with access control on every Zenoh session (certificates in OUT/certs)")
     _add_config_flags(run)
 
+    cameras = sub.add_parser("cameras", help="the simulated depth cameras as ROS 2 camera drivers over Zenoh")
+    cameras.add_argument("--world", help="built-in world or mesh path")
+    cameras.add_argument("--vehicles", type=_positive_int, help="number of vehicles (cameras /drone1 ... /droneN)")
+    _add_config_flags(cameras)
+
     sim = sub.add_parser("sim", help="run the simulated vehicles alone (MAVLink over UDP)")
     sim.add_argument("--world", help="built-in world or mesh path")
     sim.add_argument("--vehicles", type=_positive_int, help="number of vehicles")
@@ -287,6 +292,10 @@ def _dispatch(args: argparse.Namespace) -> int:
         report = run_mission(config, live=False if args.no_live else None)
         _print_summary(report)
         return 0 if report["status"] == "complete" else EXIT_FAILED
+    if args.command == "cameras":
+        from swarm.sim.sensors import cameras_command
+
+        return cameras_command(_config_from(args, {"mission.world": args.world, "mission.drones": args.vehicles}))
     if args.command == "sim":
         config = _config_from(args, {
             "mission.world": args.world, "mission.drones": args.vehicles, "mission.start": args.start,

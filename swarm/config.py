@@ -229,6 +229,12 @@ class SimSettings(_Section):
     drone_radius_m: PositiveFloat = Field(0.2, description="collision sphere radius")
     offboard_timeout_s: PositiveFloat = Field(1.0, description="no setpoint for this long: hold (as PX4)")
     spawns: list[Vec3] = Field(default_factory=list, description="vehicle home positions; set by swarm run")
+    sensor_listen: list[str] = Field(
+        default_factory=list, description="when set, the simulator publishes each vehicle's odometry (ROS 2, in "
+        "camera.stream's layout, under /drone<k>) on a Zenoh router listening here, for `swarm cameras` and the "
+        "agents with camera.source = \"zenoh\""
+    )
+    odometry_hz: float = Field(50.0, ge=5.0, le=500.0, description="odometry rate (sensor_listen)")
     status_path: Path | None = Field(None, description="where the simulator writes its status JSON")
     control_path: Path | None = Field(
         None, description="fault injection: a JSON file the simulator polls, {\"telemetry_off\": [drone ids]}"
@@ -314,7 +320,11 @@ class SensorStreamSettings(_Section):
 class CameraSettings(_Section):
     """The depth camera (simulated by ray casting the world mesh, or a real one behind the same interface)."""
 
-    source: Literal["sim", "none"] = Field("sim", description="sim: ray-cast the mission world; none: no mapping")
+    source: Literal["sim", "zenoh", "none"] = Field(
+        "sim", description="sim: the agent ray-casts the mission world itself; zenoh: a camera on ROS 2 heard through "
+        "Zenoh (camera.stream; `swarm cameras` is the simulator's), no world loaded, mission.volume required; none: "
+        "no mapping"
+    )
     width: int = Field(160, ge=8, le=1280)
     height: int = Field(120, ge=6, le=960)
     hfov_deg: float = Field(90.0, gt=10.0, lt=170.0)

@@ -22,6 +22,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, NoReturn
 
+import numpy as np
 import zenoh
 
 from swarm.aio import wait_event
@@ -30,15 +31,17 @@ from swarm.agent.events import EventLog
 from swarm.agent.exploration import Exploration
 from swarm.agent.flight import Flight, Mission, Neighbour, Phase, route_mission
 from swarm.agent.mapping import MappingTask
-from swarm.agent.sensing import make_depth_source
+from swarm.agent.sensing import DepthSource, StreamSource, make_depth_source
 from swarm.bus.bridge import AsyncBus
 from swarm.bus.messages import AgentState
-from swarm.config import SwarmConfig
+from swarm.config import ConfigError, SwarmConfig
 from swarm.files import write_json_atomic
 from swarm.roles.membership import PeerTable
 from swarm.patches.lattice import Lattice
 from swarm.patches.patch import PatchId
 from swarm.patches.wire import decode_expected
+from swarm.sensing.frames import camera_mount
+from swarm.sensing.zenoh_source import ZenohSensorSource
 from swarm.sim.worlds import load_world, mission_volume
 from swarm.sync.service import PatchSync
 
@@ -160,17 +163,26 @@ class Agent:
         return {Phase.LANDED: EXIT_OK, Phase.FAILSAFE: EXIT_FAILSAFE}.get(final, EXIT_FLIGHT_FAILED)
 
     def _make_mapping(self, loop: asyncio.AbstractEventLoop) -> MappingTask | None:
-        if self.config.camera.source == "none":
+        camera = self.config.camera
+        if camera.source == "none":
             return None
-        world = load_world(self.config.mission.world)  # once: the camera ray-casts it, the map spans its volume
 
         def on_sealed(pid: PatchId, data: bytes) -> None:  # the mapping thread: hand over to the loop
             loop.call_soon_threadsafe(self.sync.add_own, pid, data)
 
-        return MappingTask(
-            self.config, self.epoch, make_depth_source(self.config, world),
-            mission_volume(world, self.config.mission.volume), self.log, self.config.agent.out_dir, on_sealed,
-        )
+        source: DepthSource | StreamSource
+        if camera.source == "zenoh":  # a real camera's path: no world mesh is ever opened
+            volume = self.config.mission.volume
+            if volume is None:
+                raise ConfigError('camera.source = "zenoh" needs mission.volume (the agent loads no world to take '
+                                  "it from)")
+            bounds = (np.array(volume.min, dtype=float), np.array(volume.max, dtype=float))
+            source = ZenohSensorSource(camera.stream, camera_mount(camera))
+        else:
+            world = load_world(self.config.mission.world)  # once: the camera ray-casts it, the map spans its volume
+            bounds = mission_volume(world, self.config.mission.volume)
+            source = make_depth_source(self.config, world)
+        return MappingTask(self.config, self.epoch, source, bounds, self.log, self.config.agent.out_dir, on_sealed)
 
     def _run_mapping(
         self, mapping: MappingTask, autopilot: Autopilot, stop: asyncio.Event, background: list[asyncio.Task[None]]

@@ -28,7 +28,7 @@ import numpy as np
 
 from swarm.aio import wait_event
 from swarm.agent.autopilot import TelemetryCache
-from swarm.agent.sensing import DepthSource
+from swarm.agent.sensing import DepthFrame, DepthSource, StreamSource
 from swarm.config import SwarmConfig, Vec3
 from swarm.explore.frontiers import ExplorationGrid, Frontier, ViewModel
 from swarm.files import write_atomic
@@ -38,6 +38,7 @@ from swarm.patches.patch import Patch, PatchId
 from swarm.patches.wire import PatchDecodeError
 
 SealedCallback = Callable[[PatchId, bytes], None]
+STREAM_WAIT_S = 0.2  # a stream source is polled this often for the stop event when no frame comes
 MIN_HEIGHT_M = 0.3  # below this the camera mostly sees the floor it stands on
 
 
@@ -69,7 +70,7 @@ class MappingTask:
         self,
         config: SwarmConfig,
         epoch: int,
-        source: DepthSource,
+        source: DepthSource | StreamSource,
         bounds: tuple[np.ndarray, np.ndarray],
         log: Callable[..., None],
         out_dir: Path | None,
@@ -97,9 +98,13 @@ class MappingTask:
         self.baseline_bytes = 0  # sum of the whole map's wire size, once per baseline loop
         self.baseline_loops = 0
         self.on_sealed = on_sealed
+        self.stream_counters: dict[str, int] | None = None  # a stream source's, at the end
         self._worker = ThreadPoolExecutor(1, thread_name_prefix="mapping")
 
     async def run(self, telemetry: TelemetryCache, home_z: Callable[[], float | None], stop: asyncio.Event) -> None:
+        if hasattr(self.source, "wait_frame"):
+            await self._run_stream(telemetry, home_z, stop)
+            return
         loop = asyncio.get_running_loop()
         period = 1.0 / self.config.camera.rate_hz
         next_tick = time.monotonic()
@@ -120,12 +125,37 @@ class MappingTask:
 
     def _step(self, position: tuple[float, float, float], yaw_deg: float) -> None:
         started = time.perf_counter()
-        frame = self.source.capture(self.frames, time.time(), position, yaw_deg)
+        assert not hasattr(self.source, "wait_frame")
+        self._integrate(self.source.capture(self.frames, time.time(), position, yaw_deg), started)  # type: ignore[union-attr]
+
+    def _integrate(self, frame: DepthFrame, started: float) -> None:
         self.frames += 1
         sealed = self.mapper.integrate(frame.depth, frame.K, frame.T_world_cam, frame.t, self.config.camera.max_range_m)
         if sealed is not None:
             self._keep(sealed)
         self.busy_s += time.perf_counter() - started
+
+    async def _run_stream(self, telemetry: TelemetryCache, home_z: Callable[[], float | None],
+                          stop: asyncio.Event) -> None:
+        """Frames as the camera publishes them: the newest one not taken yet, integrated while airborne (one the
+        mapping thread was too busy to take is counted by the source as not taken: `frames_skipped`)."""
+        source: StreamSource = self.source  # type: ignore[assignment]
+        loop = asyncio.get_running_loop()
+        await loop.run_in_executor(self._worker, source.start)
+        try:
+            while not stop.is_set():
+                base = home_z()
+                airborne = base is not None and telemetry.samples > 0 and telemetry.position[2] - base > MIN_HEIGHT_M
+                await loop.run_in_executor(self._worker, self._step_stream, source, airborne)
+        finally:
+            self.stream_counters = source.counters()
+            self.frames_skipped += self.stream_counters.get("not_taken", 0)
+            await loop.run_in_executor(None, source.close)
+
+    def _step_stream(self, source: StreamSource, airborne: bool) -> None:
+        frame = source.wait_frame(STREAM_WAIT_S)
+        if frame is not None and airborne:
+            self._integrate(frame, time.perf_counter())
 
     def _keep(self, patch: Patch) -> None:
         self.patches_sealed += 1
@@ -221,6 +251,7 @@ class MappingTask:
             # every tick while airborne either took a frame or was skipped for being late
             "frame_rate_hz": round(self.config.camera.rate_hz * self.frames / (self.frames + self.frames_skipped), 2)
             if self.frames else 0.0,
+            **({"sensor_stream": self.stream_counters} if self.stream_counters is not None else {}),
             "known_voxels": int(self.mapper.fused.voxel_count),
             "patches_received": self.patches_received,
             "fused_digest": self.mapper.fused.digest(),

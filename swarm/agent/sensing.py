@@ -17,13 +17,26 @@ from swarm.sensing.frames import DepthFrame
 from swarm.sim.camera import DepthCamera
 from swarm.sim.worlds import World, load_world
 
-__all__ = ["DepthFrame", "DepthSource", "SimulatedDepthSource", "make_depth_source"]
+__all__ = ["DepthFrame", "DepthSource", "SimulatedDepthSource", "StreamSource", "make_depth_source"]
 
 
 class DepthSource(Protocol):
     def capture(self, index: int, t: float, position: Vec3, yaw_enu_deg: float) -> DepthFrame:
         """A depth frame taken at the given drone pose (world frame, ENU yaw in degrees); blocking."""
         ...
+
+
+class StreamSource(Protocol):
+    """A camera that publishes (`swarm.sensing.zenoh_source.ZenohSensorSource`): frames come with their own
+    poses, when the camera sends them."""
+
+    def start(self) -> None: ...
+
+    def wait_frame(self, timeout_s: float) -> DepthFrame | None: ...
+
+    def counters(self) -> dict[str, int]: ...
+
+    def close(self) -> None: ...
 
 
 class SimulatedDepthSource:

@@ -56,6 +56,7 @@ def build_report(
                 "frames": int(summary.get("frames", 0)),
                 "mapping_ms_per_frame": summary.get("mapping_ms_per_frame"),
                 "frame_rate_hz": summary.get("frame_rate_hz"),
+                "sensor_stream": summary.get("sensor_stream"),  # camera.source = "zenoh": frames and drops by reason
                 "patches_held": int(sync.get("patches_held", 0)),
                 "patches_requested": int(sync.get("patches_requested", 0)),
                 "patches_served": int(sync.get("patches_served", 0)),

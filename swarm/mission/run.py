@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 import tomli_w
 
-from swarm.config import TLS_OBSERVER_NAME, SwarmConfig, bus_port, dump_config, gcs_port, tls_drone_name, vehicle_port
+from swarm.config import TLS_OBSERVER_NAME, Box, SwarmConfig, bus_port, dump_config, gcs_port, tls_drone_name, vehicle_port
 from swarm.deploy.certs import make_certs
 from swarm.errors import SwarmError
 from swarm.mission.faults import FaultInjector
@@ -58,6 +58,8 @@ POLL_PERIOD_S = 0.25
 # issues #1886 and #2130), and the healed drone stayed deaf to a peer for the rest of the mission in about one
 # cut-and-heal run in four. TCP alone rejoined every time; with the 20 ms rto_min it also holds up at 30 % loss.
 RADIO_PROTOCOLS = ("tcp",)
+NO_WORLD_FOR_AGENTS = "no-world-for-agents.ply"  # camera.source = "zenoh": what agents are told the world is
+SENSOR_PORT_OFFSET = 200  # the sensor router listens on bus.base_port + this
 INTERRUPTED = "interrupted"  # the reason of a mission stopped by Ctrl-C or SIGTERM
 
 
@@ -70,11 +72,13 @@ class RunPlan:
     routes: list[ScriptedRoute]
     volume: tuple[np.ndarray, np.ndarray]
     scenario: Scenario | None = None
+    sensor_port: int | None = None  # the simulator's sensor router (camera.source = "zenoh")
 
 
 @dataclass
 class RunState:
     sim: Child | None = None
+    cameras: Child | None = None  # `swarm cameras`, with camera.source = "zenoh"
     observer: Child | None = None
     agents: dict[int, Child] = field(default_factory=dict)
     exit_codes: dict[int, int] = field(default_factory=dict)
@@ -90,7 +94,7 @@ class RunState:
 
     @property
     def children(self) -> list[Child]:
-        return [c for c in (*self.agents.values(), self.observer, self.sim) if c is not None]
+        return [c for c in (*self.agents.values(), self.observer, self.cameras, self.sim) if c is not None]
 
 
 def prepare(config: SwarmConfig) -> RunPlan:
@@ -117,7 +121,12 @@ def prepare(config: SwarmConfig) -> RunPlan:
     out = m.out or Path("runs") / f"{dt.datetime.now():%Y%m%d-%H%M%S}-{world.name}"
     if out.exists() and any(out.iterdir()):
         raise SwarmError(f"output directory {out} is not empty")
-    return RunPlan(config, world, out, spawns, routes, (lo, hi), scenario)
+    sensor_port = None
+    if config.camera.source == "zenoh":
+        sensor_port = bus_port(config.bus, SENSOR_PORT_OFFSET)
+        if m.network == "loopback":
+            ensure_free(config.sim.host, sensor_port, "tcp", "sensor streams")
+    return RunPlan(config, world, out, spawns, routes, (lo, hi), scenario, sensor_port)
 
 
 def with_time_limit(config: SwarmConfig, world: World) -> SwarmConfig:
@@ -227,6 +236,8 @@ def _start_simulator(plan: RunPlan, state: RunState) -> None:
     if state.net is not None:
         sim_config.sim.host = state.net.layout.control_host_address
     sim_config.sim.status_path = plan.out / "sim.json"
+    if plan.sensor_port is not None:
+        sim_config.sim.sensor_listen = [f"tcp/{sim_config.sim.host}:{plan.sensor_port}"]
     if plan.config.mission.faults:
         sim_config.sim.control_path = _control_path(plan)
     path = _write_config(plan.out / "config" / "sim.toml", sim_config)
@@ -236,12 +247,49 @@ def _start_simulator(plan: RunPlan, state: RunState) -> None:
     while True:
         status = read_json(plan.out / "sim.json")
         if status and status.get("ready"):
+            _start_cameras(plan, state, sim_config.sim.host)
             return
         if state.sim.poll() is not None:
             raise SwarmError(f"simulator exited early: {state.sim.last_log_line() or 'no output'}")
         if time.monotonic() > deadline:
             raise SwarmError(f"simulator not ready within {SIM_READY_TIMEOUT_S:.0f} s (see {state.sim.log_path})")
         time.sleep(0.1)
+
+
+def _sensor_endpoint(plan: RunPlan, host: str) -> str:
+    assert plan.sensor_port is not None
+    return f"tcp/{host}:{plan.sensor_port}"
+
+
+def _start_cameras(plan: RunPlan, state: RunState, host: str) -> None:
+    """With camera.source = "zenoh", the simulated cameras as ROS 2 camera drivers, on the simulator's odometry."""
+    if plan.sensor_port is None:
+        return
+    config = plan.config.model_copy(deep=True)
+    config.camera.stream = config.camera.stream.model_copy(update={"connect": [_sensor_endpoint(plan, host)],
+                                                                    "mode": "client", "listen": []})
+    path = _write_config(plan.out / "config" / "cameras.toml", config)
+    state.cameras = start_child("cameras", swarm_command("cameras", "--config", str(path)),
+                                plan.out / "logs" / "cameras.log", nice=plan.config.mission.sim_nice)
+
+
+def _agent_camera(plan: RunPlan, state: RunState, k: int) -> dict[str, Any]:
+    """Agent k's camera and mission volume updates: with camera.source = "zenoh" it hears /drone<k>'s camera
+    through the simulator's sensor router, and knows the mission volume from its config, not from a world."""
+    if plan.sensor_port is None:
+        return {}
+    from swarm.sim.sensors import vehicle_stream
+
+    host = state.net.layout.control_host_address if state.net is not None else plan.config.sim.host
+    stream = vehicle_stream(plan.config.camera.stream, k).model_copy(
+        update={"connect": [_sensor_endpoint(plan, host)], "mode": "client", "listen": []})
+    lo, hi = plan.volume
+    # The agent is given no world at all: a path that does not exist, so that any attempt to load one fails.
+    mission = plan.config.mission.model_copy(update={
+        "volume": Box(min=(float(lo[0]), float(lo[1]), float(lo[2])), max=(float(hi[0]), float(hi[1]), float(hi[2]))),
+        "world": str(plan.out / "config" / NO_WORLD_FOR_AGENTS),
+    })
+    return {"camera": plan.config.camera.model_copy(update={"stream": stream}), "mission": mission}
 
 
 def _netns_bus_for(config: SwarmConfig, net: SwarmNetwork, index: int) -> dict[str, Any]:
@@ -298,7 +346,8 @@ def _start_swarm(plan: RunPlan, state: RunState) -> None:
         agent = config.agent.model_copy(update=update)
         bus = _netns_bus_for(config, net, k) if net is not None else _bus_for(config, k)
         bus = _with_tls(plan, bus, tls_drone_name(k))
-        agent_config = config.model_copy(update={"agent": agent, "bus": config.bus.model_copy(update=bus)})
+        agent_config = config.model_copy(update={"agent": agent, "bus": config.bus.model_copy(update=bus),
+                                                 **_agent_camera(plan, state, k)})
         path = _write_config(plan.out / "config" / f"agent-{k}.toml", agent_config)
         argv = swarm_command("agent", "--config", str(path))
         if net is not None:

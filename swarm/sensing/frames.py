@@ -14,8 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from swarm.config import CameraSettings
 from swarm.sensing.messages import Intrinsics, Pose
-
 
 
 @dataclass(frozen=True)
@@ -49,6 +49,12 @@ def mount_transform(translation_m: tuple[float, float, float], rpy_deg: tuple[fl
     T[:3, :3] = Rotation.from_euler("xyz", [roll, pitch, yaw], degrees=True).as_matrix() @ OPTICAL_IN_LINK
     T[:3, 3] = translation_m
     return T
+
+
+def camera_mount(camera: CameraSettings) -> np.ndarray:
+    """The mount of `camera`: camera.mount, with camera.pitch_deg added to its pitch."""
+    roll, pitch, yaw = camera.mount.rpy_deg
+    return mount_transform(camera.mount.translation_m, (roll, pitch + camera.pitch_deg, yaw))
 
 
 def body_to_world(pose: Pose) -> np.ndarray:

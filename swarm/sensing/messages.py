@@ -55,7 +55,7 @@ def stamp_s(header: Any) -> float:
     return float(header.stamp.sec) + 1e-9 * float(header.stamp.nanosec)
 
 
-def deserialize(raw: bytes | memoryview, msgtype: str) -> Any:
+def deserialize(raw: bytes | bytearray | memoryview, msgtype: str) -> Any:
     """A message from its CDR bytes; SensorInputError when they do not decode as `msgtype`."""
     try:
         return typestore().deserialize_cdr(bytes(raw), msgtype)
@@ -95,11 +95,11 @@ def depth_of(image: Any) -> tuple[float, np.ndarray]:
 
 def intrinsics_of(info: Any) -> Intrinsics:
     """The pinhole intrinsics of a `sensor_msgs/msg/CameraInfo` (depth images come rectified: `d` is ignored)."""
-    K = np.asarray(info.k, dtype=np.float64).reshape(-1)
+    k = np.asarray(info.k, dtype=np.float64).reshape(-1)
     w, h = int(info.width), int(info.height)
-    if K.size != 9 or not np.all(np.isfinite(K)):
+    if k.size != 9 or not np.all(np.isfinite(k)):
         raise SensorInputError("camera info K is not 9 finite numbers")
-    K = K.reshape(3, 3)
+    K = k.reshape(3, 3)
     if not (K[0, 0] > 0 and K[1, 1] > 0) or not (0 < w <= MAX_IMAGE_SIDE and 0 < h <= MAX_IMAGE_SIDE):
         raise SensorInputError(f"camera info with fx {K[0, 0]:g}, fy {K[1, 1]:g} for {w}x{h} pixels")
     return Intrinsics(w, h, K)

@@ -22,8 +22,8 @@ from swarm.sensing.messages import (
     Intrinsics,
     Pose,
     SensorInputError,
-    deserialize,
     depth_of,
+    deserialize,
     intrinsics_of,
     pose_of,
 )

@@ -10,7 +10,9 @@ world, interpolates its own copy of the odometry at that stamp and gets the very
 from __future__ import annotations
 
 import math
+import signal
 import struct
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -20,12 +22,15 @@ import numpy as np
 import zenoh
 from scipy.spatial.transform import Rotation
 
-from swarm.config import CameraSettings, SensorStreamSettings
+from swarm.bus.session import zenoh_error_text
+from swarm.config import CameraSettings, SensorStreamSettings, SwarmConfig
+from swarm.errors import SwarmError
 from swarm.sensing import messages as m
-from swarm.sensing.frames import camera_to_world, mount_transform
+from swarm.sensing.frames import camera_mount, camera_to_world
 from swarm.sensing.zenoh_source import POSE_TYPES, session_config, topic_key
 from swarm.sim.camera import DepthCamera
-from swarm.sim.worlds import World
+from swarm.sim.kinematics import Body, tilt
+from swarm.sim.worlds import World, load_world
 
 # ENU <- NED and FRD <- FLU: the same axes swapped and flipped (PX4's attitude is NED / FRD, ROS's ENU / FLU)
 _ENU_FROM_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
@@ -45,12 +50,6 @@ def vehicle_stream(base: SensorStreamSettings, vehicle_id: int) -> SensorStreamS
         name: f"/drone{vehicle_id}/{getattr(base, name).lstrip('/')}"
         for name in ("depth_topic", "info_topic", "pose_topic")
     })
-
-
-def camera_mount(camera: CameraSettings) -> np.ndarray:
-    """The mount of `camera`: camera.mount, with camera.pitch_deg added to its pitch."""
-    roll, pitch, yaw = camera.mount.rpy_deg
-    return mount_transform(camera.mount.translation_m, (roll, pitch + camera.pitch_deg, yaw))
 
 
 class StreamPublisher:
@@ -143,3 +142,51 @@ class CameraDriver:
         publisher.put(s.info_topic, m.camera_info_message(pose.t, self.intrinsics))
         publisher.put(s.depth_topic, m.image_message(pose.t, depth))
         self.published[vehicle_id] += 1
+
+
+class OdometryPublisher:
+    """Each vehicle's true pose as `nav_msgs/msg/Odometry` on /drone<k>/<pose topic>, from the simulator's loop,
+    through a Zenoh router session of its own (the robot side's rmw_zenohd: the camera driver and the agents
+    connect to it)."""
+
+    def __init__(self, listen: list[str], stream: SensorStreamSettings, vehicle_ids: list[int]) -> None:
+        config = session_config(stream.model_copy(update={"mode": "router", "connect": [], "listen": listen}))
+        self.session = zenoh.open(config)
+        self.streams = {k: vehicle_stream(stream, k) for k in vehicle_ids}
+        self.publishers = {k: StreamPublisher(self.session, s, gid=k) for k, s in self.streams.items()}
+        self.published = 0
+
+    def publish(self, vehicle_id: int, body: Body) -> None:
+        roll, pitch = tilt(body)
+        pose = body_pose(time.time(), body.position, roll, pitch, body.yaw)
+        self.publishers[vehicle_id].put(self.streams[vehicle_id].pose_topic, m.odometry_message(pose))
+        self.published += 1
+
+    def close(self) -> None:
+        self.session.close()
+
+
+def cameras_command(config: SwarmConfig) -> int:
+    """`swarm cameras`: the simulated depth camera of each of config.mission.drones vehicles, as a camera driver
+    on ROS 2 over Zenoh (camera.stream), until SIGINT/SIGTERM. It needs each vehicle's odometry: the simulator's
+    (sim.sensor_listen) or any publisher's."""
+    world = load_world(config.mission.world)
+    ids = list(range(1, config.mission.drones + 1))
+    driver = CameraDriver(world, config.camera, ids, config.mission.seed,
+                          log=lambda text: print(text, file=sys.stderr, flush=True))
+    stop = threading.Event()
+    handlers = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
+    print(f"swarm cameras: {len(ids)} depth cameras at {config.camera.rate_hz:g} Hz on "
+          f"{', '.join(config.camera.stream.connect) or 'no endpoint'} ({config.camera.stream.layout} keys, "
+          f"{vehicle_stream(config.camera.stream, 1).depth_topic} ...)", flush=True)
+    try:
+        driver.run(stop)
+    except Exception as exc:
+        raise SwarmError(f"camera driver: {zenoh_error_text(exc)}") from None
+    finally:
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
+    frames = sum(driver.published.values())
+    print(f"swarm cameras: published {frames} images, render {1000 * driver.render_s / max(frames, 1):.1f} ms each",
+          flush=True)
+    return 0

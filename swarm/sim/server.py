@@ -22,9 +22,11 @@ import numpy as np
 
 from swarm.config import ConfigError, SwarmConfig, gcs_port, vehicle_port
 from swarm.errors import PortInUseError, SwarmError, WorldError
+from swarm.bus.session import zenoh_error_text
 from swarm.files import write_json_atomic
 from swarm.sim.collisions import CRUISE_HEIGHT_M, CollisionMonitor
 from swarm.sim.px4 import FlightMode
+from swarm.sim.sensors import OdometryPublisher
 from swarm.sim.vehicle import Downlink, SimVehicle
 from swarm.sim.worlds import World, load_world, spawn_points
 
@@ -58,6 +60,7 @@ class SimServer:
         self._ready = False
         self._control_mtime: int | None = None
         self._done = False
+        self.odometry: OdometryPublisher | None = None  # opened by open() when sim.sensor_listen is set
 
     # --- life cycle --------------------------------------------------------------------------------------------
 
@@ -82,6 +85,12 @@ class SimServer:
             raise
         for vid, sock in self._sockets.items():
             self.vehicles[vid].downlink.sock = sock
+        if sim.sensor_listen:
+            try:
+                self.odometry = OdometryPublisher(sim.sensor_listen, self.config.camera.stream, self.ids)
+            except Exception as exc:
+                self.close()
+                raise SwarmError(f"sensor streams on {sim.sensor_listen}: {zenoh_error_text(exc)}") from None
         self._ready = True
 
     def taken_gcs_ports(self) -> list[tuple[int, int]]:
@@ -96,6 +105,9 @@ class SimServer:
         return taken
 
     def close(self) -> None:
+        if self.odometry is not None:
+            self.odometry.close()
+            self.odometry = None
         for vid, sock in self._sockets.items():
             self.vehicles[vid].downlink.sock = None
             sock.close()
@@ -175,6 +187,7 @@ class SimServer:
                 selector.register(sock, selectors.EVENT_READ, self.vehicles[vid])
             next_step = time.monotonic()
             next_status = next_step
+            next_odometry = next_step
             last = next_step
             while not stop.is_set():
                 ready = selector.select(max(0.0, next_step - time.monotonic()))
@@ -193,6 +206,10 @@ class SimServer:
                             next_step += dt
                         for vehicle in self.vehicles.values():
                             vehicle.tick(now)
+                        if self.odometry is not None and now >= next_odometry:
+                            for vid, vehicle in self.vehicles.items():
+                                self.odometry.publish(vid, vehicle.autopilot.body)
+                            next_odometry = max(next_odometry + 1.0 / self.config.sim.odometry_hz, now)
                     for vehicle in self.vehicles.values():
                         vehicle.downlink.flush()  # replies and telemetry of this iteration, in order
                 if status_path is not None and now >= next_status:

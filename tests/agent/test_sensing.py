@@ -34,3 +34,32 @@ def test_make_depth_source_uses_the_mission_world() -> None:
     frame = make_depth_source(config).capture(7, 12.5, (2.0, 4.0, 1.0), 0.0)
     assert frame.index == 7 and frame.t == 12.5 and frame.depth.shape == (24, 32)
     assert frame.depth[12, 16] == pytest.approx(4.0 - 2.0, abs=1e-3)  # the wall stub at x = 4 faces the camera
+
+
+def test_a_zenoh_camera_without_a_mission_volume_is_one_clear_error_and_with_one_no_world_is_loaded(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import asyncio
+
+    from swarm.agent.main import Agent
+    from swarm.config import ConfigError
+    from swarm.sensing.zenoh_source import ZenohSensorSource
+
+    def no_world(spec: str) -> World:
+        raise AssertionError(f"the agent loaded the world {spec}")
+
+    monkeypatch.setattr("swarm.agent.main.load_world", no_world)
+    config = load_config(overrides={"camera.source": "zenoh", "mission.world": "/nonexistent/world.ply"})
+    loop = asyncio.new_event_loop()
+    try:
+        with pytest.raises(ConfigError, match="needs mission.volume"):
+            Agent(config)._make_mapping(loop)
+        with_volume = load_config(overrides={
+            "camera.source": "zenoh", "mission.world": "/nonexistent/world.ply",
+            "mission.volume": {"min": [0.0, 0.0, 0.0], "max": [4.0, 4.0, 3.0]}})
+        mapping = Agent(with_volume)._make_mapping(loop)
+        assert mapping is not None and isinstance(mapping.source, ZenohSensorSource)
+        assert np.allclose(mapping.bounds[1], (4.0, 4.0, 3.0))
+        mapping._worker.shutdown()
+    finally:
+        loop.close()

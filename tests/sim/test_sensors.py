@@ -19,9 +19,9 @@ from swarm.config import load_config
 from swarm.mission.ports import find_free_base
 from swarm.patches.mapper import Mapper
 from swarm.sensing import messages as m
-from swarm.sensing.frames import camera_to_world
+from swarm.sensing.frames import camera_mount, camera_to_world
 from swarm.sensing.zenoh_source import ZenohSensorSource, session_config
-from swarm.sim.sensors import CameraDriver, StreamPublisher, body_pose, camera_mount, vehicle_stream
+from swarm.sim.sensors import CameraDriver, StreamPublisher, body_pose, vehicle_stream
 from swarm.sim.worlds import load_world, mission_volume
 
 

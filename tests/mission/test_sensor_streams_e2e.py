@@ -1,0 +1,44 @@
+"""Agents that map from sensor streams (issue 22): a real 3-drone `swarm run` with camera.source = "zenoh". The
+simulator publishes each vehicle's odometry (with its tilt), `swarm cameras` renders and publishes each depth
+camera as ROS 2 messages in the rmw_zenoh key layout, and the agents, which are given no world at all (their
+config names a file that does not exist), map from those streams and explore the box world to the end."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from swarm.config import load_config
+from swarm.mission.run import NO_WORLD_FOR_AGENTS, run_mission
+from tests.helpers import SwarmPorts, processes_mentioning
+
+pytestmark = pytest.mark.timeout(300)
+
+
+def test_agents_given_no_world_map_from_the_simulated_cameras_streams_and_complete(
+    tmp_path: Path, swarm_ports: SwarmPorts
+) -> None:
+    out = tmp_path / "run"
+    config = load_config(overrides={
+        "mission.world": "box", "mission.out": str(out), "mission.drones": 3, "mission.max_time_s": 240.0,
+        "camera.source": "zenoh",
+        "sim.vehicle_base_port": swarm_ports.vehicle_base, "sim.gcs_base_port": swarm_ports.gcs_base,
+        "bus.base_port": swarm_ports.bus_base,
+    })
+    report = run_mission(config, live=False)
+    assert report["status"] == "complete", report["reason"]
+    assert report["explored_fraction"] >= 0.95 and report["collisions"] == 0
+    assert not (out / "config" / NO_WORLD_FOR_AGENTS).exists()
+    for k in range(1, 4):
+        agent_config = load_config(out / "config" / f"agent-{k}.toml")
+        assert agent_config.mission.world.endswith(NO_WORLD_FOR_AGENTS) and agent_config.mission.volume is not None
+        assert agent_config.camera.stream.depth_topic.startswith(f"/drone{k}/")
+    for agent in report["agents"]:
+        stream = agent["sensor_stream"]
+        assert agent["exit_code"] == 0 and agent["frames"] > 100, agent
+        # every frame the camera driver published reached the agent whole, with a pose
+        assert not {k: v for k, v in stream.items() if k not in ("frames", "not_taken")}, stream
+        assert agent["frame_rate_hz"] >= 8.0, agent
+    assert "published" in (out / "logs" / "cameras.log").read_text()
+    assert not processes_mentioning(str(out)), "swarm run left processes behind"
