@@ -335,6 +335,10 @@ class CameraSettings(_Section):
     stereo_sigma_coeff: PositiveFloat = Field(0.002418, description="sigma(z) = coeff * z^2, metres")
     pitch_deg: float = Field(0.0, ge=-90.0, le=90.0, description="camera pitch, positive looks down")
     mount: CameraMount = CameraMount()
+    peer_mask_m: float = Field(
+        0.5, ge=0.0, le=3.0, description="streamed frames: pixels whose rays meet a sphere of this radius round a "
+        "peer's reported position (half a body height up) are not mapped, so drones leave no phantom obstacles; 0: off"
+    )
     stream: SensorStreamSettings = SensorStreamSettings()
 
     @model_validator(mode="after")

@@ -182,7 +182,8 @@ class Agent:
             world = load_world(self.config.mission.world)  # once: the camera ray-casts it, the map spans its volume
             bounds = mission_volume(world, self.config.mission.volume)
             source = make_depth_source(self.config, world)
-        return MappingTask(self.config, self.epoch, source, bounds, self.log, self.config.agent.out_dir, on_sealed)
+        return MappingTask(self.config, self.epoch, source, bounds, self.log, self.config.agent.out_dir, on_sealed,
+                           peers=lambda: [p.position for p in self.peers.peers.values()])
 
     def _run_mapping(
         self, mapping: MappingTask, autopilot: Autopilot, stop: asyncio.Event, background: list[asyncio.Task[None]]

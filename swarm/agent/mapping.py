@@ -18,6 +18,7 @@ map would cost (`FusedMap.wire_size`): the whole-map baseline patch sharing is c
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -26,9 +27,9 @@ from typing import Any
 
 import numpy as np
 
-from swarm.aio import wait_event
 from swarm.agent.autopilot import TelemetryCache
 from swarm.agent.sensing import DepthFrame, DepthSource, StreamSource
+from swarm.aio import wait_event
 from swarm.config import SwarmConfig, Vec3
 from swarm.explore.frontiers import ExplorationGrid, Frontier, ViewModel
 from swarm.files import write_atomic
@@ -36,6 +37,7 @@ from swarm.patches.fused import OCCUPIED
 from swarm.patches.mapper import Mapper
 from swarm.patches.patch import Patch, PatchId
 from swarm.patches.wire import PatchDecodeError
+from swarm.sensing.peers import mask_peers
 
 SealedCallback = Callable[[PatchId, bytes], None]
 STREAM_WAIT_S = 0.2  # a stream source is polled this often for the stop event when no frame comes
@@ -75,6 +77,7 @@ class MappingTask:
         log: Callable[..., None],
         out_dir: Path | None,
         on_sealed: SealedCallback | None = None,
+        peers: Callable[[], list[Vec3]] = list,
     ) -> None:
         self.config = config
         self.bounds = bounds
@@ -99,6 +102,8 @@ class MappingTask:
         self.baseline_loops = 0
         self.on_sealed = on_sealed
         self.stream_counters: dict[str, int] | None = None  # a stream source's, at the end
+        self.peers = peers  # the other drones' reported positions (called on the event loop)
+        self.pixels_masked = 0
         self._worker = ThreadPoolExecutor(1, thread_name_prefix="mapping")
 
     async def run(self, telemetry: TelemetryCache, home_z: Callable[[], float | None], stop: asyncio.Event) -> None:
@@ -146,16 +151,26 @@ class MappingTask:
             while not stop.is_set():
                 base = home_z()
                 airborne = base is not None and telemetry.samples > 0 and telemetry.position[2] - base > MIN_HEIGHT_M
-                await loop.run_in_executor(self._worker, self._step_stream, source, airborne)
+                centre = np.array([0.0, 0.0, self.config.explore.body_height_m / 2])
+                peers = [np.asarray(p, dtype=np.float64) + centre for p in self.peers()]
+                await loop.run_in_executor(self._worker, self._step_stream, source, airborne, peers)
         finally:
             self.stream_counters = source.counters()
             self.frames_skipped += self.stream_counters.get("not_taken", 0)
             await loop.run_in_executor(None, source.close)
 
-    def _step_stream(self, source: StreamSource, airborne: bool) -> None:
+    def _step_stream(self, source: StreamSource, airborne: bool, peers: list[np.ndarray]) -> None:
         frame = source.wait_frame(STREAM_WAIT_S)
-        if frame is not None and airborne:
-            self._integrate(frame, time.perf_counter())
+        if frame is None or not airborne:
+            return
+        started = time.perf_counter()
+        radius = self.config.camera.peer_mask_m
+        if peers and radius > 0:
+            depth, masked = mask_peers(frame.depth, frame.K, frame.T_world_cam, peers, radius)
+            if masked:
+                self.pixels_masked += masked
+                frame = dataclasses.replace(frame, depth=depth)
+        self._integrate(frame, started)
 
     def _keep(self, patch: Patch) -> None:
         self.patches_sealed += 1
@@ -251,7 +266,8 @@ class MappingTask:
             # every tick while airborne either took a frame or was skipped for being late
             "frame_rate_hz": round(self.config.camera.rate_hz * self.frames / (self.frames + self.frames_skipped), 2)
             if self.frames else 0.0,
-            **({"sensor_stream": self.stream_counters} if self.stream_counters is not None else {}),
+            **({"sensor_stream": {**self.stream_counters, "pixels_masked_as_peers": self.pixels_masked}}
+               if self.stream_counters is not None else {}),
             "known_voxels": int(self.mapper.fused.voxel_count),
             "patches_received": self.patches_received,
             "fused_digest": self.mapper.fused.digest(),

@@ -27,8 +27,10 @@ from swarm.config import CameraSettings, SensorStreamSettings, SwarmConfig
 from swarm.errors import SwarmError
 from swarm.sensing import messages as m
 from swarm.sensing.frames import camera_mount, camera_to_world
+from swarm.sensing.peers import pixel_rays, sphere_depth
 from swarm.sensing.zenoh_source import POSE_TYPES, session_config, topic_key
 from swarm.sim.camera import DepthCamera
+from swarm.sim.collisions import GROUND_GAP_M
 from swarm.sim.kinematics import Body, tilt
 from swarm.sim.worlds import World, load_world
 
@@ -73,12 +75,14 @@ class StreamPublisher:
 
 class CameraDriver:
     def __init__(self, world: World, camera: CameraSettings, vehicle_ids: list[int], seed: int = 0,
-                 log: Callable[[str], None] | None = None) -> None:
+                 log: Callable[[str], None] | None = None, drone_radius_m: float = 0.2) -> None:
         self.camera_settings = camera
+        self.drone_radius_m = drone_radius_m
         self.streams = {k: vehicle_stream(camera.stream, k) for k in vehicle_ids}
         self.cameras = {k: DepthCamera(world, camera, seed * 1000 + k) for k in vehicle_ids}
         self.mount = camera_mount(camera)
         self.intrinsics = m.Intrinsics(camera.width, camera.height, self._ros_K())
+        self._rays = pixel_rays(next(iter(self.cameras.values())).intrinsics, camera.height, camera.width)
         self._poses: dict[int, m.Pose] = {}
         self._lock = threading.Lock()
         self.published = {k: 0 for k in vehicle_ids}
@@ -133,10 +137,19 @@ class CameraDriver:
     def _publish(self, vehicle_id: int, publisher: StreamPublisher) -> None:
         with self._lock:
             pose = self._poses.get(vehicle_id)
+            others = [p.position for k, p in self._poses.items() if k != vehicle_id]
         if pose is None:
             return
         started = time.perf_counter()
-        depth = self.cameras[vehicle_id].render(camera_to_world(pose, self.mount))
+        camera = self.cameras[vehicle_id]
+        T = camera_to_world(pose, self.mount)
+        depth = camera.render(T)
+        if others:  # the other drones, as the collision check sees them: a sphere just above each position
+            centres = np.asarray(others) + np.array([0.0, 0.0, self.drone_radius_m + GROUND_GAP_M])
+            drones = sphere_depth(self._rays, T, centres, self.drone_radius_m).astype(np.float32)
+            s = self.camera_settings
+            seen = (drones >= s.min_range_m) & (drones <= s.max_range_m) & ((depth <= 0) | (drones < depth))
+            depth[seen] = drones[seen]
         self.render_s += time.perf_counter() - started
         s = self.streams[vehicle_id]
         publisher.put(s.info_topic, m.camera_info_message(pose.t, self.intrinsics))
@@ -173,7 +186,7 @@ def cameras_command(config: SwarmConfig) -> int:
     world = load_world(config.mission.world)
     ids = list(range(1, config.mission.drones + 1))
     driver = CameraDriver(world, config.camera, ids, config.mission.seed,
-                          log=lambda text: print(text, file=sys.stderr, flush=True))
+                          log=lambda text: print(text, file=sys.stderr, flush=True), drone_radius_m=config.sim.drone_radius_m)
     stop = threading.Event()
     handlers = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
     print(f"swarm cameras: {len(ids)} depth cameras at {config.camera.rate_hz:g} Hz on "
