@@ -108,12 +108,23 @@ def build_parser() -> argparse.ArgumentParser:
                      "telemetry-loss:agent=K@T+D (T: seconds after take-off; D: seconds)")
     run.add_argument("--tls", action="store_true", default=None,
                      help="mutual TLS with access control on every Zenoh session (certificates in OUT/certs)")
+    run.add_argument("--record", action="store_true", default=None,
+                     help="every agent maps from the simulated cameras' ROS 2 streams (camera.source = zenoh) and "
+                     "records what it received to OUT/bags/agent-K (ROS 2 MCAP)")
     _add_config_flags(run)
 
     cameras = sub.add_parser("cameras", help="the simulated depth cameras as ROS 2 camera drivers over Zenoh")
     cameras.add_argument("--world", help="built-in world or mesh path")
     cameras.add_argument("--vehicles", type=_positive_int, help="number of vehicles (cameras /drone1 ... /droneN)")
     _add_config_flags(cameras)
+
+    bagmap = sub.add_parser("map", help="map recorded sensor bags offline (one drone per bag), fused into one map")
+    bagmap.add_argument("bags", nargs="+", type=Path, help="ROS 2 bag directories (MCAP or sqlite3) or ROS 1 .bag")
+    bagmap.add_argument("--out", type=Path, required=True, help="where patches, map.ply and report.json go")
+    bagmap.add_argument("--depth-topic", help="the sensor_msgs/Image topic (default: the bag's only one)")
+    bagmap.add_argument("--info-topic", help="the sensor_msgs/CameraInfo topic (default: the bag's only one)")
+    bagmap.add_argument("--pose-topic", help="the Odometry or PoseStamped topic (default: the bag's only one)")
+    _add_config_flags(bagmap)
 
     sim = sub.add_parser("sim", help="run the simulated vehicles alone (MAVLink over UDP)")
     sim.add_argument("--world", help="built-in world or mesh path")
@@ -286,12 +297,24 @@ def _dispatch(args: argparse.Namespace) -> int:
             "mission.seed": args.seed, "explore.strategy": args.strategy,
             "mission.network": args.network, "mission.links": str(args.links) if args.links else None,
             "mission.faults": args.fault, "mission.tls": args.tls,
+            "mission.record": args.record, "camera.source": "zenoh" if args.record else None,
         })
         from swarm.mission.run import run_mission
 
         report = run_mission(config, live=False if args.no_live else None)
         _print_summary(report)
         return 0 if report["status"] == "complete" else EXIT_FAILED
+    if args.command == "map":
+        from swarm.agent.bagmap import map_bags
+
+        report = map_bags(_config_from(args, {}), args.bags, args.out,
+                          {"depth": args.depth_topic, "info": args.info_topic, "pose": args.pose_topic})
+        for bag in report["bags"]:
+            dropped = ", ".join(f"{n} {why}" for why, n in bag["dropped"].items()) or "none dropped"
+            print(f"{bag['bag']}: {bag['frames']} frames, {bag['patches']} patches ({dropped})")
+        print(f"map: {args.out / 'map.ply'} ({report['mesh']['vertices']} vertices, {report['known_voxels']} known "
+              f"voxels); report: {args.out / 'report.json'}")
+        return 0
     if args.command == "cameras":
         from swarm.sim.sensors import cameras_command
 

@@ -142,6 +142,8 @@ class MissionSettings(_Section):
     # The simulator stands in for each drone's autopilot, which on a real drone runs on its own processor and is
     # never starved by the companion computer's load; the agents stand in for those companion computers. Above
     # the rest of the machine (niceness 0), a burst of other processes does not stall their telemetry.
+    record: bool = Field(False, description="swarm run: each agent records its sensor streams to OUT/bags/agent-K "
+                         "(needs camera.source = \"zenoh\")")
     sim_nice: int = Field(
         -10, ge=-20, le=19, description="swarm run: the simulator's niceness (below 0 needs root or CAP_SYS_NICE; "
         "when not permitted it runs at the harness's, and the report says so)"
@@ -335,6 +337,8 @@ class CameraSettings(_Section):
     stereo_sigma_coeff: PositiveFloat = Field(0.002418, description="sigma(z) = coeff * z^2, metres")
     pitch_deg: float = Field(0.0, ge=-90.0, le=90.0, description="camera pitch, positive looks down")
     mount: CameraMount = CameraMount()
+    record: Path | None = Field(None, description="camera.source = \"zenoh\": record every sensor message received "
+                                "to this ROS 2 MCAP bag (a directory that must not exist)")
     peer_mask_m: float = Field(
         0.5, ge=0.0, le=3.0, description="streamed frames: pixels whose rays meet a sphere of this radius round a "
         "peer's reported position (half a body height up) are not mapped, so drones leave no phantom obstacles; 0: off"

@@ -176,8 +176,10 @@ class Agent:
             if volume is None:
                 raise ConfigError('camera.source = "zenoh" needs mission.volume (the agent loads no world to take '
                                   "it from)")
+            if camera.record is not None and camera.record.exists():
+                raise ConfigError(f"camera.record: {camera.record} already exists (a bag is never overwritten)")
             bounds = (np.array(volume.min, dtype=float), np.array(volume.max, dtype=float))
-            source = ZenohSensorSource(camera.stream, camera_mount(camera))
+            source = ZenohSensorSource(camera.stream, camera_mount(camera), record=camera.record)
         else:
             world = load_world(self.config.mission.world)  # once: the camera ray-casts it, the map spans its volume
             bounds = mission_volume(world, self.config.mission.volume)

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 import tomli_w
 
-from swarm.config import TLS_OBSERVER_NAME, Box, SwarmConfig, bus_port, dump_config, gcs_port, tls_drone_name, vehicle_port
+from swarm.config import TLS_OBSERVER_NAME, Box, ConfigError, SwarmConfig, bus_port, dump_config, gcs_port, tls_drone_name, vehicle_port
 from swarm.deploy.certs import make_certs
 from swarm.errors import SwarmError
 from swarm.mission.faults import FaultInjector
@@ -122,6 +122,8 @@ def prepare(config: SwarmConfig) -> RunPlan:
     if out.exists() and any(out.iterdir()):
         raise SwarmError(f"output directory {out} is not empty")
     sensor_port = None
+    if m.record and config.camera.source != "zenoh":
+        raise ConfigError('mission.record needs camera.source = "zenoh": only streamed sensors can be recorded')
     if config.camera.source == "zenoh":
         sensor_port = bus_port(config.bus, SENSOR_PORT_OFFSET)
         if m.network == "loopback":
@@ -289,7 +291,8 @@ def _agent_camera(plan: RunPlan, state: RunState, k: int) -> dict[str, Any]:
         "volume": Box(min=(float(lo[0]), float(lo[1]), float(lo[2])), max=(float(hi[0]), float(hi[1]), float(hi[2]))),
         "world": str(plan.out / "config" / NO_WORLD_FOR_AGENTS),
     })
-    return {"camera": plan.config.camera.model_copy(update={"stream": stream}), "mission": mission}
+    record = plan.out / "bags" / f"agent-{k}" if plan.config.mission.record else None
+    return {"camera": plan.config.camera.model_copy(update={"stream": stream, "record": record}), "mission": mission}
 
 
 def _netns_bus_for(config: SwarmConfig, net: SwarmNetwork, index: int) -> dict[str, Any]:

@@ -14,7 +14,9 @@ from __future__ import annotations
 
 import json
 import threading
+import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -23,6 +25,7 @@ import zenoh
 from swarm.bus.session import zenoh_error_text
 from swarm.config import SensorStreamSettings
 from swarm.errors import BusError
+from swarm.sensing.bags import BagRecorder
 from swarm.sensing.frames import DepthFrame
 from swarm.sensing.messages import CAMERA_INFO, IMAGE, ODOMETRY, POSE_STAMPED
 from swarm.sensing.poses import PoseBuffer
@@ -58,8 +61,10 @@ def session_config(settings: SensorStreamSettings) -> zenoh.Config:
 
 
 class ZenohSensorSource:
-    def __init__(self, settings: SensorStreamSettings, mount: np.ndarray) -> None:
+    def __init__(self, settings: SensorStreamSettings, mount: np.ndarray, record: Path | None = None) -> None:
         self.settings = settings
+        self.record = record  # a ROS 2 bag of every message received, as received
+        self.recorder: BagRecorder | None = None
         self.frames = FrameAssembler(mount, PoseBuffer(max_gap_s=settings.max_gap_s, max_hold_s=settings.max_hold_s))
         self._lock = threading.Lock()
         self._new = threading.Condition(self._lock)
@@ -74,6 +79,8 @@ class ZenohSensorSource:
             self._session = zenoh.open(session_config(self.settings))
         except Exception as exc:
             raise BusError(f"sensor stream session: {zenoh_error_text(exc)}") from None
+        if self.record is not None:
+            self.recorder = BagRecorder(self.record)
         s = self.settings
         pose_type = POSE_TYPES[s.pose_type]
         topics: list[tuple[str, str, Callable[[bytes], None]]] = [
@@ -83,11 +90,14 @@ class ZenohSensorSource:
         ]
         for topic, msgtype, handler in topics:
             key = topic_key(s, topic, msgtype)
-            self._subscribers.append(self._session.declare_subscriber(key, self._on_sample(handler)))
+            self._subscribers.append(self._session.declare_subscriber(key, self._on_sample(handler, topic, msgtype)))
 
-    def _on_sample(self, handler: Callable[[bytes], None]) -> Callable[[zenoh.Sample], None]:
+    def _on_sample(self, handler: Callable[[bytes], None], topic: str,
+                   msgtype: str) -> Callable[[zenoh.Sample], None]:
         def deliver(sample: zenoh.Sample) -> None:
             raw = sample.payload.to_bytes()
+            if self.recorder is not None:
+                self.recorder.write(topic, msgtype, time.time_ns(), raw)
             with self._new:
                 handler(raw)
                 ready = self.frames.take()
@@ -117,3 +127,5 @@ class ZenohSensorSource:
         if self._session is not None:
             self._session.close()
             self._session = None
+        if self.recorder is not None:
+            self.recorder.close()

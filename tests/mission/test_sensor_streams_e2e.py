@@ -7,10 +7,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+import open3d as o3d
 import pytest
 
+from swarm.agent.bagmap import map_bags
 from swarm.config import load_config
 from swarm.mission.run import NO_WORLD_FOR_AGENTS, run_mission
+from swarm.sim.worlds import load_world
 from tests.helpers import SwarmPorts, processes_mentioning
 
 pytestmark = pytest.mark.timeout(300)
@@ -22,7 +26,7 @@ def test_agents_given_no_world_map_from_the_simulated_cameras_streams_and_comple
     out = tmp_path / "run"
     config = load_config(overrides={
         "mission.world": "box", "mission.out": str(out), "mission.drones": 3, "mission.max_time_s": 240.0,
-        "camera.source": "zenoh",
+        "camera.source": "zenoh", "mission.record": True,
         "sim.vehicle_base_port": swarm_ports.vehicle_base, "sim.gcs_base_port": swarm_ports.gcs_base,
         "bus.base_port": swarm_ports.bus_base,
     })
@@ -44,3 +48,13 @@ def test_agents_given_no_world_map_from_the_simulated_cameras_streams_and_comple
     assert sum(a["sensor_stream"]["pixels_masked_as_peers"] for a in report["agents"]) > 0
     assert "published" in (out / "logs" / "cameras.log").read_text()
     assert not processes_mentioning(str(out)), "swarm run left processes behind"
+    # the bags the agents recorded map offline onto the world as the live run did
+    bags = [out / "bags" / f"agent-{k}" for k in range(1, 4)]
+    offline = map_bags(load_config(overrides={"mission.world": "box"}), bags, tmp_path / "offline", {})
+    assert [b["frames"] for b in offline["bags"]] == [a["sensor_stream"]["frames"] for a in report["agents"]]
+    world = load_world("box")
+    for mesh in (out / "map.ply", tmp_path / "offline" / "map.ply"):
+        vertices = np.asarray(o3d.io.read_triangle_mesh(str(mesh)).vertices)
+        on_surfaces = float(np.mean(world.distance(vertices) <= 0.2))
+        print(f"{mesh}: {len(vertices)} vertices, {on_surfaces:.3f} within 0.2 m of the world")
+        assert on_surfaces >= 0.95

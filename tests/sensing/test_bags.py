@@ -1,0 +1,90 @@
+"""Sensor streams to a ROS 2 MCAP bag and back: a recorded flight that rosbags reads, `swarm map` maps it onto the
+world's surfaces, and every bag it cannot use is one clear line."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rosbags.highlevel import AnyReader
+
+from swarm.agent.bagmap import map_bags
+from swarm.config import load_config
+from swarm.errors import SwarmError
+from swarm.sensing import messages as m
+from swarm.sensing.bags import BagRecorder
+from swarm.sensing.frames import camera_mount, camera_to_world
+from swarm.sim.camera import DepthCamera
+from swarm.sim.sensors import body_pose
+from swarm.sim.worlds import load_world
+from tests.helpers import swarm_cmd
+
+POSE, INFO, DEPTH = "/odom", "/camera/depth/camera_info", "/camera/depth/image_rect_raw"
+
+
+def _record(path: Path, seconds: float = 5.0, with_depth: bool = True, extra_image_topic: bool = False) -> None:
+    """A tilting flight along the office's lobby: odometry at 50 Hz, depth and camera info at 10 Hz."""
+    config = load_config()
+    world = load_world("office")
+    camera = DepthCamera(world, config.camera)
+    K = np.array(camera.intrinsics)
+    K[0, 2] -= 0.5
+    K[1, 2] -= 0.5
+    info = m.Intrinsics(config.camera.width, config.camera.height, K)
+    bag = BagRecorder(path)
+    try:
+        for i in range(int(seconds * 50)):
+            t = 100.0 + i / 50
+            s = i / (seconds * 50)
+            pose = body_pose(t, np.array([3.0 + 4.0 * s, 10.0, 1.5]), math.radians(8) * math.cos(2 * t),
+                             math.radians(12) * math.sin(3 * t), math.radians(90 + 180 * s))
+            bag.write(POSE, m.ODOMETRY, int(t * 1e9), m.serialize(m.odometry_message(pose)))
+            if i % 5 == 0 and with_depth:
+                depth = camera.render(camera_to_world(pose, camera_mount(config.camera)))
+                bag.write(INFO, m.CAMERA_INFO, int(t * 1e9), m.serialize(m.camera_info_message(t, info)))
+                for topic in (DEPTH, "/other/depth")[: 1 + extra_image_topic]:
+                    bag.write(topic, m.IMAGE, int(t * 1e9), m.serialize(m.image_message(t, depth, encoding="16UC1")))
+    finally:
+        bag.close()
+
+
+def test_a_recorded_flight_reads_back_and_maps_onto_the_world(tmp_path: Path) -> None:
+    bag = tmp_path / "flight"
+    _record(bag)
+    with AnyReader([bag]) as reader:  # what ros2 bag, Foxglove and Rerun see
+        counts = {c.topic: c.msgcount for c in reader.connections}
+    assert counts == {POSE: 250, INFO: 50, DEPTH: 50}
+    report = map_bags(load_config(), [bag], tmp_path / "map", {})
+    assert report["bags"][0]["frames"] == 50 and report["bags"][0]["dropped"] == {}
+    import open3d as o3d
+
+    mesh = o3d.io.read_triangle_mesh(str(tmp_path / "map" / "map.ply"))
+    vertices = np.asarray(mesh.vertices)
+    assert len(vertices) > 1000 and (tmp_path / "map" / "report.json").exists()
+    on_surfaces = float(np.mean(load_world("office").distance(vertices) <= 0.2))
+    print(f"mesh vertices within 0.2 m of the world: {on_surfaces:.3f}")
+    assert on_surfaces >= 0.95
+    assert list((tmp_path / "map" / "patches").glob("1.1.*.patch"))
+
+
+@pytest.mark.parametrize(("kwargs", "topics", "says"), [
+    ({"with_depth": False}, {}, "has no depth image topic"),
+    ({"extra_image_topic": True}, {}, "several depth image topics .* --depth-topic"),
+    ({}, {"pose": "/nope"}, "has no topic /nope"),
+    ({}, {"depth": POSE}, "is nav_msgs/msg/Odometry, not sensor_msgs/msg/Image"),
+])
+def test_a_bag_that_cannot_be_mapped_is_one_clear_error(tmp_path: Path, kwargs: dict, topics: dict, says: str) -> None:
+    bag = tmp_path / "bag"
+    _record(bag, seconds=0.2, **kwargs)
+    with pytest.raises(SwarmError, match=says):
+        map_bags(load_config(), [bag], tmp_path / "map", topics)
+
+
+def test_swarm_map_on_a_missing_bag_is_one_line_and_a_non_zero_exit(tmp_path: Path) -> None:
+    done = subprocess.run(swarm_cmd("map", str(tmp_path / "missing"), "--out", str(tmp_path / "o")),
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode != 0
+    assert len(done.stderr.strip().splitlines()) == 1 and "does not exist" in done.stderr
