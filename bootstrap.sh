@@ -50,7 +50,7 @@ install_package() {
   fi
   say "installing swarm and its dependencies into $env"
   "$env/bin/python" -m pip install -q --upgrade pip >/dev/null
-  "$env/bin/python" -m pip install -q -e '.[test]'
+  "$env/bin/python" -m pip install -q -e '.[test,ros2]'
   echo "$want" >"$stamp"
 }
 

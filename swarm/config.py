@@ -322,10 +322,10 @@ class SensorStreamSettings(_Section):
 class CameraSettings(_Section):
     """The depth camera (simulated by ray casting the world mesh, or a real one behind the same interface)."""
 
-    source: Literal["sim", "zenoh", "none"] = Field(
+    source: Literal["sim", "zenoh", "ros2", "none"] = Field(
         "sim", description="sim: the agent ray-casts the mission world itself; zenoh: a camera on ROS 2 heard through "
-        "Zenoh (camera.stream; `swarm cameras` is the simulator's), no world loaded, mission.volume required; none: "
-        "no mapping"
+        "Zenoh (camera.stream; `swarm cameras` is the simulator's); ros2: the same topics through rclpy (pip install "
+        "'swarm[ros2]'); zenoh and ros2 load no world and need mission.volume; none: no mapping"
     )
     width: int = Field(160, ge=8, le=1280)
     height: int = Field(120, ge=6, le=960)

@@ -10,15 +10,23 @@ camera info's, a stamp with no pose (stale, too new, across a gap).
 
 from __future__ import annotations
 
+import threading
+import time
 from collections import Counter, deque
+from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from swarm.config import SensorStreamSettings
+from swarm.sensing.bags import BagRecorder
 from swarm.sensing.frames import DepthFrame, camera_to_world, pixel_centre_intrinsics
 from swarm.sensing.messages import (
     CAMERA_INFO,
     IMAGE,
+    ODOMETRY,
+    POSE_STAMPED,
     Intrinsics,
     Pose,
     SensorInputError,
@@ -103,6 +111,66 @@ class FrameAssembler:
             assert self._K is not None
             self._ready.append(DepthFrame(self.frames, stamp, depth, self._K.copy(), camera_to_world(pose, self.mount)))
             self.frames += 1
+
+
+POSE_TYPES = {"odometry": ODOMETRY, "pose_stamped": POSE_STAMPED}
+
+
+class StreamInbox:
+    """What every live source shares: raw CDR messages in from the transport's threads, through one
+    `FrameAssembler` under a lock, recorded to a bag when asked, and the newest frame out to the mapping thread
+    (`wait_frame`), counting the frames it never took."""
+
+    def __init__(self, settings: SensorStreamSettings, mount: np.ndarray, record: Path | None = None) -> None:
+        self.settings = settings
+        self.record = record
+        self.recorder: BagRecorder | None = None
+        self.frames = FrameAssembler(mount, PoseBuffer(max_gap_s=settings.max_gap_s, max_hold_s=settings.max_hold_s))
+        self._lock = threading.Lock()
+        self._new = threading.Condition(self._lock)
+        self._latest: DepthFrame | None = None
+        self.not_taken = 0  # frames replaced by a newer one before the mapping thread took them
+
+    def open_recording(self) -> None:
+        if self.record is not None:
+            self.recorder = BagRecorder(self.record)
+
+    def topics(self) -> list[tuple[str, str, Callable[[bytes], None]]]:
+        """(topic, message type, handler of its raw CDR) of the three subscriptions."""
+        s = self.settings
+        pose_type = POSE_TYPES[s.pose_type]
+        return [
+            (s.info_topic, CAMERA_INFO, self.frames.on_camera_info),
+            (s.pose_topic, pose_type, lambda raw: self.frames.on_pose(raw, pose_type)),
+            (s.depth_topic, IMAGE, self.frames.on_image),
+        ]
+
+    def deliver(self, topic: str, msgtype: str, handler: Callable[[bytes], None], raw: bytes) -> None:
+        if self.recorder is not None:
+            self.recorder.write(topic, msgtype, time.time_ns(), raw)
+        with self._new:
+            handler(raw)
+            ready = self.frames.take()
+            if ready:
+                self.not_taken += len(ready) - 1 + (self._latest is not None)
+                self._latest = ready[-1]
+                self._new.notify_all()
+
+    def wait_frame(self, timeout_s: float) -> DepthFrame | None:
+        """The newest frame not taken yet, waiting up to `timeout_s` for one; None when none came."""
+        with self._new:
+            if self._latest is None:
+                self._new.wait_for(lambda: self._latest is not None, timeout_s)
+            frame, self._latest = self._latest, None
+            return frame
+
+    def counters(self) -> dict[str, int]:
+        with self._lock:
+            return {"frames": self.frames.frames, "not_taken": self.not_taken, **dict(self.frames.dropped)}
+
+    def close_recording(self) -> None:
+        if self.recorder is not None:
+            self.recorder.close()
 
 
 def _decoded(message: Any, msgtype: str | None) -> Any:

@@ -28,7 +28,8 @@ from swarm.errors import SwarmError
 from swarm.sensing import messages as m
 from swarm.sensing.frames import camera_mount, camera_to_world
 from swarm.sensing.peers import pixel_rays, sphere_depth
-from swarm.sensing.zenoh_source import POSE_TYPES, session_config, topic_key
+from swarm.sensing.stream import POSE_TYPES
+from swarm.sensing.zenoh_source import session_config, topic_key
 from swarm.sim.camera import DepthCamera
 from swarm.sim.collisions import GROUND_GAP_M
 from swarm.sim.kinematics import Body, tilt

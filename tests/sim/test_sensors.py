@@ -23,6 +23,7 @@ from swarm.sensing.frames import camera_mount, camera_to_world
 from swarm.sensing.zenoh_source import ZenohSensorSource, session_config
 from swarm.sim.sensors import CameraDriver, StreamPublisher, body_pose, vehicle_stream
 from swarm.sim.worlds import load_world, mission_volume
+from tests.sensing.flight import flight
 
 
 def _axes(pose: m.Pose) -> np.ndarray:
@@ -54,13 +55,6 @@ def router() -> Iterator[str]:
         session.close()
 
 
-def _flight(t: float) -> tuple[np.ndarray, float, float, float]:
-    """Along the office's lobby, 4 m in 6 s, pitching +-12 deg, rolling +-8 deg and turning half round."""
-    s = min(t / 6.0, 1.0)
-    return (np.array([3.0 + 4.0 * s, 10.0, 1.5]), math.radians(8) * math.cos(2.1 * t),
-            math.radians(12) * math.sin(3.0 * t), math.radians(90 + 180 * s))
-
-
 def test_a_map_from_the_camera_driver_through_zenoh_lies_on_the_world_and_needs_the_attitude(router: str) -> None:
     config = load_config(overrides={"camera.stream.connect": [router]})
     world = load_world("office")
@@ -78,12 +72,12 @@ def test_a_map_from_the_camera_driver_through_zenoh_lies_on_the_world_and_needs_
         started = time.time()
         while time.time() - started < 8.0:  # the autopilot bridge's odometry at 50 Hz
             t = time.time()
-            position, roll, pitch, yaw = _flight(t - started)
+            position, roll, pitch, yaw = flight(t - started)
             poses.put(stream.pose_topic, m.odometry_message(body_pose(t, position, roll, pitch, yaw)))
             frame = source.wait_frame(0.02)
             if frame is not None:
                 frames.append(frame)
-                position, _, _, yaw = _flight(frame.t - started)
+                position, _, _, yaw = flight(frame.t - started)
                 level.append(body_pose(frame.t, position, 0.0, 0.0, yaw))
     finally:
         stop.set()
