@@ -322,10 +322,11 @@ class SensorStreamSettings(_Section):
 class CameraSettings(_Section):
     """The depth camera (simulated by ray casting the world mesh, or a real one behind the same interface)."""
 
-    source: Literal["sim", "zenoh", "ros2", "none"] = Field(
+    source: Literal["sim", "zenoh", "ros2", "replay", "none"] = Field(
         "sim", description="sim: the agent ray-casts the mission world itself; zenoh: a camera on ROS 2 heard through "
         "Zenoh (camera.stream; `swarm cameras` is the simulator's); ros2: the same topics through rclpy (pip install "
-        "'swarm[ros2]'); zenoh and ros2 load no world and need mission.volume; none: no mapping"
+        "'swarm[ros2]'); replay: camera.replay_bag played back at its pace; zenoh, ros2 and replay load no world "
+        "and need mission.volume; none: no mapping"
     )
     width: int = Field(160, ge=8, le=1280)
     height: int = Field(120, ge=6, le=960)
@@ -339,6 +340,8 @@ class CameraSettings(_Section):
     mount: CameraMount = CameraMount()
     record: Path | None = Field(None, description="camera.source = \"zenoh\": record every sensor message received "
                                 "to this ROS 2 MCAP bag (a directory that must not exist)")
+    replay_bag: Path | None = Field(None, description="camera.source = \"replay\": the bag played back as the "
+                                    "camera (ROS 2 directory or ROS 1 .bag; topics picked by type)")
     peer_mask_m: float = Field(
         0.5, ge=0.0, le=3.0, description="streamed frames: pixels whose rays meet a sphere of this radius round a "
         "peer's reported position (half a body height up) are not mapped, so drones leave no phantom obstacles; 0: off"

@@ -41,6 +41,7 @@ from swarm.patches.lattice import Lattice
 from swarm.patches.patch import PatchId
 from swarm.patches.wire import decode_expected
 from swarm.sensing.frames import camera_mount
+from swarm.sensing.replay_source import BagReplaySource
 from swarm.sensing.ros2_source import Ros2SensorSource
 from swarm.sensing.zenoh_source import ZenohSensorSource
 from swarm.sim.worlds import load_world, mission_volume
@@ -172,7 +173,7 @@ class Agent:
             loop.call_soon_threadsafe(self.sync.add_own, pid, data)
 
         source: DepthSource | StreamSource
-        if camera.source in ("zenoh", "ros2"):  # a real camera's path: no world mesh is ever opened
+        if camera.source in ("zenoh", "ros2", "replay"):  # a real camera's path: no world mesh is ever opened
             volume = self.config.mission.volume
             if volume is None:
                 raise ConfigError(f'camera.source = "{camera.source}" needs mission.volume (the agent loads no world '
@@ -180,7 +181,11 @@ class Agent:
             if camera.record is not None and camera.record.exists():
                 raise ConfigError(f"camera.record: {camera.record} already exists (a bag is never overwritten)")
             bounds = (np.array(volume.min, dtype=float), np.array(volume.max, dtype=float))
-            if camera.source == "ros2":
+            if camera.source == "replay":
+                if camera.replay_bag is None:
+                    raise ConfigError('camera.source = "replay" needs camera.replay_bag (the bag to play)')
+                source = BagReplaySource(camera.replay_bag, camera.stream, camera_mount(camera))
+            elif camera.source == "ros2":
                 source = Ros2SensorSource(camera.stream, camera_mount(camera), camera.record,
                                           node_name=f"swarm_agent_{self.id}")
             else:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import subprocess
+import time
 from pathlib import Path
 
 import numpy as np
@@ -88,3 +89,35 @@ def test_swarm_map_on_a_missing_bag_is_one_line_and_a_non_zero_exit(tmp_path: Pa
                           capture_output=True, text=True, timeout=60)
     assert done.returncode != 0
     assert len(done.stderr.strip().splitlines()) == 1 and "does not exist" in done.stderr
+
+
+def test_a_bag_replayed_as_the_camera_gives_every_frame_at_its_pace(tmp_path: Path) -> None:
+    from swarm.sensing.replay_source import BagReplaySource
+
+    bag = tmp_path / "flight"
+    _record(bag, seconds=2.0)
+    config = load_config()
+    source = BagReplaySource(bag, config.camera.stream, camera_mount(config.camera), speed=2.0)
+    frames = []
+    started = time.monotonic()
+    source.start()
+    try:
+        while not (source.finished.is_set() and frames and frames[-1] is None):
+            frames.append(source.wait_frame(0.5))
+            assert time.monotonic() - started < 20.0
+    finally:
+        source.close()
+    got = [f for f in frames if f is not None]
+    assert len(got) == 20 and source.counters()["not_taken"] == 0  # 2 s at 10 Hz, every one
+    assert time.monotonic() - started >= 0.9  # played at twice the recorded pace, not at once
+    assert [f.t for f in got] == sorted(f.t for f in got)
+
+
+def test_replaying_a_bag_without_depth_is_one_clear_error(tmp_path: Path) -> None:
+    from swarm.sensing.replay_source import BagReplaySource
+
+    bag = tmp_path / "no-depth"
+    _record(bag, seconds=0.2, with_depth=False)
+    config = load_config()
+    with pytest.raises(SwarmError, match="camera.replay_bag: bag .* has no depth image topic"):
+        BagReplaySource(bag, config.camera.stream, camera_mount(config.camera)).start()

@@ -54,3 +54,14 @@ def test_frames_from_a_ros2_node_map_onto_the_world(monkeypatch: pytest.MonkeyPa
     on_surfaces = float(np.mean(world.distance(vertices) <= 0.2))
     print(f"{len(frames)} frames, counters {source.counters()}, {on_surfaces:.3f} of vertices within 0.2 m")
     assert len(vertices) > 1000 and on_surfaces >= 0.95
+
+
+def test_without_the_ros2_extra_the_source_is_one_line_that_says_what_to_install(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from swarm.errors import SwarmError
+
+    monkeypatch.setitem(sys.modules, "rclpy", None)  # as if the wheels were not installed
+    config = load_config()
+    with pytest.raises(SwarmError, match=r"pip install 'swarm\[ros2\]'"):
+        Ros2SensorSource(config.camera.stream, camera_mount(config.camera)).start()
