@@ -342,7 +342,7 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "mapnode":
         if args.period <= 0 or args.delay < 0:
             raise ConfigError("--period must be positive and --delay not negative")
-        from swarm.sync.node import NodePlan, mapnode_command
+        from swarm.mission.mapnode import NodePlan, mapnode_command
 
         config = _config_from(args, {"agent.id": args.id})
         plan = NodePlan(args.patches, args.period, args.delay, args.position)
@@ -353,13 +353,13 @@ def _dispatch(args: argparse.Namespace) -> int:
         return bench_flight(_config_from(args, {"mission.world": args.world}), args.drones, args.out)
     if args.command == "bench" and args.bench == "mapping":
         from swarm.mission.bench import bench_mapping_swarm
-        from swarm.patches.bench import bench_mapping
+        from swarm.mission.bench_mapping import bench_mapping
 
         config = _config_from(args, {"mission.world": args.world})
         single = bench_mapping(config, args.out)
         return bench_mapping_swarm(config, args.drones, args.out) or single
     if args.command == "bench" and args.bench == "sync":
-        from swarm.sync.bench import bench_sync
+        from swarm.mission.bench_sync import bench_sync
 
         config = _config_from(args, {"mission.world": args.world})
         return bench_sync(config, args.drones, args.out, mission=not args.no_mission)

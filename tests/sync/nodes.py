@@ -8,8 +8,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from swarm.sync.launch import NodeSpec, holds_all
-from swarm.sync.launch import NodeSwarm as _NodeSwarm
+from swarm.mission.mapnodes import NodeSpec, holds_all
+from swarm.mission.mapnodes import NodeSwarm as _NodeSwarm
 
 __all__ = ["FAST", "NodeSpec", "NodeSwarm", "holds_all"]
 

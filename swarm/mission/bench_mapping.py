@@ -59,7 +59,7 @@ def _run_child(config: SwarmConfig, voxel: float) -> dict[str, Any]:
     spec = {"config": config.model_dump(mode="json"), "voxel": voxel}
     env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
     proc = subprocess.run(
-        [sys.executable, "-m", "swarm.patches.bench"],
+        [sys.executable, "-m", "swarm.mission.bench_mapping"],
         input=json.dumps(spec),
         capture_output=True,
         text=True,

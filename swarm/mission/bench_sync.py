@@ -28,7 +28,7 @@ from rich.table import Table
 from swarm.config import SwarmConfig, dump_config
 from swarm.mission.bench import _console_and_root
 from swarm.mission.run import run_mission
-from swarm.sync.launch import NodeSpec, NodeSwarm, holds_all
+from swarm.mission.mapnodes import NodeSpec, NodeSwarm, holds_all
 
 HEAL_PATCHES = 100
 BASELINE_PERIODS_S = (1.0, 2.0, 5.0, 20.0)
