@@ -4,8 +4,9 @@ Each voxel size runs in its own child process pinned to one CPU with OMP_NUM_THR
 uses every core through TBB whatever it is told; only the affinity mask stops it). The child flies the camera
 (config.camera, 160x120 by default) along the office corridor at 1 m/s, scanning left and right, renders each
 depth frame by ray casting the world mesh, integrates it, seals patches (config.mapping triggers), then encodes,
-decodes and fuses every patch into a receiver's map, exports the planning occupancy grid and the mesh.
-Figures are medians over frames or patches unless named p95/max.
+decodes and fuses every patch into a receiver's map, exports the planning occupancy grid and the mesh. At 0.1 m
+it also measures the streamed camera's path per frame (camera.source = "zenoh": serialise, Zenoh transport on
+loopback, decode and pose lookup). Figures are medians over frames or patches unless named p95/max.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ TARGETS = {  # (figure, voxel size, limit, unit)
     "integrate_ms": (0.1, 8.0, "ms per frame"),
     "patch_kb_max": (0.1, 300.0, "kB per 15-frame patch"),
     "decode_fuse_ms": (0.1, 10.0, "ms per patch"),
+    "stream_frame_ms": (0.1, 1.0, "ms per streamed frame"),
 }
 
 
@@ -104,6 +106,11 @@ _ROWS = (  # (key, label, format)
     ("digest_ms", "map digest, ms", "{:.1f}"),
     ("mesh_ms", "mesh (marching cubes), ms", "{:.0f}"),
     ("mesh_triangles", "mesh triangles", "{:.0f}"),
+    ("stream_frame_kb", "streamed depth image (32FC1 CDR), kB", "{:.1f}"),
+    ("stream_serialize_ms", "camera driver: serialise image + info, ms/frame", "{:.2f}"),
+    ("stream_transport_ms", "Zenoh loopback publish to callback, ms/frame", "{:.2f}"),
+    ("stream_decode_pose_ms", "agent: decode + pose lookup + assembly, ms/frame", "{:.2f}"),
+    ("stream_frame_ms", "agent: transport + decode + pose lookup, ms/frame", "{:.2f}"),
     ("rss_mb", "RSS at the end, MB", "{:.0f}"),
     ("peak_rss_mb", "peak RSS, MB", "{:.0f}"),
 )
@@ -236,6 +243,8 @@ def _measure(config: SwarmConfig, voxel: float) -> dict[str, Any]:
     full = full or [len(d) for d in encoded]
     raw_bytes = [p.block_count * (6 + (1 + lattice.weight_dtype.itemsize) * lattice.voxels_per_block) for p in patches]
 
+    stream = _stream_costs(frames, K, cam_settings) if voxel == VOXEL_SIZES[0] else {}
+
     occupancy_s = []
     for _ in range(3):
         t0 = time.perf_counter()
@@ -275,9 +284,74 @@ def _measure(config: SwarmConfig, voxel: float) -> dict[str, Any]:
         "digest_ms": digest_s * 1e3,
         "mesh_ms": mesh_s * 1e3,
         "mesh_triangles": int(len(triangles)),
+        **stream,
         "rss_mb": psutil.Process().memory_info().rss / 2**20,
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
     }
+
+
+def _stream_costs(frames: list[tuple[np.ndarray, np.ndarray]], K: np.ndarray, settings: Any) -> dict[str, float]:
+    """The live path's cost per frame (camera.source = "zenoh"): the camera driver's serialisation of an image and
+    its camera info, their transport between two Zenoh sessions on loopback TCP (publish to callback), and the
+    agent's decode, pose lookup and frame assembly. 50 Hz odometry around every frame, as the simulator sends."""
+    import threading
+
+    import zenoh
+
+    from swarm.sensing import messages as m
+    from swarm.sensing.stream import FrameAssembler
+    from swarm.sim.sensors import body_pose
+
+    ros_K = np.array(K, dtype=np.float64)
+    ros_K[0, 2] -= 0.5
+    ros_K[1, 2] -= 0.5
+    info = m.Intrinsics(settings.width, settings.height, ros_K)
+    assembler = FrameAssembler(np.eye(4))
+    assembler.on_camera_info(m.serialize(m.camera_info_message(0.0, info)))
+    serialize_s, decode_s, transport_s, sizes = [], [], [], []
+    port = 47000 + os.getpid() % 1000
+    configs = []
+    for mode, endpoints in (("listen", f'["tcp/127.0.0.1:{port}"]'), ("connect", f'["tcp/127.0.0.1:{port}"]')):
+        c = zenoh.Config()
+        c.insert_json5("mode", '"peer"')
+        c.insert_json5(f"{mode}/endpoints", endpoints)
+        c.insert_json5("scouting/multicast/enabled", "false")
+        configs.append(c)
+    publisher, subscriber = zenoh.open(configs[0]), zenoh.open(configs[1])
+    arrived = threading.Event()
+    received: list[float] = []
+    sub = subscriber.declare_subscriber("bench/image", lambda sample: (received.append(time.perf_counter()),
+                                                                       arrived.set()))
+    try:
+        for _ in range(100):  # the subscription reaches the publisher
+            publisher.put("bench/image", b"warm-up")
+            if arrived.wait(0.05):
+                break
+        for i, (T, depth) in enumerate(frames):
+            t = 10.0 + i / settings.rate_hz
+            for j in range(5):  # odometry every 20 ms, the frame in the middle
+                assembler.on_pose(body_pose(t - 0.04 + 0.02 * j, T[:3, 3], 0.0, 0.0, 0.0))
+            t0 = time.perf_counter()
+            raw = m.serialize(m.image_message(t, depth))
+            m.serialize(m.camera_info_message(t, info))
+            serialize_s.append(time.perf_counter() - t0)
+            sizes.append(len(raw))
+            arrived.clear()
+            t1 = time.perf_counter()
+            publisher.put("bench/image", raw)
+            if arrived.wait(1.0):
+                transport_s.append(received[-1] - t1)
+            t2 = time.perf_counter()
+            assembler.on_image(raw)
+            assert assembler.take(), assembler.dropped
+            decode_s.append(time.perf_counter() - t2)
+    finally:
+        sub.undeclare()
+        publisher.close()
+        subscriber.close()
+    return {"stream_serialize_ms": _ms(serialize_s), "stream_transport_ms": _ms(transport_s),
+            "stream_decode_pose_ms": _ms(decode_s),
+            "stream_frame_ms": _ms(transport_s) + _ms(decode_s), "stream_frame_kb": float(np.median(sizes) / 1024)}
 
 
 def _child() -> None:
