@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -144,7 +145,7 @@ def _judged_by_coverage(config: Any) -> bool:
 def _why_short(explored: float, agents: list[dict[str, Any]]) -> str:
     reasons = sorted({a["exploration_done_reason"] for a in agents if a.get("exploration_done_reason")})
     given_up = sum(len(a.get("frontiers_given_up") or []) for a in agents)
-    return (f"exploration ended at {explored:.1%} explored, below {COVERAGE_TARGET:.0%}: "
+    return (f"exploration ended at {math.floor(explored * 1000) / 10:.1f} % explored, below {COVERAGE_TARGET:.0%}: "
             f"{'; '.join(reasons) or 'no agent said why'}; {given_up} frontier(s) given up (agents[].frontiers_given_up)")
 
 
