@@ -6,11 +6,15 @@ import json
 import random
 import subprocess
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import psutil
+import zenoh
+
 from swarm.mission.ports import find_free_base
 
 
@@ -74,3 +78,19 @@ def log_events(log: Path) -> list[dict[str, Any]]:
             except ValueError:
                 continue
     return events
+
+
+@contextmanager
+def loopback_zenoh(mode: str) -> Iterator[tuple[zenoh.Session, str]]:
+    """A Zenoh session in `mode` ("peer" or "router") listening on a free loopback port: (session, endpoint)."""
+    port = find_free_base("127.0.0.1", 1, "tcp", random.randrange(30000, 50000))
+    endpoint = f"tcp/127.0.0.1:{port}"
+    config = zenoh.Config()
+    config.insert_json5("mode", json.dumps(mode))
+    config.insert_json5("listen/endpoints", json.dumps([endpoint]))
+    config.insert_json5("scouting/multicast/enabled", "false")
+    session = zenoh.open(config)
+    try:
+        yield session, endpoint
+    finally:
+        session.close()

@@ -4,7 +4,6 @@ and the source gives frames with the pose at each image's stamp; junk on the sam
 
 from __future__ import annotations
 
-import random
 import struct
 from collections.abc import Iterator
 
@@ -14,10 +13,10 @@ import zenoh
 from scipy.spatial.transform import Rotation
 
 from swarm.config import SensorStreamSettings
-from swarm.mission.ports import find_free_base
 from swarm.sensing import messages as m
 from swarm.sensing.frames import mount_transform
 from swarm.sensing.zenoh_source import ZenohSensorSource, topic_key
+from tests.helpers import loopback_zenoh
 
 K = np.array([[8.0, 0.0, 7.5], [0.0, 8.0, 5.5], [0.0, 0.0, 1.0]])
 
@@ -33,17 +32,8 @@ def test_keys_follow_rmw_zenoh_and_the_bridge() -> None:
 
 @pytest.fixture
 def camera_side() -> Iterator[tuple[zenoh.Session, str]]:
-    port = find_free_base("127.0.0.1", 1, "tcp", random.randrange(30000, 50000))
-    endpoint = f"tcp/127.0.0.1:{port}"
-    config = zenoh.Config()
-    config.insert_json5("mode", '"peer"')
-    config.insert_json5("listen/endpoints", f'["{endpoint}"]')
-    config.insert_json5("scouting/multicast/enabled", "false")
-    session = zenoh.open(config)
-    try:
-        yield session, endpoint
-    finally:
-        session.close()
+    with loopback_zenoh("peer") as side:
+        yield side
 
 
 def _attachment(seq: int) -> bytes:

@@ -5,7 +5,6 @@ world's surfaces along a flight that tilts (and would not, were the attitude ign
 from __future__ import annotations
 
 import math
-import random
 import threading
 import time
 from collections.abc import Iterator
@@ -16,13 +15,13 @@ import zenoh
 from scipy.spatial.transform import Rotation
 
 from swarm.config import load_config
-from swarm.mission.ports import find_free_base
 from swarm.patches.mapper import Mapper
 from swarm.sensing import messages as m
 from swarm.sensing.frames import camera_mount, camera_to_world
 from swarm.sensing.zenoh_source import ZenohSensorSource, session_config
 from swarm.sim.sensors import CameraDriver, StreamPublisher, body_pose, vehicle_stream
 from swarm.sim.worlds import load_world, mission_volume
+from tests.helpers import loopback_zenoh
 from tests.sensing.flight import flight
 
 
@@ -42,17 +41,8 @@ def test_px4_attitude_becomes_an_enu_flu_pose() -> None:
 @pytest.fixture
 def router() -> Iterator[str]:
     """A Zenoh router on loopback, as rmw_zenohd is on a robot."""
-    port = find_free_base("127.0.0.1", 1, "tcp", random.randrange(30000, 50000))
-    endpoint = f"tcp/127.0.0.1:{port}"
-    config = zenoh.Config()
-    config.insert_json5("mode", '"router"')
-    config.insert_json5("listen/endpoints", f'["{endpoint}"]')
-    config.insert_json5("scouting/multicast/enabled", "false")
-    session = zenoh.open(config)
-    try:
+    with loopback_zenoh("router") as (_, endpoint):
         yield endpoint
-    finally:
-        session.close()
 
 
 def test_a_map_from_the_camera_driver_through_zenoh_lies_on_the_world_and_needs_the_attitude(router: str) -> None:
