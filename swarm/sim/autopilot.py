@@ -7,6 +7,7 @@ frame (x east, y north, z up); the vehicle never goes below its home height (its
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from enum import Enum
 
@@ -44,9 +45,18 @@ class RtlPhase(Enum):
     DESCEND = 3
 
 
+GROUND_REFRESH_M = 0.05  # the floor under the vehicle is looked up again after it moved this far
+
+
 class Autopilot:
-    def __init__(self, home: Vec3, params: Params, position_gain: float) -> None:
+    def __init__(self, home: Vec3, params: Params, position_gain: float,
+                 floor_below: Callable[[np.ndarray], float] | None = None) -> None:
+        """`floor_below(position)`: the z of the first surface under the vehicle (the world's floors: a vehicle
+        landing on an upper storey touches its slab, as a real one would); None or NaN: the home height."""
         self.home = np.array(home, dtype=np.float64)
+        self._floor_below = floor_below
+        self._ground_at: np.ndarray | None = None  # where the floor under the vehicle was last looked up
+        self._ground_z = float(self.home[2])
         self.params = params
         self.position_gain = position_gain
         self.body = Body(self.home.copy())
@@ -85,8 +95,20 @@ class Autopilot:
         return float(self.body.position[2] - self.home[2])
 
     @property
+    def ground_z(self) -> float:
+        """z of the floor under the vehicle (the home height without a world)."""
+        if self._floor_below is None:
+            return float(self.home[2])
+        p = self.body.position
+        if self._ground_at is None or np.linalg.norm(p - self._ground_at) > GROUND_REFRESH_M:
+            z = self._floor_below(p)
+            self._ground_z = float(z) if math.isfinite(z) and z <= p[2] + GROUND_EPS_M else float(self.home[2])
+            self._ground_at = p.copy()
+        return self._ground_z
+
+    @property
     def at_ground(self) -> bool:
-        return self.height <= GROUND_EPS_M
+        return float(self.body.position[2]) - self.ground_z <= GROUND_EPS_M
 
     @property
     def airborne(self) -> bool:
@@ -204,11 +226,11 @@ class Autopilot:
             limits = self.limits(offboard=self.mode == FlightMode.OFFBOARD)
             cmd = kinematics.velocity_command(self.body.position, target_p, target_v, limits)
             self._commanding_up = cmd[2] > 0.05
-            kinematics.track(self.body, cmd, limits, dt, self.home[2])
+            kinematics.track(self.body, cmd, limits, dt, self.ground_z)
             kinematics.turn(self.body, yaw, yaw_rate, limits, dt)
         else:
             self._commanding_up = False
-            kinematics.fall(self.body, dt, self.home[2], self.params["MPC_ACC_HOR"])
+            kinematics.fall(self.body, dt, self.ground_z, self.params["MPC_ACC_HOR"])
             self.body.yaw_rate = 0.0
         self.distance_m += math.dist(self.body.position, before)
         self._progress()

@@ -32,6 +32,7 @@ from swarm.sim.worlds import World, load_world, spawn_points
 
 STATUS_PERIOD_S = 0.5
 MAX_CATCHUP_STEPS = 10  # after a longer stall (e.g. the machine was suspended) the simulation skips time
+FLOOR_PROBE_LIFT = np.array([0.0, 0.0, 0.1])  # m above a vehicle's feet
 STALL_REPORT_S = 0.5  # a loop iteration this late is reported in the status (`stalls`)
 MAX_STALLS_KEPT = 100
 
@@ -49,7 +50,8 @@ class SimServer:
         self.ids = list(range(1, len(homes) + 1))
         self._start = time.monotonic() if start_time is None else start_time
         self.vehicles = {
-            vid: SimVehicle(vid, home, config, Downlink(None, (sim.host, gcs_port(sim, vid))), self._start)
+            vid: SimVehicle(vid, home, config, Downlink(None, (sim.host, gcs_port(sim, vid))), self._start,
+                            floor_below=self._floor_below)
             for vid, home in zip(self.ids, homes)
         }
         self.collisions = CollisionMonitor(world, self.ids, sim.drone_radius_m)
@@ -61,6 +63,11 @@ class SimServer:
         self._control_mtime: int | None = None
         self._done = False
         self.odometry: OdometryPublisher | None = None  # opened by open() when sim.sensor_listen is set
+
+    def _floor_below(self, position: np.ndarray) -> float:
+        """The world's first surface under a vehicle (looked for from just above its feet, so the floor it
+        stands on is found, not the one below that)."""
+        return float(self.world.floor_below((np.asarray(position) + FLOOR_PROBE_LIFT)[None, :])[0])
 
     # --- life cycle --------------------------------------------------------------------------------------------
 

@@ -129,12 +129,13 @@ class SimVehicle:
         config: SwarmConfig,
         downlink: Downlink | None = None,
         now: float = 0.0,
+        floor_below: Callable[[np.ndarray], float] | None = None,
     ) -> None:
         sim = config.sim
         self.id = drone_id
         self.origin = config.mission.origin
         self.params = Params(sim, drone_id)
-        self.autopilot = Autopilot(home, self.params, sim.position_gain)
+        self.autopilot = Autopilot(home, self.params, sim.position_gain, floor_below)
         self.downlink = downlink or Downlink(None, (sim.host, 0))
         self.mav = mavlink.MAVLink(self.downlink, srcSystem=drone_id, srcComponent=COMPONENT_ID)  # sends
         self._parser = _new_parser()

@@ -204,3 +204,26 @@ def test_return_to_launch_lands_at_home(ap: Autopilot) -> None:
     assert ap.return_to_launch() == ACCEPTED
     clock.run_until(lambda: not ap.armed, timeout=40)
     assert np.linalg.norm(ap.position - HOME) < 0.25
+
+
+def test_a_vehicle_over_an_upper_storey_lands_on_its_slab_not_through_it(sim: SimSettings) -> None:
+    """Landing in place on the upper storey of a two-storey building (a mission stopped at its time limit): the
+    vehicle used to descend to its home height, through the slab (a collision in gen:10)."""
+    slab_top = 3.6
+
+    def floor_below(p: np.ndarray) -> float:  # an upper floor over x > 5, the ground floor elsewhere
+        return slab_top if p[0] > 5.0 and p[2] >= slab_top else HOME[2]
+
+    ap = Autopilot(HOME, Params(sim, 1), sim.position_gain, floor_below)
+    clock = Clock(ap)
+    ap.arm(clock.now)
+    ap.takeoff()
+    clock.run_until(lambda: ap.mode == FlightMode.HOLD, timeout=10)
+    offboard_to(ap, clock, (7.0, 3.0, slab_top + 1.5))
+    target = (7.0, 3.0, slab_top + 1.5)
+    clock.run(12.0, keep_streaming(ap, clock, target))
+    assert ap.position[0] == pytest.approx(7.0, abs=0.05) and ap.position[2] == pytest.approx(slab_top + 1.5, abs=0.05)
+    assert ap.land() == ACCEPTED
+    clock.run_until(lambda: not ap.armed, timeout=15)
+    assert ap.position[2] == pytest.approx(slab_top, abs=1e-6)  # on the slab, disarmed by the land detector
+    assert ap.landed_state == LandedState.ON_GROUND
