@@ -42,6 +42,7 @@ from swarm.sensing.peers import mask_peers
 SealedCallback = Callable[[PatchId, bytes], None]
 STREAM_WAIT_S = 0.2  # a stream source is polled this often for the stop event when no frame comes
 MIN_HEIGHT_M = 0.3  # below this the camera mostly sees the floor it stands on
+CAMERA_SILENT_S = 3.0  # in the air this long without a frame from the stream: logged (the map has stopped growing)
 
 
 def recover_patches(state_dir: Path, mapper: Mapper, max_bytes: int) -> tuple[list[tuple[PatchId, bytes]], int]:
@@ -104,6 +105,7 @@ class MappingTask:
         self.stream_counters: dict[str, int] | None = None  # a stream source's, at the end
         self.peers = peers  # the other drones' reported positions (called on the event loop)
         self.pixels_masked = 0
+        self.camera_silences = 0  # times the stream went silent for CAMERA_SILENT_S in the air
         self._worker = ThreadPoolExecutor(1, thread_name_prefix="mapping")
 
     async def run(self, telemetry: TelemetryCache, home_z: Callable[[], float | None], stop: asyncio.Event) -> None:
@@ -147,22 +149,33 @@ class MappingTask:
         source: StreamSource = self.source  # type: ignore[assignment]
         loop = asyncio.get_running_loop()
         await loop.run_in_executor(self._worker, source.start)
+        last_frame, silent = time.monotonic(), False
         try:
             while not stop.is_set():
                 base = home_z()
                 airborne = base is not None and telemetry.samples > 0 and telemetry.position[2] - base > MIN_HEIGHT_M
                 centre = np.array([0.0, 0.0, self.config.explore.body_height_m / 2])
                 peers = [np.asarray(p, dtype=np.float64) + centre for p in self.peers()]
-                await loop.run_in_executor(self._worker, self._step_stream, source, airborne, peers)
+                came = await loop.run_in_executor(self._worker, self._step_stream, source, airborne, peers)
+                now = time.monotonic()
+                if came or not airborne:
+                    if silent and came:
+                        self.log("camera_back", silent_s=round(now - last_frame, 1))
+                    last_frame, silent = now, False
+                elif not silent and now - last_frame > CAMERA_SILENT_S:
+                    silent = True
+                    self.camera_silences += 1
+                    self.log("camera_silent", s=CAMERA_SILENT_S, counters=source.counters())
         finally:
             self.stream_counters = source.counters()
             self.frames_skipped += self.stream_counters.get("not_taken", 0)
             await loop.run_in_executor(None, source.close)
 
-    def _step_stream(self, source: StreamSource, airborne: bool, peers: list[np.ndarray]) -> None:
+    def _step_stream(self, source: StreamSource, airborne: bool, peers: list[np.ndarray]) -> bool:
+        """Integrate the newest frame when airborne; whether one came."""
         frame = source.wait_frame(STREAM_WAIT_S)
         if frame is None or not airborne:
-            return
+            return frame is not None
         started = time.perf_counter()
         radius = self.config.camera.peer_mask_m
         if peers and radius > 0:
@@ -171,6 +184,7 @@ class MappingTask:
                 self.pixels_masked += masked
                 frame = dataclasses.replace(frame, depth=depth)
         self._integrate(frame, started)
+        return True
 
     def _keep(self, patch: Patch) -> None:
         self.patches_sealed += 1
@@ -266,7 +280,8 @@ class MappingTask:
             # every tick while airborne either took a frame or was skipped for being late
             "frame_rate_hz": round(self.config.camera.rate_hz * self.frames / (self.frames + self.frames_skipped), 2)
             if self.frames else 0.0,
-            **({"sensor_stream": {**self.stream_counters, "pixels_masked_as_peers": self.pixels_masked}}
+            **({"sensor_stream": {**self.stream_counters, "pixels_masked_as_peers": self.pixels_masked,
+                                  "camera_silences": self.camera_silences}}
                if self.stream_counters is not None else {}),
             "known_voxels": int(self.mapper.fused.voxel_count),
             "patches_received": self.patches_received,

@@ -423,6 +423,10 @@ def _supervise(plan: RunPlan, state: RunState, view: ProgressView, on_tick: Call
             state.status, state.reason = "failed", f"simulator died: {state.sim.last_log_line()}"
             _land_agents(state)
             return
+        if state.cameras is not None and state.cameras.poll() is not None:  # the agents would fly blind
+            state.status, state.reason = "failed", f"cameras died: {state.cameras.last_log_line()}"
+            _land_agents(state)
+            return
         if elapsed > max_time:
             state.status, state.reason = "timeout", f"max time {max_time:.0f} s reached"
             _land_agents(state)

@@ -23,6 +23,7 @@ class Miss(str, Enum):
     """Why no pose was found for a stamp."""
 
     EMPTY = "no pose yet"
+    EARLY = "older than the first pose (the stream was starting)"
     STALE = "older than every kept pose"
     FUTURE = "newer than the newest pose by more than max_hold_s"
     GAP = "between poses further apart than max_gap_s"
@@ -36,6 +37,7 @@ class PoseBuffer:
         self._poses: deque[Pose] = deque(maxlen=capacity)
         self._stamps: deque[float] = deque(maxlen=capacity)
         self.out_of_order = 0  # samples older than the newest (dropped: they would break the ordering)
+        self.evicted = False  # a sample fell out of the full buffer: the oldest kept is no longer the first
 
     def __len__(self) -> int:
         return len(self._poses)
@@ -45,6 +47,7 @@ class PoseBuffer:
         if self._stamps and pose.t <= self._stamps[-1]:
             self.out_of_order += 1
             return False
+        self.evicted = self.evicted or len(self._poses) == self._poses.maxlen
         self._poses.append(pose)
         self._stamps.append(pose.t)
         return True
@@ -57,7 +60,7 @@ class PoseBuffer:
             return Pose(t, newest.position, newest.orientation) if t - newest.t <= self.max_hold_s else Miss.FUTURE
         i = bisect.bisect_right(self._stamps, t)  # deque supports indexing: O(n) worst, n <= capacity
         if i == 0:
-            return Miss.STALE
+            return Miss.STALE if self.evicted else Miss.EARLY
         before, after = self._poses[i - 1], self._poses[i]
         if after.t - before.t > self.max_gap_s:
             return Miss.GAP

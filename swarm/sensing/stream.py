@@ -146,9 +146,11 @@ class StreamInbox:
         ]
 
     def deliver(self, topic: str, msgtype: str, handler: Callable[[bytes], None], raw: bytes) -> None:
-        if self.recorder is not None:
-            self.recorder.write(topic, msgtype, time.time_ns(), raw)
+        # Recorded under the lock, so the bag holds the messages in the order the assembler took them (the
+        # transport calls from several threads): a replay then makes exactly the frames this run made.
         with self._new:
+            if self.recorder is not None:
+                self.recorder.write(topic, msgtype, time.time_ns(), raw)
             handler(raw)
             ready = self.frames.take()
             if ready:

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import signal
+
 import numpy as np
 import open3d as o3d
 import pytest
@@ -15,7 +17,7 @@ from scipy.spatial import cKDTree
 from swarm.agent.bagmap import map_bags
 from swarm.config import load_config
 from swarm.mission.report import read_json
-from swarm.mission.run import NO_WORLD_FOR_AGENTS, run_mission
+from swarm.mission.run import NO_WORLD_FOR_AGENTS, RunState, run_mission
 from swarm.sim.worlds import load_world
 from tests.helpers import SwarmPorts, processes_mentioning
 
@@ -59,11 +61,14 @@ def test_agents_given_no_world_map_from_the_simulated_cameras_streams_and_comple
         stream = agent["sensor_stream"]
         assert agent["exit_code"] == 0 and agent["frames"] > 100, agent
         # every frame the camera driver published reached the agent whole, with a pose (only an image or two that
-        # came before the first camera info, while the subscriptions were being declared, is dropped)
-        assert stream.get("image before camera info", 0) <= 2, stream
+        # came before the first camera info or the first pose, while the subscriptions were being declared, is
+        # dropped)
+        starting = ("image before camera info", "pose early")
+        assert all(stream.get(reason, 0) <= 2 for reason in starting), stream
         others = {k: v for k, v in stream.items()
-                  if k not in ("frames", "not_taken", "pixels_masked_as_peers", "image before camera info")}
+                  if k not in ("frames", "not_taken", "pixels_masked_as_peers", "camera_silences", *starting)}
         assert not others, stream
+        assert stream["camera_silences"] == 0, stream
         assert agent["frame_rate_hz"] >= 8.0, agent
     # the cameras see the other drones, and the agents keep them out of their maps
     assert sum(a["sensor_stream"]["pixels_masked_as_peers"] for a in report["agents"]) > 0
@@ -86,3 +91,26 @@ def test_agents_given_no_world_map_from_the_simulated_cameras_streams_and_comple
         on_surfaces = float(np.mean(world.distance(vertices) <= 0.2))
         print(f"{mesh}: {len(vertices)} vertices, {on_surfaces:.3f} within 0.2 m of the world")
         assert on_surfaces >= 0.95
+
+
+def test_a_mission_whose_cameras_die_fails_at_once_saying_so_and_lands(tmp_path: Path, swarm_ports: SwarmPorts) -> None:
+    out = tmp_path / "run"
+    config = load_config(overrides={
+        "mission.world": "box", "mission.out": str(out), "mission.drones": 1, "mission.max_time_s": 120.0,
+        "camera.source": "zenoh",
+        "sim.vehicle_base_port": swarm_ports.vehicle_base, "sim.gcs_base_port": swarm_ports.gcs_base,
+        "bus.base_port": swarm_ports.bus_base,
+    })
+    killed: list[float] = []
+
+    def kill_cameras_once_flying(state: RunState) -> None:
+        agents = (read_json(out / "observer.json") or {}).get("agents", {})
+        if not killed and state.cameras is not None and any(a.get("phase") == "flying" for a in agents.values()):
+            state.cameras.signal(signal.SIGKILL)
+            killed.append(1.0)
+
+    report = run_mission(config, live=False, on_tick=kill_cameras_once_flying)
+    assert killed, "the drone never flew"
+    assert report["status"] == "failed" and report["reason"].startswith("cameras died"), report["reason"]
+    assert report["duration_s"] < 60.0
+    assert not processes_mentioning(str(out)), "swarm run left processes behind"

@@ -39,7 +39,9 @@ def test_the_newest_pose_is_held_briefly_and_no_longer() -> None:
 def test_stale_gapped_and_empty_lookups_say_why() -> None:
     poses = PoseBuffer(capacity=3, max_gap_s=0.25)
     assert poses.at(1.0) is Miss.EMPTY
-    for t in (1.0, 1.1, 1.2, 2.0):  # capacity 3: the sample at 1.0 falls out
+    poses.add(_pose(1.0, 1.0, 0.0))
+    assert poses.at(0.9) is Miss.EARLY  # before the first pose ever received: the stream was starting
+    for t in (1.1, 1.2, 2.0):  # capacity 3: the sample at 1.0 falls out
         poses.add(_pose(t, t, 0.0))
     assert poses.at(1.05) is Miss.STALE
     assert poses.at(1.5) is Miss.GAP  # 1.2 to 2.0: 0.8 s without a pose

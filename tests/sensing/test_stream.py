@@ -48,7 +48,7 @@ def test_unusable_input_is_counted_by_reason_and_never_becomes_a_frame() -> None
     frames.on_pose(b"\x00\x01", m.ODOMETRY)
     frames.on_pose(_pose(2.0, 0.0))
     frames.on_pose(_pose(1.0, 0.0))  # older than the newest
-    frames.on_image(m.image_message(1.0, DEPTH))  # before every kept pose
+    frames.on_image(m.image_message(1.0, DEPTH))  # before the first pose: the stream was starting
     frames.on_pose(_pose(3.0, 0.0))
     frames.on_image(m.image_message(2.5, DEPTH))  # between poses 1 s apart
     for t in (4.0, 4.1, 4.2):  # no pose comes: the oldest waiting image is let go
@@ -56,7 +56,7 @@ def test_unusable_input_is_counted_by_reason_and_never_becomes_a_frame() -> None
     assert frames.take() == []
     assert dict(frames.dropped) == {
         "image before camera info": 1, "bad camera info": 1, "image size differs from camera info": 1,
-        "bad image": 1, "bad pose": 1, "pose out of order": 1, "pose stale": 1, "pose gap": 1, "no pose in time": 1,
+        "bad image": 1, "bad pose": 1, "pose out of order": 1, "pose early": 1, "pose gap": 1, "no pose in time": 1,
     }
     frames.on_pose(_pose(4.05, 0.0))
     frames.on_pose(_pose(4.15, 0.0))
