@@ -109,8 +109,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--tls", action="store_true", default=None,
                      help="mutual TLS with access control on every Zenoh session (certificates in OUT/certs)")
     run.add_argument("--record", action="store_true", default=None,
-                     help="every agent maps from the simulated cameras' ROS 2 streams (camera.source = zenoh) and "
-                     "records what it received to OUT/bags/agent-K (ROS 2 MCAP)")
+                     help="every agent records the sensor streams it received (depth, camera info, odometry) to "
+                     "OUT/bags/agent-K (ROS 2 MCAP)")
     _add_config_flags(run)
 
     cameras = sub.add_parser("cameras", help="the simulated depth cameras as ROS 2 camera drivers over Zenoh")
@@ -297,7 +297,7 @@ def _dispatch(args: argparse.Namespace) -> int:
             "mission.seed": args.seed, "explore.strategy": args.strategy,
             "mission.network": args.network, "mission.links": str(args.links) if args.links else None,
             "mission.faults": args.fault, "mission.tls": args.tls,
-            "mission.record": args.record, "camera.source": "zenoh" if args.record else None,
+            "mission.record": args.record,
         })
         from swarm.mission.run import run_mission
 

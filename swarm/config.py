@@ -323,7 +323,9 @@ class CameraSettings(_Section):
     """The depth camera (simulated by ray casting the world mesh, or a real one behind the same interface)."""
 
     source: Literal["sim", "zenoh", "ros2", "replay", "none"] = Field(
-        "sim", description="sim: the agent ray-casts the mission world itself; zenoh: a camera on ROS 2 heard through "
+        "sim", description="sim: the simulator's cameras (in `swarm run`, `swarm cameras` publishes them as ROS 2 "
+        "streams and every agent maps from those, as with zenoh; a lone `swarm agent` ray-casts the mission world "
+        "itself); zenoh: a camera on ROS 2 heard through "
         "Zenoh (camera.stream; `swarm cameras` is the simulator's); ros2: the same topics through rclpy (pip install "
         "'swarm[ros2]'); replay: camera.replay_bag played back at its pace; zenoh, ros2 and replay load no world "
         "and need mission.volume; none: no mapping"

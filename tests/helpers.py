@@ -24,6 +24,11 @@ class SwarmPorts:
     gcs_base: int
     bus_base: int
 
+    def settings(self) -> dict[str, int]:
+        """The three port bases as `load_config` overrides."""
+        return {"sim.vehicle_base_port": self.vehicle_base, "sim.gcs_base_port": self.gcs_base,
+                "bus.base_port": self.bus_base}
+
     def overrides(self) -> list[str]:
         return [
             "--set", f"sim.vehicle_base_port={self.vehicle_base}",

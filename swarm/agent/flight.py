@@ -323,11 +323,11 @@ class Flight:
         for n in sorted(self.neighbours(), key=lambda n: n.id):
             peer = np.asarray(n.position, dtype=float)
             distance = float(np.linalg.norm(peer - position))
-            if n.silent:
-                # an obstacle, not a drone to give way to (stepping aside for it never ends): hold only when our
-                # segment would touch it; the planner routes around it
+            if n.silent or parked(n):
+                # an obstacle, not a drone to give way to (stepping aside for it never ends: one hovering with
+                # no target stays put): hold only when our segment would touch it; the planner routes around it
                 if distance < self.separation_m and _in_the_way(peer, position, target, SILENT_CLEAR_M):
-                    return n
+                    return n._replace(silent=True)
                 continue
             if n.id < self.settings.id and distance < self.separation_m:
                 return n
@@ -600,11 +600,17 @@ def moves_clear_of(here: np.ndarray, candidates: list[np.ndarray], neighbours: l
                    for n in neighbours)]
 
 
+def parked(peer: Neighbour) -> bool:
+    """A live drone hovering with no segment to fly (no target, or waiting at home): it will not move off for us.
+    Stepping aside for it, the way a drone gives way to a lower id, only ends when the yield times out, and the
+    same path then meets it again (box, 3 drones: drone 3 gave way to idle drone 2 for 200 s)."""
+    return peer.heading_to is None and float(np.linalg.norm(peer.velocity)) < SLOW_M_S
+
+
 def choose_refuge(candidates: list[np.ndarray], peer: Neighbour) -> np.ndarray:
     """The first candidate at least REFUGE_CLEAR_M off the peer's way (the nearest steps come first), else the
     one farthest off it. A hovering peer going nowhere has no way: the first candidate (up or down) it is."""
-    going_nowhere = peer.heading_to is None and float(np.linalg.norm(peer.velocity)) < SLOW_M_S
-    if going_nowhere:
+    if parked(peer):
         return candidates[0]
     clear = [c for c in candidates if distance_to_track(c, peer) >= REFUGE_CLEAR_M]
     return clear[0] if clear else max(candidates, key=lambda c: distance_to_track(c, peer))

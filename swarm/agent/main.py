@@ -29,7 +29,7 @@ from swarm.aio import wait_event
 from swarm.agent.autopilot import Autopilot
 from swarm.agent.events import EventLog
 from swarm.agent.exploration import Exploration
-from swarm.agent.flight import Flight, Mission, Neighbour, Phase, route_mission
+from swarm.agent.flight import Flight, Mission, Neighbour, Phase, parked, route_mission
 from swarm.agent.mapping import MappingTask
 from swarm.agent.sensing import DepthSource, StreamSource, make_depth_source
 from swarm.bus.bridge import AsyncBus
@@ -119,7 +119,7 @@ class Agent:
         if exploring and mapping is not None:
             self.exploration = Exploration(
                 self.config, self.epoch, bus, self.peers, mapping, self._position, lambda: autopilot.home_world,
-                float(mapping.bounds[1][2]), self.log, obstacles=lambda: list(self.lost_in_air.values()),
+                float(mapping.bounds[1][2]), self.log, obstacles=self._obstacles,
             )
             self.exploration.start()
             mission = self.exploration.fly
@@ -225,6 +225,12 @@ class Agent:
                 deadline = time.monotonic() + limit
             await wait_event(self.stop, LINGER_POLL_S)
         self.log("linger_ended", reason="signal" if self.stop.is_set() else "timeout")
+
+    def _obstacles(self) -> list[tuple[float, float, float]]:
+        """What the planner must route around that the map does not hold (peers are masked out of it): drones
+        whose agents died in the air, and peers parked in the air (no segment to fly: they will not move off)."""
+        return [*self.lost_in_air.values(),
+                *(n.position for n in self._neighbours() if not n.silent and parked(n))]
 
     def _peer_heard_flying(self) -> bool:
         """A peer whose fresh heartbeat says it is in the air (one gone silent does not count)."""

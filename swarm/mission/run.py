@@ -58,6 +58,9 @@ POLL_PERIOD_S = 0.25
 # issues #1886 and #2130), and the healed drone stayed deaf to a peer for the rest of the mission in about one
 # cut-and-heal run in four. TCP alone rejoined every time; with the 20 ms rto_min it also holds up at 30 % loss.
 RADIO_PROTOCOLS = ("tcp",)
+# In `swarm run` the simulated cameras ("sim", the default, or "zenoh" said outright) are `swarm cameras`
+# publishing ROS 2 streams, and every agent maps from those streams (camera.source = "zenoh"), as on a real drone.
+STREAMED_SOURCES = ("sim", "zenoh")
 NO_WORLD_FOR_AGENTS = "no-world-for-agents.ply"  # camera.source = "zenoh": what agents are told the world is
 SENSOR_PORT_OFFSET = 200  # the sensor router listens on bus.base_port + this
 INTERRUPTED = "interrupted"  # the reason of a mission stopped by Ctrl-C or SIGTERM
@@ -122,9 +125,10 @@ def prepare(config: SwarmConfig) -> RunPlan:
     if out.exists() and any(out.iterdir()):
         raise SwarmError(f"output directory {out} is not empty")
     sensor_port = None
-    if m.record and config.camera.source != "zenoh":
-        raise ConfigError('mission.record needs camera.source = "zenoh": only streamed sensors can be recorded')
-    if config.camera.source == "zenoh":
+    if m.record and config.camera.source not in STREAMED_SOURCES:
+        raise ConfigError(f'mission.record needs camera.source = "sim" or "zenoh", not "{config.camera.source}": '
+                          "only the simulated cameras' streams can be recorded")
+    if config.camera.source in STREAMED_SOURCES:
         sensor_port = bus_port(config.bus, SENSOR_PORT_OFFSET)
         if m.network == "loopback":
             ensure_free(config.sim.host, sensor_port, "tcp", "sensor streams")
@@ -292,7 +296,8 @@ def _agent_camera(plan: RunPlan, state: RunState, k: int) -> dict[str, Any]:
         "world": str(plan.out / "config" / NO_WORLD_FOR_AGENTS),
     })
     record = plan.out / "bags" / f"agent-{k}" if plan.config.mission.record else None
-    return {"camera": plan.config.camera.model_copy(update={"stream": stream, "record": record}), "mission": mission}
+    camera = plan.config.camera.model_copy(update={"source": "zenoh", "stream": stream, "record": record})
+    return {"camera": camera, "mission": mission}
 
 
 def _netns_bus_for(config: SwarmConfig, net: SwarmNetwork, index: int) -> dict[str, Any]:

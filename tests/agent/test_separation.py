@@ -99,9 +99,13 @@ def test_a_silent_drone_is_an_obstacle_held_for_only_when_our_segment_would_touc
     assert flight._rival(here, here) is None  # hovering near it: no stepping aside
     assert flight._rival(here, np.array([3.0, 0.0, 1.5])) is not None  # straight through it: hold
     assert flight._rival(here, np.array([2.0, 1.5, 1.5])) is None  # passing 0.83 m off it: carry on
-    talking = [n._replace(silent=False) for n in silent]
-    flight.neighbours = lambda: talking
-    assert flight._rival(here, here) is not None  # the same drone alive, a lower id: give way
+    parked_there = [n._replace(silent=False) for n in silent]  # alive, hovering with no segment to fly
+    flight.neighbours = lambda: parked_there
+    assert flight._rival(here, here) is None  # it will not move off: an obstacle, not a drone to give way to
+    assert flight._rival(here, np.array([3.0, 0.0, 1.5])) == parked_there[0]._replace(silent=True)  # hold
+    flying = [n._replace(silent=False, heading_to=(2.0, 3.0, 1.5)) for n in silent]
+    flight.neighbours = lambda: flying
+    assert flight._rival(here, here) == flying[0]  # the same drone alive and on its way, a lower id: give way
 
 
 def clear_in(world):
@@ -290,7 +294,8 @@ async def _step_up_and_rejoin() -> tuple[Vec3, list[Vec3], list[Vec3]]:
     says so above 1.6 m, as a lintel ahead would), so drone 2 takes up its segment where it left it. Returns where
     it left the segment, its refuges and the positions it flew through after the first step aside."""
     config = sim_config(free_port_block(), **{"sim.spawns": [WEST]})
-    peer = Neighbour(1, (2.9, 2.0, ALTITUDE - 0.2), (0.0, 0.0, 0.0))  # a little lower: the step is up
+    # a little lower (the step is up), and on a segment of its own (one parked with none is an obstacle instead)
+    peer = Neighbour(1, (2.9, 2.0, ALTITUDE - 0.2), (0.0, 0.0, 0.0), heading_to=(2.9, 2.0, ALTITUDE - 0.2))
     left_at: list[Vec3] = []
     refuges: list[Vec3] = []
     track: list[Vec3] = []

@@ -87,8 +87,7 @@ def test_agents_fed_10000_hostile_messages_keep_flying_and_their_maps_hold_only_
     out = tmp_path / "run"
     config = load_config(overrides={
         "mission.world": "box", "mission.out": str(out), "mission.drones": 2, "mission.max_time_s": 200.0,
-        "sim.vehicle_base_port": swarm_ports.vehicle_base, "sim.gcs_base_port": swarm_ports.gcs_base,
-        "bus.base_port": swarm_ports.bus_base,
+        **swarm_ports.settings(),
     })
     flood = Flood(config.mission.name, [f"tcp/127.0.0.1:{bus_port(config.bus, k)}" for k in (1, 2)], out)
     try:

@@ -1,4 +1,4 @@
-"""Agents that map from sensor streams (issue 22): a real 3-drone `swarm run` with camera.source = "zenoh". The
+"""Agents that map from sensor streams (issue 22): a real 3-drone `swarm run` with the default camera ("sim": the
 simulator publishes each vehicle's odometry (with its tilt), `swarm cameras` renders and publishes each depth
 camera as ROS 2 messages in the rmw_zenoh key layout, and the agents, which are given no world at all (their
 config names a file that does not exist), map from those streams and explore the box world to the end."""
@@ -45,9 +45,8 @@ def test_agents_given_no_world_map_from_the_simulated_cameras_streams_and_comple
     out = tmp_path / "run"
     config = load_config(overrides={
         "mission.world": "box", "mission.out": str(out), "mission.drones": 3, "mission.max_time_s": 240.0,
-        "camera.source": "zenoh", "mission.record": True,
-        "sim.vehicle_base_port": swarm_ports.vehicle_base, "sim.gcs_base_port": swarm_ports.gcs_base,
-        "bus.base_port": swarm_ports.bus_base,
+        "mission.record": True,  # camera.source is "sim", the default: the simulated cameras, streamed
+        **swarm_ports.settings(),
     })
     report = run_mission(config, live=False)
     assert report["status"] == "complete", report["reason"]
@@ -97,9 +96,7 @@ def test_a_mission_whose_cameras_die_fails_at_once_saying_so_and_lands(tmp_path:
     out = tmp_path / "run"
     config = load_config(overrides={
         "mission.world": "box", "mission.out": str(out), "mission.drones": 1, "mission.max_time_s": 120.0,
-        "camera.source": "zenoh",
-        "sim.vehicle_base_port": swarm_ports.vehicle_base, "sim.gcs_base_port": swarm_ports.gcs_base,
-        "bus.base_port": swarm_ports.bus_base,
+        **swarm_ports.settings(),
     })
     killed: list[float] = []
 

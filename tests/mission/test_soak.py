@@ -48,8 +48,7 @@ def test_a_one_mission_soak_flies_a_real_mission_and_measures_every_agent(
 ) -> None:
     config = load_config(overrides={
         "mission.world": "box", "mission.drones": 3, "mission.max_time_s": 150.0,
-        "sim.vehicle_base_port": swarm_ports.vehicle_base, "sim.gcs_base_port": swarm_ports.gcs_base,
-        "bus.base_port": swarm_ports.bus_base,
+        **swarm_ports.settings(),
     })
     result = soak(config, minutes=0.01, out=tmp_path / "soak", seed=4, console=Console(stderr=True))
 

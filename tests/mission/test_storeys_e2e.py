@@ -23,8 +23,7 @@ def test_three_drones_explore_both_storeys_of_a_generated_building(tmp_path: Pat
     out = tmp_path / "run"
     config = load_config(overrides={
         "mission.world": WORLD, "mission.out": str(out), "mission.drones": 3,
-        "sim.vehicle_base_port": swarm_ports.vehicle_base, "sim.gcs_base_port": swarm_ports.gcs_base,
-        "bus.base_port": swarm_ports.bus_base,
+        **swarm_ports.settings(),
     })
     report = run_mission(config, live=False)
     print(f"{report['status']}, {report['explored_fraction']:.3f} explored, 95 % at {report['time_to'].get('0.95')} s,"

@@ -21,8 +21,7 @@ def test_a_mission_over_mutual_tls_completes_and_converges(tmp_path: Path, swarm
     out = tmp_path / "run"
     config = load_config(overrides={
         "mission.world": "box", "mission.out": str(out), "mission.drones": 2, "mission.max_time_s": 150.0,
-        "mission.tls": True, "sim.vehicle_base_port": swarm_ports.vehicle_base,
-        "sim.gcs_base_port": swarm_ports.gcs_base, "bus.base_port": swarm_ports.bus_base,
+        "mission.tls": True, **swarm_ports.settings(),
     })
     report = run_mission(config, live=False)
 
