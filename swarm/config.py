@@ -399,8 +399,7 @@ class SyncSettings(_Section):
     max_assembly_bytes: int = Field(64 << 20, ge=1 << 20, description="bytes of incomplete patches kept at most")
     linger_max_s: float = Field(
         60.0, ge=0.0, le=3600.0,
-        description="after landing, stay on the bus until every peer has finished and holds what we hold, or this "
-        "long after the last peer was heard flying",
+        description="after landing, stay on the bus until every peer has finished and holds what we hold, or this long",
     )
     linger_wait_departed_s: float = Field(
         20.0, ge=0.0, le=600.0,

@@ -212,17 +212,13 @@ class Agent:
 
     async def _linger(self) -> None:
         """After landing, stay until every present peer has finished (flight over, last patch sealed) and holds
-        what we hold (so the swarm ends with one map), or `sync.linger_max_s` passes with no peer heard flying, or
-        a signal asks us to go. A peer still exploring always holds us: its last patches come when it lands."""
-        limit = self.config.sync.linger_max_s
-        deadline = time.monotonic() + limit
+        what we hold (so the swarm ends with one map), or `sync.linger_max_s` passes, or a signal asks us to go."""
+        deadline = time.monotonic() + self.config.sync.linger_max_s
         self.log("linger", peers=sorted(self.peers.peers))
         while time.monotonic() < deadline and not self.stop.is_set():
             if self.sync.heard_from() >= set(self.peers.peers) and self.sync.settled():
                 self.log("in_step", patches=len(self.sync.held_ids()))
                 return
-            if self._peer_heard_flying():
-                deadline = time.monotonic() + limit
             await wait_event(self.stop, LINGER_POLL_S)
         self.log("linger_ended", reason="signal" if self.stop.is_set() else "timeout")
 
@@ -231,12 +227,6 @@ class Agent:
         whose agents died in the air, and peers parked in the air (no segment to fly: they will not move off)."""
         return [*self.lost_in_air.values(),
                 *(n.position for n in self._neighbours() if not n.silent and parked(n))]
-
-    def _peer_heard_flying(self) -> bool:
-        """A peer whose fresh heartbeat says it is in the air (one gone silent does not count)."""
-        now = time.monotonic()
-        return any(p.phase in AIRBORNE_PHASES and now - p.last_heard < NEIGHBOUR_FRESH_S
-                   for p in self.peers.peers.values())
 
     def _position(self) -> tuple[float, float, float]:
         tel = self.flight.ap.telemetry
