@@ -424,14 +424,12 @@ def _supervise(plan: RunPlan, state: RunState, view: ProgressView, on_tick: Call
             state.status = "failed" if failed else "complete"
             state.reason = f"agents exited with errors: {failed}" if failed else _success_reason(plan.config)
             return
-        if state.sim is not None and state.sim.poll() is not None:
-            state.status, state.reason = "failed", f"simulator died: {state.sim.last_log_line()}"
-            _land_agents(state)
-            return
-        if state.cameras is not None and state.cameras.poll() is not None:  # the agents would fly blind
-            state.status, state.reason = "failed", f"cameras died: {state.cameras.last_log_line()}"
-            _land_agents(state)
-            return
+        # without the simulator there is no vehicle; without the cameras the agents would fly blind
+        for name, child in (("simulator", state.sim), ("cameras", state.cameras)):
+            if child is not None and child.poll() is not None:
+                state.status, state.reason = "failed", f"{name} died: {child.last_log_line()}"
+                _land_agents(state)
+                return
         if elapsed > max_time:
             state.status, state.reason = "timeout", f"max time {max_time:.0f} s reached"
             _land_agents(state)
