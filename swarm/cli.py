@@ -434,5 +434,8 @@ def _print_summary(report: dict[str, Any]) -> None:
           f"(whole-map baseline every {bandwidth['baseline_loop_s']} s: "
           f"{bandwidth['whole_map_baseline_bytes_per_agent_s'] / 1000:.1f} kB, ratio {bandwidth['baseline_ratio']})")
     if report.get("map"):
-        print(f"map: {Path(report['run_dir']) / report['map']}")
+        phantoms = report.get("phantoms") or {}
+        check = (f" ({phantoms['vertices']} vertices; {phantoms['phantoms']} phantom obstacles along the flown paths, "
+                 f"of {phantoms['near_paths']} vertices near them)") if phantoms else ""
+        print(f"map: {Path(report['run_dir']) / report['map']}{check}")
     print(f"report: {Path(report['run_dir']) / 'report.json'}")

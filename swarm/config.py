@@ -318,17 +318,24 @@ class SensorStreamSettings(_Section):
     max_hold_s: float = Field(0.05, ge=0.0, le=1.0, description="an image this much newer than the newest pose "
                               "takes that pose; newer ones wait for the next")
 
+    def under_vehicle(self, vehicle_id: int) -> SensorStreamSettings:
+        """These settings with every topic under /drone<k>: the simulator's layout, one camera and one odometry
+        per vehicle (what camera.source = "sim" hears)."""
+        return self.model_copy(update={
+            name: f"/drone{vehicle_id}/{getattr(self, name).lstrip('/')}"
+            for name in ("depth_topic", "info_topic", "pose_topic")
+        })
+
 
 class CameraSettings(_Section):
     """The depth camera (simulated by ray casting the world mesh, or a real one behind the same interface)."""
 
     source: Literal["sim", "zenoh", "ros2", "replay", "none"] = Field(
-        "sim", description="sim: the simulator's cameras (in `swarm run`, `swarm cameras` publishes them as ROS 2 "
-        "streams and every agent maps from those, as with zenoh; a lone `swarm agent` ray-casts the mission world "
-        "itself); zenoh: a camera on ROS 2 heard through "
-        "Zenoh (camera.stream; `swarm cameras` is the simulator's); ros2: the same topics through rclpy (pip install "
-        "'swarm[ros2]'); replay: camera.replay_bag played back at its pace; zenoh, ros2 and replay load no world "
-        "and need mission.volume; none: no mapping"
+        "sim", description="sim: the simulator's cameras (`swarm cameras`, which `swarm run` starts), heard as "
+        "zenoh does with camera.stream's topics under /drone<agent.id>; zenoh: a camera on ROS 2 heard through "
+        "Zenoh (camera.stream); ros2: the same topics through rclpy (pip install 'swarm[ros2]'); replay: "
+        "camera.replay_bag played back at its pace; an agent never loads a world, so all of these need "
+        "mission.volume (`swarm sim` prints its world's); none: no mapping"
     )
     width: int = Field(160, ge=8, le=1280)
     height: int = Field(120, ge=6, le=960)

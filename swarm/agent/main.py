@@ -31,7 +31,7 @@ from swarm.agent.events import EventLog
 from swarm.agent.exploration import Exploration
 from swarm.agent.flight import Flight, Mission, Neighbour, Phase, parked, route_mission
 from swarm.agent.mapping import MappingTask
-from swarm.agent.sensing import DepthSource, StreamSource, make_depth_source
+from swarm.agent.sensing import StreamSource
 from swarm.bus.bridge import AsyncBus
 from swarm.bus.messages import AgentState
 from swarm.config import ConfigError, SwarmConfig
@@ -41,10 +41,10 @@ from swarm.patches.lattice import Lattice
 from swarm.patches.patch import PatchId
 from swarm.patches.wire import decode_expected
 from swarm.sensing.frames import camera_mount
+from swarm.sensing.peers import PeerSighting
 from swarm.sensing.replay_source import BagReplaySource
 from swarm.sensing.ros2_source import Ros2SensorSource
 from swarm.sensing.zenoh_source import ZenohSensorSource
-from swarm.sim.worlds import load_world, mission_volume
 from swarm.sync.service import PatchSync
 
 EXIT_OK, EXIT_FLIGHT_FAILED, EXIT_FAILSAFE = 0, 1, 3
@@ -172,30 +172,33 @@ class Agent:
         def on_sealed(pid: PatchId, data: bytes) -> None:  # the mapping thread: hand over to the loop
             loop.call_soon_threadsafe(self.sync.add_own, pid, data)
 
-        source: DepthSource | StreamSource
-        if camera.source in ("zenoh", "ros2", "replay"):  # a real camera's path: no world mesh is ever opened
-            volume = self.config.mission.volume
-            if volume is None:
-                raise ConfigError(f'camera.source = "{camera.source}" needs mission.volume (the agent loads no world '
-                                  "to take it from)")
-            if camera.record is not None and camera.record.exists():
-                raise ConfigError(f"camera.record: {camera.record} already exists (a bag is never overwritten)")
-            bounds = (np.array(volume.min, dtype=float), np.array(volume.max, dtype=float))
-            if camera.source == "replay":
-                if camera.replay_bag is None:
-                    raise ConfigError('camera.source = "replay" needs camera.replay_bag (the bag to play)')
-                source = BagReplaySource(camera.replay_bag, camera.stream, camera_mount(camera))
-            elif camera.source == "ros2":
-                source = Ros2SensorSource(camera.stream, camera_mount(camera), camera.record,
-                                          node_name=f"swarm_agent_{self.id}")
-            else:
-                source = ZenohSensorSource(camera.stream, camera_mount(camera), record=camera.record)
-        else:
-            world = load_world(self.config.mission.world)  # once: the camera ray-casts it, the map spans its volume
-            bounds = mission_volume(world, self.config.mission.volume)
-            source = make_depth_source(self.config, world)
+        # The agent never loads a world: it learns the building only from its camera (DESIGN section 11).
+        volume = self.config.mission.volume
+        if volume is None:
+            raise ConfigError(f'camera.source = "{camera.source}" needs mission.volume (the agent loads no world to '
+                              "take it from; `swarm sim` prints its world's)")
+        if camera.record is not None and camera.record.exists():
+            raise ConfigError(f"camera.record: {camera.record} already exists (a bag is never overwritten)")
+        bounds = (np.array(volume.min, dtype=float), np.array(volume.max, dtype=float))
+        source: StreamSource
+        if camera.source == "replay":
+            if camera.replay_bag is None:
+                raise ConfigError('camera.source = "replay" needs camera.replay_bag (the bag to play)')
+            source = BagReplaySource(camera.replay_bag, camera.stream, camera_mount(camera))
+        elif camera.source == "ros2":
+            source = Ros2SensorSource(camera.stream, camera_mount(camera), camera.record,
+                                      node_name=f"swarm_agent_{self.id}")
+        else:  # zenoh, or sim: the simulator's cameras, each vehicle's topics under /drone<k>
+            stream = camera.stream.under_vehicle(self.id) if camera.source == "sim" else camera.stream
+            source = ZenohSensorSource(stream, camera_mount(camera), record=camera.record)
         return MappingTask(self.config, self.epoch, source, bounds, self.log, self.config.agent.out_dir, on_sealed,
-                           peers=lambda: [p.position for p in self.peers.peers.values()])
+                           peers=self._sightings)
+
+    def _sightings(self) -> list[PeerSighting]:
+        """Every peer's last heartbeat, its receive time on the wall clock of the sensor stamps."""
+        wall_minus_monotonic = time.time() - time.monotonic()
+        return [PeerSighting(p.position, p.velocity, p.last_heard + wall_minus_monotonic)
+                for p in self.peers.peers.values()]
 
     def _run_mapping(
         self, mapping: MappingTask, autopilot: Autopilot, stop: asyncio.Event, background: list[asyncio.Task[None]]

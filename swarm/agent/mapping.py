@@ -1,8 +1,9 @@
-"""The agent's mapping task: depth frames at the camera rate, integrated into the open patch, sealed into patches.
+"""The agent's mapping task: the camera's depth frames, integrated into the open patch, sealed into patches.
 
-Capture and integration run in one dedicated worker thread (the TSDF is never touched from two threads, and the
-event loop stays free for flight and heartbeats). Frames are taken only while the drone is airborne. A tick that
-is late is skipped rather than bunched, so a loaded machine lowers the frame rate instead of building a queue.
+Integration runs in one dedicated worker thread (the TSDF is never touched from two threads, and the event loop
+stays free for flight and heartbeats). Frames are integrated only while the drone is airborne. The thread takes
+the newest frame the source holds; one that was superseded before it was taken is counted (`not_taken`), so a
+loaded machine lowers the frame rate instead of building a queue.
 
 Every sealed patch goes to the private store and to the agent's fused map, to `on_sealed` (the patch sync, which
 pushes it), and, when the agent has an output directory, to `<out_dir>/patches/<id>.patch` in the wire format
@@ -28,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from swarm.agent.autopilot import TelemetryCache
-from swarm.agent.sensing import DepthFrame, DepthSource, StreamSource
+from swarm.agent.sensing import DepthFrame, StreamSource
 from swarm.aio import wait_event
 from swarm.config import SwarmConfig, Vec3
 from swarm.explore.frontiers import ExplorationGrid, Frontier, ViewModel
@@ -37,7 +38,7 @@ from swarm.patches.fused import OCCUPIED
 from swarm.patches.mapper import Mapper
 from swarm.patches.patch import Patch, PatchId
 from swarm.patches.wire import PatchDecodeError
-from swarm.sensing.peers import mask_peers
+from swarm.sensing.peers import PeerSighting, mask_peers
 
 SealedCallback = Callable[[PatchId, bytes], None]
 STREAM_WAIT_S = 0.2  # a stream source is polled this often for the stop event when no frame comes
@@ -73,12 +74,12 @@ class MappingTask:
         self,
         config: SwarmConfig,
         epoch: int,
-        source: DepthSource | StreamSource,
+        source: StreamSource,
         bounds: tuple[np.ndarray, np.ndarray],
         log: Callable[..., None],
         out_dir: Path | None,
         on_sealed: SealedCallback | None = None,
-        peers: Callable[[], list[Vec3]] = list,
+        peers: Callable[[], list[PeerSighting]] = list,
     ) -> None:
         self.config = config
         self.bounds = bounds
@@ -103,37 +104,10 @@ class MappingTask:
         self.baseline_loops = 0
         self.on_sealed = on_sealed
         self.stream_counters: dict[str, int] | None = None  # a stream source's, at the end
-        self.peers = peers  # the other drones' reported positions (called on the event loop)
+        self.peers = peers  # the other drones' last heartbeats (called on the event loop)
         self.pixels_masked = 0
         self.camera_silences = 0  # times the stream went silent for CAMERA_SILENT_S in the air
         self._worker = ThreadPoolExecutor(1, thread_name_prefix="mapping")
-
-    async def run(self, telemetry: TelemetryCache, home_z: Callable[[], float | None], stop: asyncio.Event) -> None:
-        if hasattr(self.source, "wait_frame"):
-            await self._run_stream(telemetry, home_z, stop)
-            return
-        loop = asyncio.get_running_loop()
-        period = 1.0 / self.config.camera.rate_hz
-        next_tick = time.monotonic()
-        while not stop.is_set():
-            base = home_z()
-            airborne = base is not None and telemetry.samples > 0 and telemetry.position[2] - base > MIN_HEIGHT_M
-            if airborne:
-                position, yaw = telemetry.position, telemetry.yaw_deg
-                await loop.run_in_executor(self._worker, self._step, position, yaw)
-            next_tick += period
-            delay = next_tick - time.monotonic()
-            if delay < 0:  # late: skip the missed ticks instead of bunching frames
-                missed = int(-delay // period) + 1
-                self.frames_skipped += missed if airborne else 0
-                next_tick += missed * period
-                delay = next_tick - time.monotonic()
-            await wait_event(stop, max(0.0, delay))
-
-    def _step(self, position: tuple[float, float, float], yaw_deg: float) -> None:
-        started = time.perf_counter()
-        assert not hasattr(self.source, "wait_frame")
-        self._integrate(self.source.capture(self.frames, time.time(), position, yaw_deg), started)  # type: ignore[union-attr]
 
     def _integrate(self, frame: DepthFrame, started: float) -> None:
         self.frames += 1
@@ -142,11 +116,10 @@ class MappingTask:
             self._keep(sealed)
         self.busy_s += time.perf_counter() - started
 
-    async def _run_stream(self, telemetry: TelemetryCache, home_z: Callable[[], float | None],
-                          stop: asyncio.Event) -> None:
+    async def run(self, telemetry: TelemetryCache, home_z: Callable[[], float | None], stop: asyncio.Event) -> None:
         """Frames as the camera publishes them: the newest one not taken yet, integrated while airborne (one the
         mapping thread was too busy to take is counted by the source as not taken: `frames_skipped`)."""
-        source: StreamSource = self.source  # type: ignore[assignment]
+        source = self.source
         loop = asyncio.get_running_loop()
         await loop.run_in_executor(self._worker, source.start)
         last_frame, silent = time.monotonic(), False
@@ -154,9 +127,7 @@ class MappingTask:
             while not stop.is_set():
                 base = home_z()
                 airborne = base is not None and telemetry.samples > 0 and telemetry.position[2] - base > MIN_HEIGHT_M
-                centre = np.array([0.0, 0.0, self.config.explore.body_height_m / 2])
-                peers = [np.asarray(p, dtype=np.float64) + centre for p in self.peers()]
-                came = await loop.run_in_executor(self._worker, self._step_stream, source, airborne, peers)
+                came = await loop.run_in_executor(self._worker, self._step_stream, source, airborne, self.peers())
                 now = time.monotonic()
                 if came or not airborne:
                     if silent and came:
@@ -171,15 +142,18 @@ class MappingTask:
             self.frames_skipped += self.stream_counters.get("not_taken", 0)
             await loop.run_in_executor(None, source.close)
 
-    def _step_stream(self, source: StreamSource, airborne: bool, peers: list[np.ndarray]) -> bool:
-        """Integrate the newest frame when airborne; whether one came."""
+    def _step_stream(self, source: StreamSource, airborne: bool, peers: list[PeerSighting]) -> bool:
+        """Integrate the newest frame when airborne, the peers masked where they were when it was taken; whether
+        one came."""
         frame = source.wait_frame(STREAM_WAIT_S)
         if frame is None or not airborne:
             return frame is not None
         started = time.perf_counter()
         radius = self.config.camera.peer_mask_m
         if peers and radius > 0:
-            depth, masked = mask_peers(frame.depth, frame.K, frame.T_world_cam, peers, radius)
+            centre = np.array([0.0, 0.0, self.config.explore.body_height_m / 2])
+            centres = [p.at(frame.t) + centre for p in peers]
+            depth, masked = mask_peers(frame.depth, frame.K, frame.T_world_cam, centres, radius)
             if masked:
                 self.pixels_masked += masked
                 frame = dataclasses.replace(frame, depth=depth)

@@ -35,7 +35,7 @@ from typing import Any
 import tomli_w
 from pydantic import ValidationError
 
-from swarm.config import ConfigError, SwarmConfig, dump_config, vehicle_port
+from swarm.config import Box, ConfigError, SwarmConfig, dump_config, vehicle_port
 from swarm.deploy import yamltext
 from swarm.errors import SwarmError
 from swarm.sim.worlds import is_mesh_file, load_world, mission_time_limit_s, mission_volume, spawn_points
@@ -43,7 +43,8 @@ from swarm.sim.worlds import is_mesh_file, load_world, mission_time_limit_s, mis
 RADIO_SUBNET = ipaddress.ip_network("10.77.1.0/24")
 CONTROL_SUBNET = ipaddress.ip_network("10.77.2.0/24")
 ZENOH_PORT = 7447
-HOST_OFFSET = 10  # agent k is .10+k on both networks; .1 is Docker's bridge, .2 the simulator, .3 the observer
+HOST_OFFSET = 10  # agent k is .10+k on both networks; .1 Docker's bridge, .2 the simulator, .3 the observer,
+# .4 the cameras
 MAX_DRONES = 16  # as mission.drones
 CONFIG_DIR = "/etc/swarm"
 RESULTS_DIR = "/results"
@@ -70,6 +71,10 @@ def observer_address() -> str:
 
 def radio_address(k: int) -> str:
     return str(RADIO_SUBNET[HOST_OFFSET + k])
+
+
+def cameras_address() -> str:
+    return str(CONTROL_SUBNET[4])
 
 
 def control_address(k: int) -> str:
@@ -137,10 +142,10 @@ def plan(
     spawns = spawn_points(world, m.start, drones, m.spawn_spacing_m)
     m = m.model_copy(update={"max_time_s": mission_time_limit_s(m.model_copy(update={"drones": drones}), world)})
     routes: dict[int, Any] = {}
+    lo, hi = mission_volume(world, m.volume)  # the agents are told the volume: they load no world
     if config.explore.strategy == "scripted":
         from swarm.mission.routes import scripted_routes
 
-        lo, hi = mission_volume(world, m.volume)
         planned = scripted_routes(world, spawns, lo, hi, config.sim.drone_radius_m, config.agent.cruise_speed_m_s)
         routes = {route.drone_id: route for route in planned}
 
@@ -154,11 +159,19 @@ def plan(
     )
 
     configs: dict[str, SwarmConfig] = {}
-    sim = base.model_copy(deep=True)
-    sim.sim = base.sim.model_copy(
-        update={"host": "0.0.0.0", "spawns": spawns, "status_path": f"{RESULTS_DIR}/sim.json"}
-    )
+    # The simulator's odometry and `swarm cameras`' images meet on the simulator's sensor router (the robot
+    # side's rmw_zenohd), on the control network: sensor streams are on board a real drone, never on the radio.
+    sensors = base.camera.model_copy(update={"stream": base.camera.stream.model_copy(
+        update={"connect": [_zenoh(sim_address())], "listen": []})})
+    sim = base.model_copy(update={"camera": sensors}, deep=True)
+    sim.sim = base.sim.model_copy(update={
+        "host": "0.0.0.0", "spawns": spawns, "status_path": f"{RESULTS_DIR}/sim.json",
+        "sensor_listen": [_zenoh(sim_address())] if base.camera.source == "sim" else [],
+    })
     configs["sim"] = sim
+    if base.camera.source == "sim":
+        configs["cameras"] = base.model_copy(update={"camera": sensors}, deep=True)
+    volume = Box(min=(float(lo[0]), float(lo[1]), float(lo[2])), max=(float(hi[0]), float(hi[1]), float(hi[2])))
     configs["observer"] = base.model_copy(update={"bus": base.bus.model_copy(update={
         "mode": "peer",
         "listen": [_zenoh(observer_address())],
@@ -177,6 +190,8 @@ def plan(
             }
         configs[f"agent-{k}"] = base.model_copy(update={
             "agent": base.agent.model_copy(update=agent_update),
+            "mission": base.mission.model_copy(update={"volume": volume}),
+            "camera": sensors,
             "bus": base.bus.model_copy(update={
                 "listen": [_zenoh(radio_address(k)), _zenoh(control_address(k))],
                 "connect": [_zenoh(radio_address(j)) for j in range(1, k)],
@@ -233,6 +248,13 @@ def _compose(config: SwarmConfig, drones: int, loss: float, image: str, build_co
         },
         "stop_grace_period": "10s",
     }
+    if config.camera.source == "sim":
+        services["cameras"] = _service(image, build_context) | {
+            "command": ["cameras", "--config", f"{CONFIG_DIR}/cameras.toml"],
+            "networks": {"control": {"ipv4_address": cameras_address()}},
+            "depends_on": {"sim": {"condition": "service_healthy"}},
+            "stop_grace_period": "10s",
+        }
     services["observer"] = _service(image, build_context) | {
         "command": [
             "observe", "--config", f"{CONFIG_DIR}/observer.toml", "--status", f"{RESULTS_DIR}/observer.json",
@@ -252,7 +274,8 @@ def _compose(config: SwarmConfig, drones: int, loss: float, image: str, build_co
             "cap_add": ["NET_ADMIN"],
             "entrypoint": ["/bin/sh", "-c"],
             "command": [script],
-            "depends_on": {"sim": {"condition": "service_healthy"}, "observer": {"condition": "service_started"}},
+            "depends_on": {"sim": {"condition": "service_healthy"}, "observer": {"condition": "service_started"},
+                           **({"cameras": {"condition": "service_started"}} if "cameras" in services else {})},
             "networks": {
                 "radio": {"ipv4_address": radio_address(k)},
                 "control": {"ipv4_address": control_address(k)},
@@ -275,11 +298,13 @@ def deploy_compose_command(
     deployment = plan(config, drones, loss, image, build_context)
     deployment.write(out)
     compose = out / "docker-compose.yml"
-    print(f"wrote {compose}: sim, observer and agent-1..{drones} ('{image}' image), "
+    cameras = ", cameras" if "cameras" in deployment.compose["services"] else ""
+    print(f"wrote {compose}: sim{cameras}, observer and agent-1..{drones} ('{image}' image), "
           f"world {config.mission.world}, strategy {config.explore.strategy}")
     print(f"  radio {RADIO_SUBNET}: agents at {radio_address(1)}..{radio_address(drones)}, "
           f"loss {loss:g} on every link each way (tc netem in each agent)")
-    print(f"  control {CONTROL_SUBNET}: simulator {sim_address()}, observer {observer_address()}, "
+    print(f"  control {CONTROL_SUBNET}: simulator {sim_address()} (its sensor router too), cameras "
+          f"{cameras_address()}, observer {observer_address()}, "
           f"agents at {control_address(1)}..{control_address(drones)} (never impaired)")
     print(f"wrote {out / 'config'}: {', '.join(f'{name}.toml' for name in deployment.configs)}"
           + (f", worlds/{deployment.worlds[0].name}" if deployment.worlds else ""))

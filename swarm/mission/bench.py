@@ -138,7 +138,7 @@ def bench_mapping_swarm(config: SwarmConfig, drones: int, out: Path | None) -> i
     console.print(f"bench mapping: {drones} agents mapping at {config.camera.rate_hz:g} Hz in '{config.mission.world}' ...")
     report = run_mission(run_config, live=False)
     table = Table(title=f"{drones} agents mapping at once on this machine (target {config.camera.rate_hz:g} Hz each)")
-    for column in ("drone", "frames", "sustained Hz", "mapping ms/frame (capture+integrate+seal)", "patches"):
+    for column in ("drone", "frames", "sustained Hz", "mapping ms/frame (mask peers+integrate+seal)", "patches"):
         table.add_column(column, justify="right")
     for a in report["agents"]:
         table.add_row(str(a["id"]), str(a["frames"]), str(a["frame_rate_hz"]), str(a["mapping_ms_per_frame"]),

@@ -23,7 +23,6 @@ from pathlib import Path
 from typing import Any
 
 from swarm.aio import wait_event
-from swarm.agent.sensing import SimulatedDepthSource
 from swarm.bus.bridge import AsyncBus
 from swarm.bus.messages import AgentState
 from swarm.config import SwarmConfig
@@ -31,6 +30,7 @@ from swarm.files import write_json_atomic
 from swarm.patches.mapper import Mapper
 from swarm.patches.patch import PatchId
 from swarm.roles.membership import PeerTable
+from swarm.sim.camera import DepthCamera
 from swarm.sim.worlds import load_world, mission_volume
 from swarm.sync.service import PatchSync
 
@@ -55,7 +55,7 @@ class MapNode:
         self.world = load_world(config.mission.world)
         lo, hi = mission_volume(self.world, config.mission.volume)
         self.mapper = Mapper(config.mapping, self.id, self.epoch, (lo, hi), known_weight=config.mapping.known_weight)
-        self.camera = SimulatedDepthSource(self.world, config.camera, seed=self.id)
+        self.camera = DepthCamera(self.world, config.camera, seed=self.id)
         self.centre = (lo + hi) / 2
         self.radius = 0.25 * float(min(hi[0] - lo[0], hi[1] - lo[1]))
         self.height = float(lo[2]) + 1.0
@@ -128,7 +128,7 @@ class MapNode:
         patch = None
         while patch is None and self.mapper.sealer.open_frames < self.config.mapping.patch_frames:
             position, yaw = self._camera_pose(self.frames)
-            frame = self.camera.capture(self.frames, time.time(), position, yaw)
+            frame = self.camera.frame(self.frames, time.time(), position, yaw)
             self.frames += 1
             patch = self.mapper.integrate(
                 frame.depth, frame.K, frame.T_world_cam, frame.t, self.config.camera.max_range_m

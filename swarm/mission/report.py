@@ -16,9 +16,11 @@ from typing import TYPE_CHECKING, Any
 
 from swarm import __version__
 from swarm.files import write_json_atomic
+from swarm.mission.phantoms import phantom_check
 from swarm.mission.plots import COVERAGE_TARGET, PLOT_NAMES, write_plots
 from swarm.mission.report_md import REPORT_PAGE, write_report_page
 from swarm.patches.digest import PatchDigest
+from swarm.sim.collisions import GROUND_GAP_M
 
 if TYPE_CHECKING:
     from swarm.mission.run import RunPlan, RunState
@@ -110,6 +112,9 @@ def build_report(
         "partitions": links.get("partitions", []),
         "convergence_after_heal_s": links.get("convergence_after_heal_s", []),
         "map": "map.ply" if (plan.out / "map.ply").exists() else None,
+        # map surface along the flown paths that the building does not have (drones mapped as obstacles)
+        "phantoms": phantom_check(plan.out / "map.ply", (observer or {}).get("trajectories", {}), plan.world,
+                                  plan.config.sim.drone_radius_m + GROUND_GAP_M),
         "converged": converged(summaries, sealed_patch_ids(plan.out / "agents" / "patches")),
         "bandwidth": bandwidth(summaries),
         "collision_events": (sim or {}).get("collision_events", []),

@@ -53,6 +53,7 @@ def headline_rows(report: dict[str, Any]) -> list[tuple[str, str]]:
         ("collisions", str(report.get("collisions", 0))),
         ("overlap fraction", f"{float(report.get('overlap_fraction', 0.0)):.3f}"),
         ("converged", _cell(report.get("converged"))),
+        ("phantom obstacles along the flown paths", str((report.get("phantoms") or {}).get("phantoms", "-"))),
         ("bandwidth (bytes per agent-second)", f"{bandwidth.get('bytes_per_agent_s', 0.0)}"),
         ("whole-map baseline ratio", "-" if ratio is None else f"{ratio}x"),
     ]

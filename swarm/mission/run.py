@@ -284,10 +284,8 @@ def _agent_camera(plan: RunPlan, state: RunState, k: int) -> dict[str, Any]:
     through the simulator's sensor router, and knows the mission volume from its config, not from a world."""
     if plan.sensor_port is None:
         return {}
-    from swarm.sim.sensors import vehicle_stream
-
     host = state.net.layout.control_host_address if state.net is not None else plan.config.sim.host
-    stream = vehicle_stream(plan.config.camera.stream, k).model_copy(
+    stream = plan.config.camera.stream.under_vehicle(k).model_copy(
         update={"connect": [_sensor_endpoint(plan, host)], "mode": "client", "listen": []})
     lo, hi = plan.volume
     # The agent is given no world at all: a path that does not exist, so that any attempt to load one fails.

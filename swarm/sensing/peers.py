@@ -2,16 +2,34 @@
 
 A real camera sees the other drones of the swarm. Mapped, they would leave phantom obstacles along every path
 they fly, so the agent masks the pixels whose rays meet a sphere of `camera.peer_mask_m` round each peer's
-reported position (heartbeats) before it integrates a frame: those pixels count as invalid (no surface, no free
-space carved). The simulated camera uses the same geometry the other way round, to draw each drone into the
+position before it integrates a frame: those pixels count as invalid (no surface, no free space carved). A
+heartbeat is up to a period old when it arrives and a frame is integrated a little after it was taken, so each
+peer is placed where its last heartbeat's position and velocity put it at the frame's stamp (`PeerSighting.at`). The simulated camera uses the same geometry the other way round, to draw each drone into the
 images of the others (a sphere of the drone's radius).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
+
+PREDICT_MAX_S = 1.0  # extrapolate a heartbeat at most this far: beyond that the peer is wherever it last said
+
+
+class PeerSighting(NamedTuple):
+    """A peer's last heartbeat: where it was and how fast it moved, at `heard` (wall-clock seconds, the clock of
+    the sensor stamps)."""
+
+    position: tuple[float, float, float]
+    velocity: tuple[float, float, float]
+    heard: float
+
+    def at(self, t: float) -> np.ndarray:
+        """Where this heartbeat puts the peer at wall-clock time `t` (dead reckoning within PREDICT_MAX_S)."""
+        dt = min(max(t - self.heard, -PREDICT_MAX_S), PREDICT_MAX_S)
+        return np.asarray(self.position, dtype=np.float64) + dt * np.asarray(self.velocity, dtype=np.float64)
 
 
 def pixel_rays(K: np.ndarray, height: int, width: int) -> np.ndarray:

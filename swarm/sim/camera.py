@@ -24,6 +24,7 @@ import numpy as np
 import open3d as o3d
 
 from swarm.config import CameraSettings, Vec3
+from swarm.sensing.frames import DepthFrame
 from swarm.sim.worlds import World
 
 
@@ -63,6 +64,12 @@ class DepthCamera:
     def pose(self, position: Vec3, yaw_enu_deg: float) -> np.ndarray:
         """T_world_cam of the camera on a drone at `position` with ENU yaw `yaw_enu_deg` (pitch from settings)."""
         return camera_pose(position, yaw_enu_deg, self.settings.pitch_deg)
+
+    def frame(self, index: int, t: float, position: Vec3, yaw_enu_deg: float) -> DepthFrame:
+        """A frame taken from a drone at `position` with ENU yaw `yaw_enu_deg` (the map node's and tests' camera:
+        the agents' comes through `swarm cameras`)."""
+        T = self.pose(position, yaw_enu_deg)
+        return DepthFrame(index, t, self.render(T), self.intrinsics.copy(), T)
 
     def render(self, T_world_cam: np.ndarray) -> np.ndarray:
         """(H, W) float32 z-depth in metres seen from T_world_cam; 0 where invalid."""

@@ -47,14 +47,6 @@ def body_pose(t: float, position_enu: np.ndarray, roll: float, pitch: float, yaw
     return m.Pose(t, np.asarray(position_enu, dtype=np.float64).copy(), Rotation.from_matrix(enu_from_flu).as_quat())
 
 
-def vehicle_stream(base: SensorStreamSettings, vehicle_id: int) -> SensorStreamSettings:
-    """`base` with every topic under /drone<k>: one camera and one odometry per vehicle."""
-    return base.model_copy(update={
-        name: f"/drone{vehicle_id}/{getattr(base, name).lstrip('/')}"
-        for name in ("depth_topic", "info_topic", "pose_topic")
-    })
-
-
 class StreamPublisher:
     """Puts ROS 2 messages on Zenoh under the keys a ROS 2 node would (rmw_zenoh: with the type hash and an
     attachment of sequence number, source time and GID, as rmw_zenoh sends them)."""
@@ -79,7 +71,7 @@ class CameraDriver:
                  log: Callable[[str], None] | None = None, drone_radius_m: float = 0.2) -> None:
         self.camera_settings = camera
         self.drone_radius_m = drone_radius_m
-        self.streams = {k: vehicle_stream(camera.stream, k) for k in vehicle_ids}
+        self.streams = {k: camera.stream.under_vehicle(k) for k in vehicle_ids}
         self.cameras = {k: DepthCamera(world, camera, seed * 1000 + k) for k in vehicle_ids}
         self.mount = camera_mount(camera)
         self.intrinsics = m.Intrinsics(camera.width, camera.height, self._ros_K())
@@ -166,7 +158,7 @@ class OdometryPublisher:
     def __init__(self, listen: list[str], stream: SensorStreamSettings, vehicle_ids: list[int]) -> None:
         config = session_config(stream.model_copy(update={"mode": "router", "connect": [], "listen": listen}))
         self.session = zenoh.open(config)
-        self.streams = {k: vehicle_stream(stream, k) for k in vehicle_ids}
+        self.streams = {k: stream.under_vehicle(k) for k in vehicle_ids}
         self.publishers = {k: StreamPublisher(self.session, s, gid=k) for k, s in self.streams.items()}
         self.published = 0
 
@@ -192,7 +184,7 @@ def cameras_command(config: SwarmConfig) -> int:
     handlers = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
     print(f"swarm cameras: {len(ids)} depth cameras at {config.camera.rate_hz:g} Hz on "
           f"{', '.join(config.camera.stream.connect) or 'no endpoint'} ({config.camera.stream.layout} keys, "
-          f"{vehicle_stream(config.camera.stream, 1).depth_topic} ...)", flush=True)
+          f"{config.camera.stream.under_vehicle(1).depth_topic} ...)", flush=True)
     try:
         driver.run(stop)
     except Exception as exc:

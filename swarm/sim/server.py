@@ -28,7 +28,7 @@ from swarm.sim.collisions import CRUISE_HEIGHT_M, CollisionMonitor
 from swarm.sim.px4 import FlightMode
 from swarm.sim.sensors import OdometryPublisher
 from swarm.sim.vehicle import Downlink, SimVehicle
-from swarm.sim.worlds import World, load_world, spawn_points
+from swarm.sim.worlds import World, load_world, mission_volume, spawn_points
 
 STATUS_PERIOD_S = 0.5
 MAX_CATCHUP_STEPS = 10  # after a longer stall (e.g. the machine was suspended) the simulation skips time
@@ -349,6 +349,11 @@ def sim_command(config: SwarmConfig) -> int:
     bound is reported as a warning on stderr rather than refused: it is most likely that drone's agent.
     """
     world = load_world(config.mission.world)
+    if not config.sim.sensor_listen and config.camera.source != "none":
+        # Alone, the simulator is the robot side's Zenoh router (rmw_zenohd's place): its odometry is where
+        # `swarm cameras` and the agents' sensor sessions dial by default (camera.stream.connect).
+        config = config.model_copy(update={"sim": config.sim.model_copy(
+            update={"sensor_listen": list(config.camera.stream.connect)})})
     server = SimServer(config, world)
     server.open(check_gcs_ports=False)
     stop = threading.Event()
@@ -357,7 +362,9 @@ def sim_command(config: SwarmConfig) -> int:
         for vid, port in server.taken_gcs_ports():
             print(f"swarm sim: warning: UDP port {port} (GCS of vehicle {vid}) is already bound; fine if it is "
                   f"agent {vid}, but a second listener there would split its traffic", file=sys.stderr)
-        status = server.run(stop, on_ready=_print_endpoints)
+        lo, hi = mission_volume(world, config.mission.volume)
+        volume = f"mission.volume={{min=[{', '.join(f'{v:g}' for v in lo)}],max=[{', '.join(f'{v:g}' for v in hi)}]}}"
+        status = server.run(stop, on_ready=lambda endpoints: _print_endpoints(endpoints, volume, config))
     finally:
         server.close()
         for sig, handler in handlers.items():
@@ -366,12 +373,16 @@ def sim_command(config: SwarmConfig) -> int:
     return 0
 
 
-def _print_endpoints(endpoints: list[dict]) -> None:
+def _print_endpoints(endpoints: list[dict], volume: str, config: SwarmConfig) -> None:
+    """Each vehicle's MAVLink link and its agent's command line (the mission volume: agents load no world)."""
     for ep in endpoints:
         print(
             f"vehicle {ep['id']}: MAVLink udp {ep['host']}:{ep['vehicle_port']} -> {ep['host']}:{ep['gcs_port']}"
-            f"  (agent: swarm agent --id {ep['id']} --autopilot {ep['connect_url']})"
+            f"  (agent: swarm agent --id {ep['id']} --autopilot {ep['connect_url']} --set '{volume}')"
         )
+    if config.sim.sensor_listen:
+        print(f"sensor streams: odometry on {', '.join(config.sim.sensor_listen)} (the depth cameras: swarm cameras "
+              f"--world {config.mission.world} --vehicles {len(endpoints)})")
     sys.stdout.flush()
 
 

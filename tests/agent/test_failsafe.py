@@ -41,7 +41,8 @@ def test_telemetry_loss_holds_then_lands_and_a_late_hold_is_landed_again(tmp_pat
         url = f"udpin://127.0.0.1:{gcs_port(config.sim, 1)}"
         agent = subprocess.Popen(
             swarm_cmd("agent", "--id", "1", "--autopilot", url, "--set", "agent.hover_s=60",
-                      "--set", "agent.altitude_m=2.5", "--set", "explore.strategy=scripted"),
+                      "--set", "agent.altitude_m=2.5", "--set", "explore.strategy=scripted",
+                      "--set", "camera.source=none"),  # flight only: no camera driver runs
             stdout=log.open("w"), stderr=subprocess.STDOUT,
         )
         try:

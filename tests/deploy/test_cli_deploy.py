@@ -32,7 +32,7 @@ def test_compose_writes_a_valid_deployment(tmp_path: Path) -> None:
     out = tmp_path / "d"
     assert "docker-compose.yml" in done.stdout
     assert sorted(p.name for p in (out / "config").iterdir()) == [
-        "agent-1.toml", "agent-2.toml", "observer.toml", "sim.toml",
+        "agent-1.toml", "agent-2.toml", "cameras.toml", "observer.toml", "sim.toml",
     ]
     assert compose_config(out / "docker-compose.yml", "-q").returncode == 0
 

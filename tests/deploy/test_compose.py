@@ -20,6 +20,7 @@ from swarm.deploy.compose import (
     DEFAULT_IMAGE,
     RADIO_SUBNET,
     Deployment,
+    cameras_address,
     control_address,
     deploy_compose_command,
     observer_address,
@@ -66,7 +67,8 @@ def test_docker_compose_parser_accepts_the_file(generated: tuple[Path, Deploymen
     assert done.returncode == 0, done.stderr
     services = compose_config(out / "docker-compose.yml", "--services")
     assert services.returncode == 0, services.stderr
-    assert sorted(services.stdout.split()) == sorted(["sim", "observer", *(f"agent-{k}" for k in range(1, DRONES + 1))])
+    assert sorted(services.stdout.split()) == sorted(["sim", "cameras", "observer",
+                                                      *(f"agent-{k}" for k in range(1, DRONES + 1))])
 
 
 def test_parser_sees_what_we_mean(generated: tuple[Path, Deployment]) -> None:
@@ -101,7 +103,7 @@ def test_yaml_reads_back_exactly_as_planned(generated: tuple[Path, Deployment], 
 
 
 def test_services_and_networks(compose: dict[str, Any]) -> None:
-    assert set(compose["services"]) == {"sim", "observer", *(f"agent-{k}" for k in range(1, DRONES + 1))}
+    assert set(compose["services"]) == {"sim", "cameras", "observer", *(f"agent-{k}" for k in range(1, DRONES + 1))}
     subnets = {name: net["ipam"]["config"][0]["subnet"] for name, net in compose["networks"].items()}
     assert subnets == {"radio": str(RADIO_SUBNET), "control": str(CONTROL_SUBNET)}
     assert all(net["internal"] for net in compose["networks"].values())
@@ -128,11 +130,12 @@ def test_each_agent_impairs_its_own_radio_then_runs(compose: dict[str, Any]) -> 
         # mission.max_time_s, as swarm run --max-time: unset, the default for the box and three drones
         assert agent.startswith("timeout --signal=TERM --kill-after=") and " 420 swarm agent" in agent
         assert service["depends_on"]["sim"] == {"condition": "service_healthy"}
+        assert service["depends_on"]["cameras"] == {"condition": "service_started"}
     assert len(radios) == DRONES
 
 
 def test_simulator_and_observer_are_off_the_radio(compose: dict[str, Any]) -> None:
-    for name, address in (("sim", sim_address()), ("observer", observer_address())):
+    for name, address in (("sim", sim_address()), ("cameras", cameras_address()), ("observer", observer_address())):
         service = compose["services"][name]
         assert set(service["networks"]) == {"control"}
         assert service["networks"]["control"]["ipv4_address"] == address
@@ -150,7 +153,7 @@ def configs(out: Path) -> dict[str, SwarmConfig]:
 def test_configs_load_and_wire_the_bus(generated: tuple[Path, Deployment]) -> None:
     out, _ = generated
     loaded = configs(out)
-    assert set(loaded) == {"sim", "observer", *(f"agent-{k}" for k in range(1, DRONES + 1))}
+    assert set(loaded) == {"sim", "cameras", "observer", *(f"agent-{k}" for k in range(1, DRONES + 1))}
     for config in loaded.values():
         assert config.mission.drones == DRONES and config.mission.world == "box"
         assert config.mission.max_time_s == 420.0  # the default, resolved for the containers' own timeout
@@ -163,6 +166,9 @@ def test_configs_load_and_wire_the_bus(generated: tuple[Path, Deployment]) -> No
         assert agent.bus.listen == [f"tcp/{radio_address(k)}:7447", f"tcp/{control_address(k)}:7447"]
         # lower ids only, on the radio: one connection per pair, all of them over the impaired network
         assert agent.bus.connect == [f"tcp/{radio_address(j)}:7447" for j in range(1, k)]
+        # it maps from its simulated camera through the simulator's sensor router, told the volume, not the world
+        assert agent.camera.source == "sim" and agent.camera.stream.connect == [f"tcp/{sim_address()}:7447"]
+        assert agent.mission.volume is not None and agent.mission.volume.max[0] == 8.0
     observer = loaded["observer"]
     assert observer.bus.mode == "peer"  # a peer never relays: it cannot bridge a broken radio link
     assert observer.bus.listen == [f"tcp/{observer_address()}:7447"]
@@ -171,6 +177,8 @@ def test_configs_load_and_wire_the_bus(generated: tuple[Path, Deployment]) -> No
     sim = loaded["sim"]
     assert sim.sim.host == "0.0.0.0" and str(sim.sim.status_path) == "/results/sim.json"
     assert len(sim.sim.spawns) == DRONES
+    assert sim.sim.sensor_listen == [f"tcp/{sim_address()}:7447"]
+    assert loaded["cameras"].camera.stream.connect == sim.sim.sensor_listen
 
 
 def test_results_directory_is_ready(generated: tuple[Path, Deployment]) -> None:

@@ -110,15 +110,24 @@ def _wait_for(log: Path, predicate, timeout: float) -> dict[str, Any]:
 
 
 def test_killed_agent_is_seen_leaving_within_3_s_and_sigterm_lands(tmp_path: Path, swarm_ports: SwarmPorts) -> None:
-    """Two agents started by hand next to `swarm sim`, as on real drones."""
+    """Two agents started by hand next to `swarm sim` and `swarm cameras`, as the README's "by hand" section does:
+    each maps from its simulated camera's stream (the agents are given the mission volume, never the world)."""
     p = swarm_ports
-    ports = ["--set", f"sim.vehicle_base_port={p.vehicle_base}", "--set", f"sim.gcs_base_port={p.gcs_base}"]
+    sensors = f"tcp/127.0.0.1:{p.bus_base + 10}"
+    ports = ["--set", f"sim.vehicle_base_port={p.vehicle_base}", "--set", f"sim.gcs_base_port={p.gcs_base}",
+             "--set", f'camera.stream.connect=["{sensors}"]']
     procs: list[subprocess.Popen] = []
-    logs = {name: tmp_path / f"{name}.log" for name in ("sim", "agent-1", "agent-2")}
+    logs = {name: tmp_path / f"{name}.log" for name in ("sim", "cameras", "agent-1", "agent-2")}
     try:
         procs.append(subprocess.Popen(
             swarm_cmd("sim", "--world", "box", "--vehicles", "2", *ports),
             stdout=logs["sim"].open("w"), stderr=subprocess.STDOUT,
+        ))
+        volume = _wait_for_line(logs["sim"], "(agent: swarm agent --id 1 ", 30).split("--set '")[1].rstrip("')")
+        assert volume.startswith("mission.volume={min=[0, 0, "), volume
+        procs.append(subprocess.Popen(
+            swarm_cmd("cameras", "--world", "box", "--vehicles", "2", *ports),
+            stdout=logs["cameras"].open("w"), stderr=subprocess.STDOUT,
         ))
         for k in (1, 2):
             bus = [
@@ -127,10 +136,12 @@ def test_killed_agent_is_seen_leaving_within_3_s_and_sigterm_lands(tmp_path: Pat
             ]
             procs.append(subprocess.Popen(
                 swarm_cmd("agent", "--id", str(k), "--autopilot", f"udpin://127.0.0.1:{p.gcs_base + k - 1}",
-                          "--set", "agent.hover_s=120", "--set", "explore.strategy=scripted", *bus),
+                          "--set", "agent.hover_s=120", "--set", "explore.strategy=scripted", "--set", volume,
+                          "--set", "mission.world=/nonexistent/world.ply", "--set", f"agent.out_dir={tmp_path}",
+                          *ports, *bus),
                 stdout=logs[f"agent-{k}"].open("w"), stderr=subprocess.STDOUT,
             ))
-        sim, agent1, agent2 = procs
+        sim, cameras, agent1, agent2 = procs
         _wait_for(logs["agent-1"], lambda e: e["event"] == "peer_joined" and e["peer"] == 2, 60)
         _wait_for(logs["agent-2"], lambda e: e["event"] == "peer_joined" and e["peer"] == 1, 60)
         _wait_for(logs["agent-1"], lambda e: e["event"] == "phase" and e["phase"] == "hovering", 60)
@@ -152,8 +163,20 @@ def test_killed_agent_is_seen_leaving_within_3_s_and_sigterm_lands(tmp_path: Pat
         events = log_events(logs["agent-1"])
         phases = [e["phase"] for e in events if e["event"] == "phase"]
         assert phases[-2:] == ["landing", "landed"], phases
+        summary = json.loads((tmp_path / "agent-1.json").read_text())
+        assert summary["frames"] > 10 and summary["sensor_stream"]["frames"] >= summary["frames"], summary
     finally:
         kill_all(procs)
+
+
+def _wait_for_line(log: Path, needle: str, timeout: float) -> str:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        for line in log.read_text().splitlines():
+            if needle in line:
+                return line
+        time.sleep(0.05)
+    raise AssertionError(f"no line with {needle!r} in {log} within {timeout} s:\n{log.read_text()[-3000:]}")
 
 
 def test_sigterm_ends_swarm_run_as_ctrl_c_does_landing_and_cleaning_up(tmp_path: Path, swarm_ports: SwarmPorts) -> None:

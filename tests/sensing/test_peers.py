@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from swarm.sensing.peers import mask_peers, pixel_rays, sphere_depth
+from swarm.sensing.peers import PeerSighting, mask_peers, pixel_rays, sphere_depth
 
 K = np.array([[80.0, 0.0, 80.0], [0.0, 80.0, 60.0], [0.0, 0.0, 1.0]])
 T = np.eye(4)  # camera at the origin looking along +z (optical frame = world here)
@@ -38,3 +38,10 @@ def test_a_camera_inside_a_peers_sphere_masks_the_whole_image() -> None:
     k = np.array([[8.0, 0.0, 8.0], [0.0, 8.0, 6.0], [0.0, 0.0, 1.0]])
     masked, count = mask_peers(depth, k, T, [[0.1, 0.0, 0.0]], 0.5)
     assert count == depth.size and not masked.any()
+
+
+def test_a_heartbeat_places_its_peer_by_its_velocity_at_the_frames_stamp_within_a_second() -> None:
+    sighting = PeerSighting((1.0, 2.0, 1.5), (1.5, 0.0, -0.5), heard=100.0)
+    assert np.allclose(sighting.at(100.2), [1.3, 2.0, 1.4])
+    assert np.allclose(sighting.at(99.9), [0.85, 2.0, 1.55])  # a frame taken before the heartbeat arrived
+    assert np.allclose(sighting.at(130.0), [2.5, 2.0, 1.0])  # dead reckoning stops at PREDICT_MAX_S

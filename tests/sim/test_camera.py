@@ -90,3 +90,24 @@ def test_noise_is_range_gated() -> None:
     depth = cam.render(cam.pose((0, 0, 0), 0.0))
     valid = depth > 0
     assert 0.3 < valid.mean() < 0.7 and depth[valid].max() <= 4.0
+
+
+def test_frames_agree_with_their_intrinsics_and_pose() -> None:
+    from swarm.sensing.frames import DepthFrame
+    from swarm.sim.worlds import load_world
+
+    box = load_world("box")
+    camera = DepthCamera(box, CameraSettings(width=64, height=48, hfov_deg=80.0), seed=0)
+    frames = [camera.frame(i, 0.1 * i, (2.0, 2.0 + 0.5 * i, 1.5), 30.0 * i) for i in range(4)]
+    for i, frame in enumerate(frames):
+        assert isinstance(frame, DepthFrame)
+        assert frame.index == i and frame.t == pytest.approx(0.1 * i)
+        assert frame.depth.shape == (48, 64) and frame.depth.dtype == np.float32
+        assert np.allclose(frame.K, frames[0].K) and frame.K[0, 2] == 32.0 and frame.K[1, 2] == 24.0
+        assert np.allclose(frame.T_world_cam[:3, 3], (2.0, 2.0 + 0.5 * i, 1.5))
+        yaw = np.radians(30.0 * i)
+        assert np.allclose(frame.T_world_cam[:3, 2], [np.cos(yaw), np.sin(yaw), 0.0])
+        # depth, K and pose agree: every valid pixel back-projects onto the world's surface
+        points = frame.world_points()
+        assert len(points) > 0.9 * frame.depth.size
+        assert np.all(box.distance(points) < 2e-3)

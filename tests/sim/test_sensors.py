@@ -19,7 +19,7 @@ from swarm.patches.mapper import Mapper
 from swarm.sensing import messages as m
 from swarm.sensing.frames import camera_mount, camera_to_world
 from swarm.sensing.zenoh_source import ZenohSensorSource, session_config
-from swarm.sim.sensors import CameraDriver, StreamPublisher, body_pose, vehicle_stream
+from swarm.sim.sensors import CameraDriver, StreamPublisher, body_pose
 from swarm.sim.worlds import load_world, mission_volume
 from tests.helpers import loopback_zenoh
 from tests.sensing.flight import flight
@@ -49,7 +49,7 @@ def test_a_map_from_the_camera_driver_through_zenoh_lies_on_the_world_and_needs_
     config = load_config(overrides={"camera.stream.connect": [router]})
     world = load_world("office")
     driver = CameraDriver(world, config.camera, [1])
-    stream = vehicle_stream(config.camera.stream, 1)
+    stream = config.camera.stream.under_vehicle(1)
     source = ZenohSensorSource(stream, camera_mount(config.camera))  # the agent's side: no world
     stop = threading.Event()
     threads = [threading.Thread(target=driver.run, args=(stop,), daemon=True)]

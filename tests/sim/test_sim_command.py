@@ -20,7 +20,7 @@ from swarm.config import load_config
 from swarm.sim.server import sim_command
 sys.exit(sim_command(load_config(overrides={{
     "mission.world": "box", "mission.drones": 2,
-    "sim.vehicle_base_port": {vbase}, "sim.gcs_base_port": {gbase},
+    "sim.vehicle_base_port": {vbase}, "sim.gcs_base_port": {gbase}, "camera.stream.connect": ["tcp/127.0.0.1:{sbase}"],
 }})))
 """
 
@@ -45,17 +45,22 @@ class LineReader:
 
 def test_sim_command_prints_endpoints_and_stops_on_sigint(port_base: int) -> None:
     gbase = port_base + 20
-    script = SCRIPT.format(vbase=port_base, gbase=gbase)
+    script = SCRIPT.format(vbase=port_base, gbase=gbase, sbase=port_base + 40)
     proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
     reader = LineReader(proc)
     try:
-        lines = reader.take(2, timeout=30)
+        lines = reader.take(3, timeout=30)
+        # the agent's command line carries the mission volume: an agent loads no world
         assert lines[0] == (
             f"vehicle 1: MAVLink udp 127.0.0.1:{port_base} -> 127.0.0.1:{gbase}"
-            f"  (agent: swarm agent --id 1 --autopilot udpin://0.0.0.0:{gbase})"
+            f"  (agent: swarm agent --id 1 --autopilot udpin://0.0.0.0:{gbase} "
+            "--set 'mission.volume={min=[0, 0, -0.2],max=[8, 6, 3.1995]}')"
         )
         assert lines[1].startswith(f"vehicle 2: MAVLink udp 127.0.0.1:{port_base + 1} -> 127.0.0.1:{gbase + 1}")
+        # alone, the simulator is the sensor router where the cameras and the agents dial (camera.stream.connect)
+        assert lines[2] == (f"sensor streams: odometry on tcp/127.0.0.1:{port_base + 40} (the depth cameras: "
+                            "swarm cameras --world box --vehicles 2)")
         proc.send_signal(signal.SIGINT)
         proc.wait(timeout=10)
         err = proc.stderr.read()
@@ -75,7 +80,7 @@ def test_an_agent_listening_before_the_sim_starts_gets_a_warning_not_an_error(po
     agent.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as MAVSDK's udpin binds
     agent.bind(("0.0.0.0", gbase))
     agent.settimeout(10)
-    script = SCRIPT.format(vbase=port_base, gbase=gbase)
+    script = SCRIPT.format(vbase=port_base, gbase=gbase, sbase=port_base + 40)
     proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
     try:
