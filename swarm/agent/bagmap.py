@@ -47,7 +47,8 @@ def map_bags(config: SwarmConfig, bags: list[Path], out: Path, topics: dict[str,
     vertices, triangles = fused.write_mesh(out / "map.ply")
     report = {
         "bags": per_bag, "volume": {"min": bounds[0].tolist(), "max": bounds[1].tolist()},
-        "known_voxels": int(fused.voxel_count), "mesh": {"vertices": vertices, "triangles": triangles},
+        "known_voxels": int(fused.voxel_count), "fused_digest": fused.digest(),
+        "mesh": {"vertices": vertices, "triangles": triangles},
         "duration_s": round(time.monotonic() - started, 2),
     }
     (out / "report.json").write_text(json.dumps(report, indent=2))

@@ -25,6 +25,7 @@ from swarm.sensing.messages import (
     ODOMETRY,
     POSE_STAMPED,
     SensorInputError,
+    convert_message,
     typestore,
 )
 
@@ -108,6 +109,7 @@ def bag_streams(paths: Sequence[Path], depth: str | None = None, info: str | Non
     except Exception as exc:  # rosbags raises its own errors per format
         raise SensorInputError(f"cannot read bag {', '.join(map(str, paths))}: {exc}") from None
     try:
+        store = typestore()
         topics = bag_topics(reader, depth, info, pose)
         kinds = {topics.depth: "depth", topics.info: "info", topics.pose: "pose"}
         connections = [c for c in reader.connections if c.topic in kinds]
@@ -116,8 +118,9 @@ def bag_streams(paths: Sequence[Path], depth: str | None = None, info: str | Non
                 continue
             if reader.is2:
                 data = bytes(raw)
-            else:  # ROS 1: deserialise, then CDR, so downstream sees one format
-                data = bytes(typestore().serialize_cdr(reader.deserialize(raw, connection.msgtype), connection.msgtype))
+            else:  # ROS 1: deserialise, rebuild as ROS 2 (CameraInfo's K is k there), then CDR: one format downstream
+                ros2 = convert_message(reader.deserialize(raw, connection.msgtype), connection.msgtype, store)
+                data = bytes(store.serialize_cdr(ros2, connection.msgtype))
             yield kinds[connection.topic], connection.msgtype, data, int(t_ns)
     finally:
         reader.close()

@@ -37,6 +37,31 @@ def typestore() -> Any:
     return get_typestore(Stores.ROS2_HUMBLE)
 
 
+def convert_message(message: Any, msgtype: str, store: Any) -> Any:
+    """`message` rebuilt as `store`'s `msgtype`, field by field: a ROS 1 message as ROS 2 or back. Fields are
+    matched by name, then case-insensitively (ROS 1 CameraInfo's D, K, R, P are ROS 2's d, k, r, p); a scalar
+    field the message lacks (ROS 1 Header's seq, going the other way) gets its zero. Raises SensorInputError when
+    a nested field is missing (the two definitions differ in more than spelling)."""
+    from rosbags.interfaces import Nodetype
+
+    values = {}
+    for name, (kind, spec) in store.fielddefs[msgtype][1]:
+        names = {n.lower(): n for n in vars(message)} if hasattr(message, "__dict__") else {}
+        source = name if hasattr(message, name) else names.get(name.lower())
+        if source is None:
+            if kind != Nodetype.BASE:
+                raise SensorInputError(f"{msgtype}: no field {name} to convert")
+            values[name] = "" if spec[0] == "string" else (False if spec[0] == "bool" else 0)
+            continue
+        value = getattr(message, source)
+        if kind == Nodetype.NAME:
+            value = convert_message(value, spec, store)
+        elif kind in (Nodetype.ARRAY, Nodetype.SEQUENCE) and spec[0][0] == Nodetype.NAME:
+            value = [convert_message(v, spec[0][1], store) for v in value]
+        values[name] = value
+    return store.types[msgtype](**values)
+
+
 @dataclass(frozen=True)
 class Pose:
     t: float  # seconds

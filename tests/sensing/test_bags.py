@@ -71,6 +71,32 @@ def test_a_recorded_flight_reads_back_and_maps_onto_the_world(tmp_path: Path) ->
     assert list((tmp_path / "map" / "patches").glob("1.1.*.patch"))
 
 
+def _as_ros1(mcap: Path, bag: Path) -> None:
+    """The recording rewritten as a ROS 1 bag, as `rosbag record` would have written it (ROS 1 definitions, whose
+    CameraInfo spells K, D, R, P in capitals and whose Header has a seq)."""
+    from rosbags.rosbag1 import Writer as Ros1Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ros1 = get_typestore(Stores.ROS1_NOETIC)
+    with AnyReader([mcap], default_typestore=m.typestore()) as reader, Ros1Writer(bag) as writer:
+        out = {c.topic: writer.add_connection(c.topic, c.msgtype, typestore=ros1) for c in reader.connections}
+        for connection, t_ns, raw in reader.messages():
+            message = m.convert_message(reader.deserialize(raw, connection.msgtype), connection.msgtype, ros1)
+            writer.write(out[connection.topic], t_ns, ros1.serialize_ros1(message, connection.msgtype))
+
+
+def test_a_ros1_bag_maps_as_the_ros2_recording_of_the_same_flight_does(tmp_path: Path) -> None:
+    mcap, bag = tmp_path / "flight", tmp_path / "flight.bag"
+    _record(mcap, seconds=2.0)
+    _as_ros1(mcap, bag)
+    with AnyReader([bag]) as reader:
+        assert not reader.is2 and {c.topic: c.msgcount for c in reader.connections} == {POSE: 100, INFO: 20, DEPTH: 20}
+    ros2 = map_bags(load_config(), [mcap], tmp_path / "map2", {})
+    ros1 = map_bags(load_config(), [bag], tmp_path / "map1", {})
+    assert ros1["bags"][0]["frames"] == ros2["bags"][0]["frames"] == 20 and ros1["bags"][0]["dropped"] == {}
+    assert ros1["fused_digest"] == ros2["fused_digest"], "the same messages must give the same map"
+
+
 @pytest.mark.parametrize(("kwargs", "topics", "says"), [
     ({"with_depth": False}, {}, "has no depth image topic"),
     ({"extra_image_topic": True}, {}, "several depth image topics .* --depth-topic"),
