@@ -2,7 +2,9 @@
 # Sets up everything Swarm needs on Debian 12 with Python 3.11 (as root, or with sudo), then runs a job:
 #
 #   ./bootstrap.sh run  [swarm run flags]   fly a simulated swarm in a built-in world, report in runs/
-#   ./bootstrap.sh test [pytest flags]      run the test suite
+#   ./bootstrap.sh test                     run the test suite: the unit tier first (on 2 workers), stopping on
+#                                           its failure, then every other tier
+#   ./bootstrap.sh test [pytest flags]      pytest with these flags (e.g. -m unit -n 2, or one file)
 #   ./bootstrap.sh env                      only set up; prints the environment's path
 #
 # Installs the system libraries Open3D links against, the tools the network experiments use and the
@@ -67,6 +69,11 @@ install_package "$env_dir"
 
 case "$job" in
   run) exec "$env_dir/bin/swarm" run "$@" ;;
-  test) exec "$env_dir/bin/python" -m pytest "$@" ;;
+  test)
+    if [ $# -gt 0 ]; then exec "$env_dir/bin/python" -m pytest "$@"; fi
+    say "unit tier (pytest -m unit -n 2)"
+    "$env_dir/bin/python" -m pytest -m unit -n 2 -q
+    say "every other tier (pytest -m 'not unit')"
+    exec "$env_dir/bin/python" -m pytest -m "not unit" ;;
   env) echo "$env_dir" ;;
 esac

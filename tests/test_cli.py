@@ -28,6 +28,7 @@ def swarm(*args: str, timeout: float = 60) -> subprocess.CompletedProcess[str]:
         ("bench", "sync", "--drones", "x"),
     ],
 )
+@pytest.mark.sim
 def test_bad_input_is_one_line_and_exit_2(args: tuple[str, ...]) -> None:
     result = swarm(*args)
     assert result.returncode == 2, result.stderr
@@ -35,6 +36,9 @@ def test_bad_input_is_one_line_and_exit_2(args: tuple[str, ...]) -> None:
     assert len(lines) == 1, result.stderr
     assert "error" in lines[0]
     assert "Traceback" not in result.stderr
+
+
+@pytest.mark.sim
 
 
 def test_help_lists_every_command() -> None:

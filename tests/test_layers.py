@@ -3,9 +3,12 @@ a drone imports the simulator, the harness or a benchmark, and data flows one wa
 
 from __future__ import annotations
 
+import pytest
 import subprocess
 import sys
 from pathlib import Path
+
+pytestmark = pytest.mark.sim
 
 ROOT = Path(__file__).resolve().parents[1]
 

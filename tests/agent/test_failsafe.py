@@ -21,7 +21,7 @@ from swarm.sim.worlds import load_world
 from tests.helpers import kill_all, swarm_cmd
 from tests.sim.support import free_port_block, running_sim, sim_config, wait_until
 
-pytestmark = pytest.mark.timeout(120)
+pytestmark = [pytest.mark.timeout(120), pytest.mark.sim]
 
 
 def _events(log: Path) -> list[dict]:

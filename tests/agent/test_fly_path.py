@@ -62,6 +62,9 @@ async def _redirected_mid_segment() -> tuple[np.ndarray, np.ndarray, np.ndarray,
         return start[0], goal, np.array(flown), np.array(setpoints), server.status()
 
 
+@pytest.mark.sim
+
+
 def test_a_new_path_starts_from_the_drone_not_from_the_interrupted_paths_setpoint() -> None:
     start, goal, flown, setpoints, status = asyncio.run(_redirected_mid_segment())
     assert status["collisions"] == 0
@@ -105,6 +108,9 @@ async def _replanned_straight_on() -> tuple[list[float], float]:
         finally:
             await flight.ap.close()
         return speeds, settings.cruise_speed_m_s
+
+
+@pytest.mark.sim
 
 
 def test_a_new_path_straight_on_does_not_brake_the_drone() -> None:

@@ -15,7 +15,7 @@ import pytest
 from tests.helpers import kill_all, log_events, swarm_cmd
 from tests.sim.support import free_port_block, wait_until
 
-pytestmark = pytest.mark.timeout(120)
+pytestmark = [pytest.mark.timeout(120), pytest.mark.sim]
 
 FREEZE_S = 1.8  # longer than the 1.5 s telemetry timeout, shorter than the 2 s that counted as a stall before
 

@@ -88,6 +88,9 @@ def test_distance_to_track_is_measured_to_the_covered_segment() -> None:
     assert distance_to_track(np.array([1.0, 4.0, 0.0]), flying) == pytest.approx(1.0)
 
 
+@pytest.mark.sim
+
+
 def test_a_silent_drone_is_an_obstacle_held_for_only_when_our_segment_would_touch_it() -> None:
     # Drone 1 went silent (agent killed, vehicle hovering). Giving way to it by id would never end (a soak
     # mission livelocked so for 400 s); holding for it is right only when the segment passes through it.
@@ -179,10 +182,16 @@ def _drone_collisions(status: dict) -> list[dict]:
     return [e for e in status["collision_events"] if e["kind"] == "drone"]
 
 
+@pytest.mark.sim
+
+
 def test_without_separation_the_head_on_drones_collide() -> None:
     status, _, arrived = asyncio.run(_encounter(separation_m=0.0))
     assert arrived == [True, True]
     assert _drone_collisions(status), status["collision_events"]
+
+
+@pytest.mark.sim
 
 
 def test_the_higher_id_steps_aside_and_both_drones_arrive_without_touching() -> None:
@@ -193,6 +202,9 @@ def test_the_higher_id_steps_aside_and_both_drones_arrive_without_touching() -> 
     for flight, goal in zip(flights, (EAST, WEST)):
         x, y, _ = flight.ap.telemetry.position
         assert math.hypot(x - goal[0], y - goal[1]) < 0.6
+
+
+@pytest.mark.sim
 
 
 def test_a_hovering_higher_id_in_the_way_moves_off_the_line() -> None:
@@ -231,6 +243,9 @@ async def _come_down_onto_a_grounded_drone() -> tuple[dict, Flight, list[dict]]:
         return server.status(), flight, events
 
 
+@pytest.mark.sim
+
+
 def test_a_drone_coming_down_onto_one_on_the_ground_lands_beside_it() -> None:
     status, flight, events = asyncio.run(_come_down_onto_a_grounded_drone())
     [beside] = [e for e in events if e["event"] == "land_beside"]
@@ -262,6 +277,9 @@ def test_a_refuge_in_a_third_drones_way_is_not_taken() -> None:
     assert kept and len(kept) < len(candidates)
     assert all(distance_to_track(c, corridor) >= REFUGE_CLEAR_M for c in kept)
     assert off_the_others_ways(candidates, []) == candidates
+
+
+@pytest.mark.sim
 
 
 def test_the_drone_with_the_right_of_way_holds_for_one_about_to_cross_its_way() -> None:
@@ -337,6 +355,9 @@ async def _step_up_and_rejoin() -> tuple[Vec3, list[Vec3], list[Vec3]]:
             await autopilot.close()
     assert left_at, "drone 2 never gave way: the scenario did not happen"
     return left_at[0], refuges, track
+
+
+@pytest.mark.sim
 
 
 def test_a_drone_that_stepped_up_flies_back_down_before_going_on_along_its_segment() -> None:

@@ -42,6 +42,9 @@ async def publish_until(bus: AsyncBus, agent_id: int, condition, what: str, time
     return seq
 
 
+@pytest.mark.bus
+
+
 async def test_state_arrives_on_the_loop_with_equal_fields(bus_pair: tuple[AsyncBus, AsyncBus]) -> None:
     a, b = bus_pair
     received: Received = []
@@ -64,6 +67,9 @@ async def test_state_arrives_on_the_loop_with_equal_fields(bus_pair: tuple[Async
     assert recv_counts["recv_msgs"] == len(received)
     assert recv_counts["recv_bytes"] == sum(len(encode(msg)) for _, msg, _ in received)
     assert recv_counts["dropped"] == {}
+
+
+@pytest.mark.bus
 
 
 async def test_malformed_payloads_are_counted_and_never_delivered(bus_pair: tuple[AsyncBus, AsyncBus]) -> None:
@@ -91,6 +97,9 @@ async def test_malformed_payloads_are_counted_and_never_delivered(bus_pair: tupl
     assert set(b.counters.snapshot()["state"]["dropped"]) == set(bad_payloads)
 
 
+@pytest.mark.bus
+
+
 async def test_reliable_messages_arrive_all_and_in_order(bus_pair: tuple[AsyncBus, AsyncBus]) -> None:
     a, b = bus_pair
     received: Received = []
@@ -104,6 +113,9 @@ async def test_reliable_messages_arrive_all_and_in_order(bus_pair: tuple[AsyncBu
     await wait_until(lambda: len(reliable()) == count, 5.0, f"{count} reliable messages")
     assert [msg.seq for msg in reliable()] == list(range(count))
     assert a.counters.snapshot()["state"]["dropped"] == {}
+
+
+@pytest.mark.bus
 
 
 async def test_handler_exceptions_do_not_stop_delivery(bus_pair: tuple[AsyncBus, AsyncBus]) -> None:
@@ -120,6 +132,9 @@ async def test_handler_exceptions_do_not_stop_delivery(bus_pair: tuple[AsyncBus,
     assert b.counters.dropped_count("state", "handler_error") == 1
 
 
+@pytest.mark.bus
+
+
 async def test_async_handlers_are_refused(bus_pair: tuple[AsyncBus, AsyncBus]) -> None:
     _, b = bus_pair
 
@@ -128,6 +143,9 @@ async def test_async_handlers_are_refused(bus_pair: tuple[AsyncBus, AsyncBus]) -
 
     with pytest.raises(TypeError):
         b.subscribe(b.keys.all_states, AgentState, handler)  # type: ignore[arg-type]
+
+
+@pytest.mark.bus
 
 
 async def test_liveliness_join_history_and_leave(bus_pair: tuple[AsyncBus, AsyncBus]) -> None:
@@ -144,6 +162,9 @@ async def test_liveliness_join_history_and_leave(bus_pair: tuple[AsyncBus, Async
     a.undeclare_token(a.keys.alive(7))
     await wait_until(lambda: ("leave", a.keys.alive(7)) in [e[:2] for e in events], 5.0, "the leave")
     assert all(thread == threading.get_ident() for _, _, thread in events)
+
+
+@pytest.mark.bus
 
 
 async def test_close_is_prompt_and_idempotent(mission: str) -> None:
@@ -170,6 +191,9 @@ async def test_close_is_prompt_and_idempotent(mission: str) -> None:
         bus.declare_token(bus.keys.alive(2))
 
 
+@pytest.mark.bus
+
+
 async def test_context_manager_closes(mission: str) -> None:
     bus, _ = await open_listening_bus(mission)
     async with bus:
@@ -180,6 +204,9 @@ async def test_context_manager_closes(mission: str) -> None:
 async def test_open_rejects_a_bad_mission_before_opening() -> None:
     with pytest.raises(ValueError):
         await AsyncBus.open(BusSettings(), "bad/mission")
+
+
+@pytest.mark.bus
 
 
 async def test_router_mode_relays_along_a_chain(mission: str) -> None:

@@ -315,18 +315,21 @@ def decodes_or_rejects(data: Any) -> None:
 
 @FUZZ
 @given(st.binary(max_size=300))
+@pytest.mark.fuzz
 def test_random_bytes_only_raise_decode_error(data: bytes) -> None:
     decodes_or_rejects(data)
 
 
 @FUZZ
 @given(structures)
+@pytest.mark.fuzz
 def test_random_msgpack_only_raises_decode_error(obj: Any) -> None:
     decodes_or_rejects(pack(obj))
 
 
 @FUZZ
 @given(envelopes)
+@pytest.mark.fuzz
 def test_random_envelopes_only_raise_decode_error(obj: Any) -> None:
     decodes_or_rejects(pack(obj))
 

@@ -77,6 +77,8 @@ from tests.bus.fuzz_inputs import (
     target_assignments,
 )
 
+pytestmark = pytest.mark.fuzz  # pure, but thousands of generated inputs: a minute of CPU
+
 FUZZ = settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 FEW = settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 REASONS = {"too_large", "not_msgpack", "bad_envelope", "version", "kind", "invalid"}
@@ -860,6 +862,9 @@ def test_an_assembly_never_holds_more_than_its_patch_size() -> None:
 
 
 # --- the fuzzing entry point --------------------------------------------------------------------------------
+
+
+@pytest.mark.bus
 
 
 def test_fuzz_main_runs_2000_iterations() -> None:

@@ -17,7 +17,7 @@ from swarm.bus.messages import AgentState
 from tests.bus.conftest import REPO_ROOT, PeerProcess
 from tests.bus.helpers import make_state, open_listening_bus, wait_until
 
-pytestmark = pytest.mark.timeout(60)
+pytestmark = [pytest.mark.timeout(60), pytest.mark.bus]
 
 STARTUP_S = 15.0  # a child imports numpy, pydantic and zenoh, then connects; on a loaded 2-core host
 

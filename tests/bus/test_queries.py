@@ -41,6 +41,9 @@ async def wait_for_queryable(querier: AsyncBus, key: str, timeout_s: float = 5.0
         await asyncio.sleep(0.02)
 
 
+@pytest.mark.bus
+
+
 async def test_get_returns_the_handler_bytes_with_parameters(bus_pair: tuple[AsyncBus, AsyncBus]) -> None:
     a, b = bus_pair
     calls: Calls = []
@@ -69,6 +72,9 @@ async def test_get_returns_the_handler_bytes_with_parameters(bus_pair: tuple[Asy
     assert b.counters.snapshot()[WARM]["recv_bytes"] == before["sent_bytes"]  # pongs, counted on both sides
 
 
+@pytest.mark.bus
+
+
 async def test_a_wildcard_get_reaches_the_store(bus_pair: tuple[AsyncBus, AsyncBus]) -> None:
     a, b = bus_pair
     calls: Calls = []
@@ -77,6 +83,9 @@ async def test_a_wildcard_get_reaches_the_store(bus_pair: tuple[AsyncBus, AsyncB
     replies = await b.get(b.keys.all_stores, KIND, 2.0)
     assert replies == [(str(a.session.zid()), b"held")]
     assert calls[-1][0] == b.keys.all_stores  # the handler sees the query's key expression
+
+
+@pytest.mark.bus
 
 
 async def test_none_is_not_held_and_counted(bus_pair: tuple[AsyncBus, AsyncBus]) -> None:
@@ -92,6 +101,9 @@ async def test_none_is_not_held_and_counted(bus_pair: tuple[AsyncBus, AsyncBus])
     assert b.counters.dropped_count(KIND, "query_error") == 1
     assert a.counters.dropped_count(KIND, "not_held") == 1
     assert b.counters.snapshot()[KIND]["recv_msgs"] == 0
+
+
+@pytest.mark.bus
 
 
 async def test_a_failing_handler_does_not_break_the_bus(bus_pair: tuple[AsyncBus, AsyncBus]) -> None:
@@ -114,12 +126,18 @@ async def test_a_failing_handler_does_not_break_the_bus(bus_pair: tuple[AsyncBus
     assert await b.get(b.keys.store(1), KIND, 2.0) == [(str(a.session.zid()), b"pong")]
 
 
+@pytest.mark.bus
+
+
 async def test_get_without_a_queryable_returns_at_once(bus_pair: tuple[AsyncBus, AsyncBus]) -> None:
     a, b = bus_pair
     start = time.monotonic()
     assert await b.get(b.keys.store(9), KIND, 5.0) == []
     assert time.monotonic() - start < 0.5
     assert b.counters.dropped_count(KIND) == 0
+
+
+@pytest.mark.bus
 
 
 async def test_a_query_never_answered_times_out(bus_pair: tuple[AsyncBus, AsyncBus]) -> None:
@@ -159,6 +177,9 @@ async def test_a_query_never_answered_times_out(bus_pair: tuple[AsyncBus, AsyncB
         queryable.undeclare()
 
 
+@pytest.mark.bus
+
+
 async def test_a_session_does_not_answer_its_own_get(bus_pair: tuple[AsyncBus, AsyncBus]) -> None:
     a, b = bus_pair
     calls: Calls = []
@@ -172,12 +193,18 @@ async def test_a_session_does_not_answer_its_own_get(bus_pair: tuple[AsyncBus, A
     assert await b.get(b.keys.store(1), KIND, 1.0) == [(str(a.session.zid()), b"held")]
 
 
+@pytest.mark.bus
+
+
 async def test_many_queries_each_get_their_answer(bus_pair: tuple[AsyncBus, AsyncBus]) -> None:
     a, b = bus_pair
     a.declare_queryable(a.keys.store(1), KIND, lambda key, params: params.get("i", "").encode())
     await wait_for_queryable(b, a.keys.store(1))
     results = await asyncio.gather(*(b.get(f"{b.keys.store(1)}?i={i}", KIND, 3.0) for i in range(50)))
     assert [r[0][1] for r in results] == [str(i).encode() for i in range(50)]
+
+
+@pytest.mark.bus
 
 
 async def test_queryable_and_get_on_a_closed_bus(bus_pair: tuple[AsyncBus, AsyncBus]) -> None:

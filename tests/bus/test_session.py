@@ -62,6 +62,9 @@ def test_invalid_endpoint_is_one_line() -> None:
     assert message.startswith("invalid Zenoh setting listen/endpoints")
 
 
+@pytest.mark.bus
+
+
 def test_listen_port_in_use_is_one_clear_line() -> None:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as taken:
         taken.bind(("127.0.0.1", 0))
@@ -72,10 +75,16 @@ def test_listen_port_in_use_is_one_clear_line() -> None:
     assert str(info.value) == f"cannot listen on tcp/127.0.0.1:{port}: address already in use"
 
 
+@pytest.mark.bus
+
+
 def test_unusable_endpoint_is_one_line() -> None:
     with pytest.raises(BusError) as info:
         open_session(BusSettings(listen=["tcp/notanaddress"]))
     assert str(info.value) == "cannot open the Zenoh session: invalid socket address"
+
+
+@pytest.mark.bus
 
 
 def test_open_and_close() -> None:

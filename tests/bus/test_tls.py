@@ -72,6 +72,9 @@ async def _publish_until(sender: AsyncBus, keys_ids: list[tuple[int, int]], done
     raise AssertionError(f"timed out waiting for {what}")
 
 
+@pytest.mark.bus
+
+
 async def test_drones_with_swarm_certificates_talk_and_a_forged_id_heartbeat_is_rejected(certs: Path) -> None:
     drone1, endpoint = await _listening(certs, "drone-1")
     received: list[tuple[str, int]] = []
@@ -86,6 +89,9 @@ async def test_drones_with_swarm_certificates_talk_and_a_forged_id_heartbeat_is_
     finally:
         await drone2.close()
         await drone1.close()
+
+
+@pytest.mark.bus
 
 
 async def test_a_session_without_a_certificate_or_with_another_cas_receives_nothing(

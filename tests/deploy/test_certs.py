@@ -59,6 +59,9 @@ def test_an_existing_ca_is_never_overwritten(tmp_path: Path) -> None:
     assert not (tmp_path / "drone-2.pem").exists()
 
 
+@pytest.mark.sim
+
+
 def test_the_command_writes_the_directory_and_refuses_bad_input_in_one_line(tmp_path: Path) -> None:
     done = swarm(tmp_path, "deploy", "certs", "--drones", "2", "--out", "c")
     assert done.returncode == 0, done.stderr

@@ -11,6 +11,8 @@ import pytest
 
 from tests.deploy.parser import compose_config
 
+pytestmark = pytest.mark.sim
+
 
 def swarm(cwd: Path, *args: str) -> subprocess.CompletedProcess[str]:
     # run from cwd (not the repository): `python -m` puts the working directory first on sys.path

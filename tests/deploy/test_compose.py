@@ -61,6 +61,9 @@ def in_subnet(address: str, subnet: ipaddress.IPv4Network) -> bool:
 # ----- Docker's parser --------------------------------------------------------------------------------------------
 
 
+@pytest.mark.sim
+
+
 def test_docker_compose_parser_accepts_the_file(generated: tuple[Path, Deployment]) -> None:
     out, _ = generated
     done = compose_config(out / "docker-compose.yml", "-q")
@@ -69,6 +72,9 @@ def test_docker_compose_parser_accepts_the_file(generated: tuple[Path, Deploymen
     assert services.returncode == 0, services.stderr
     assert sorted(services.stdout.split()) == sorted(["sim", "cameras", "observer",
                                                       *(f"agent-{k}" for k in range(1, DRONES + 1))])
+
+
+@pytest.mark.sim
 
 
 def test_parser_sees_what_we_mean(generated: tuple[Path, Deployment]) -> None:
@@ -83,6 +89,9 @@ def test_parser_sees_what_we_mean(generated: tuple[Path, Deployment]) -> None:
     assert view["networks"]["radio"]["internal"] is True
     volumes = json.dumps(agent["volumes"])
     assert str(out / "config") in volumes and "/etc/swarm" in volumes
+
+
+@pytest.mark.sim
 
 
 def test_parser_rejects_a_broken_file(tmp_path: Path, generated: tuple[Path, Deployment]) -> None:
@@ -186,6 +195,9 @@ def test_results_directory_is_ready(generated: tuple[Path, Deployment]) -> None:
     assert (out / "results" / "agents" / "patches").is_dir()
 
 
+@pytest.mark.sim
+
+
 def test_loss_zero_still_runs_the_netem_step(tmp_path: Path) -> None:
     out = tmp_path / "clean"
     deploy_compose_command(load_config(None, {"mission.world": "box"}), 1, 0.0, out, DEFAULT_IMAGE)
@@ -212,6 +224,9 @@ def test_scripted_strategy_gets_its_routes(tmp_path: Path) -> None:
     deploy_compose_command(config, 2, 0.0, out, DEFAULT_IMAGE)
     for k in (1, 2):
         assert load_config(out / "config" / f"agent-{k}.toml").agent.waypoints
+
+
+@pytest.mark.sim
 
 
 def test_build_context_lets_compose_build_the_image(tmp_path: Path) -> None:
@@ -286,6 +301,7 @@ def test_link_scenario_is_refused_not_dropped(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("image", ["swarm-agent", "swarm-agent:dev", "localhost:5000/lab/swarm-agent:1.2"])
+@pytest.mark.sim
 def test_image_names_docker_takes(tmp_path: Path, image: str) -> None:
     deploy_compose_command(load_config(None, {"mission.world": "box"}), 1, 0.0, tmp_path / "o", image)
     compose = read_yaml((tmp_path / "o" / "docker-compose.yml").read_text())

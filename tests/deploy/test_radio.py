@@ -142,6 +142,7 @@ def in_namespace(name: str, argv: list[str]) -> subprocess.CompletedProcess[str]
 
 
 @netns
+@pytest.mark.netns
 def test_tc_parses_every_command(namespace: str) -> None:
     for argv in netem_commands("lo", 0.1, delay_ms=20, jitter_ms=5):
         done = in_namespace(namespace, [tool(argv[0]), *argv[1:]])
@@ -164,6 +165,7 @@ except SwarmError as exc:
 
 
 @netns
+@pytest.mark.netns
 def test_netem_on_loopback_works_or_says_why_in_one_line(namespace: str) -> None:
     done = in_namespace(namespace, [sys.executable, "-c", NETEM_SCRIPT])
     assert "Traceback" not in done.stderr, done.stderr

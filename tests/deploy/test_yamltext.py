@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 from swarm.deploy import yamltext
 from tests.deploy.parser import read_yaml
 
@@ -13,9 +15,15 @@ TRICKY = [
 ]
 
 
+@pytest.mark.sim
+
+
 def test_tricky_strings_read_back_unchanged() -> None:
     doc = {"strings": TRICKY, "keys": {s: s for s in TRICKY if s}}
     assert read_yaml(yamltext.dumps(doc)) == doc
+
+
+@pytest.mark.sim
 
 
 def test_nesting_numbers_booleans_and_empties() -> None:
@@ -27,6 +35,9 @@ def test_nesting_numbers_booleans_and_empties() -> None:
         "empty_list": [],
     }
     assert read_yaml(yamltext.dumps(doc)) == doc
+
+
+@pytest.mark.sim
 
 
 def test_header_is_comments_only() -> None:

@@ -11,6 +11,8 @@ import pytest
 
 from tests.helpers import SwarmPorts, processes_mentioning, swarm_cmd
 
+pytestmark = pytest.mark.sim
+
 
 def run_bad(tmp_path: Path, ports: SwarmPorts, *args: str) -> tuple[int, str]:
     out = tmp_path / "run"

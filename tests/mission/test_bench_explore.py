@@ -191,6 +191,7 @@ def test_the_oracle_is_computed_once_per_world_and_size_and_then_read_from_the_c
 
 @pytest.mark.parametrize("worlds, says", [("gen:5..2", "backwards"), ("gen:x..y", "gen:A..B"),
                                           ("box,atlantis", "atlantis")])
+@pytest.mark.sim
 def test_bad_worlds_on_the_command_line_are_one_line_and_a_non_zero_exit_before_any_mission(
     tmp_path: Path, worlds: str, says: str
 ) -> None:

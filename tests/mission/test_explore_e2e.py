@@ -17,7 +17,7 @@ from swarm.mission.report import read_json
 from swarm.mission.run import run_mission
 from tests.helpers import SwarmPorts, log_events, processes_mentioning
 
-pytestmark = pytest.mark.timeout(300)
+pytestmark = [pytest.mark.timeout(300), pytest.mark.mission]
 
 
 def _config(out: Path, ports: SwarmPorts, **overrides: Any):

@@ -66,6 +66,9 @@ def _wait_for_status(child: Child, wanted: str) -> str:
     return status
 
 
+@pytest.mark.sim
+
+
 def test_faults_wait_for_take_off_then_kill_freeze_and_restart_real_processes(tmp_path: Path) -> None:
     agents = {k: _sleeper(tmp_path, f"agent-{k}") for k in (1, 2, 3)}
     started: list[tuple[int, int]] = []
@@ -101,6 +104,9 @@ def test_faults_wait_for_take_off_then_kill_freeze_and_restart_real_processes(tm
     finally:
         for child in agents.values():
             child.stop(1.0)
+
+
+@pytest.mark.sim
 
 
 def test_telemetry_loss_writes_the_control_file_and_finish_restores_everything(tmp_path: Path) -> None:

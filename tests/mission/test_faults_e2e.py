@@ -14,7 +14,7 @@ from swarm.mission.report import held_patch_ids, read_json, sealed_patch_ids
 from swarm.mission.run import run_mission
 from tests.helpers import SwarmPorts, log_events, processes_mentioning
 
-pytestmark = pytest.mark.timeout(300)
+pytestmark = [pytest.mark.timeout(300), pytest.mark.mission]
 
 
 def _config(out: Path, ports: SwarmPorts, faults: list[str], **overrides: Any):

@@ -15,7 +15,7 @@ import pytest
 
 from tests.helpers import SwarmPorts, log_events, kill_all, processes_mentioning, swarm_cmd
 
-pytestmark = pytest.mark.timeout(240)
+pytestmark = [pytest.mark.timeout(240), pytest.mark.mission]
 
 
 def run_swarm(out: Path, ports: SwarmPorts, *args: str, timeout: float = 200) -> subprocess.CompletedProcess[str]:

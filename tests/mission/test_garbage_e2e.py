@@ -21,7 +21,7 @@ from swarm.mission.report import held_patch_ids, read_json, sealed_patch_ids
 from swarm.mission.run import RunState, run_mission
 from tests.helpers import SwarmPorts, processes_mentioning
 
-pytestmark = pytest.mark.timeout(300)
+pytestmark = [pytest.mark.timeout(300), pytest.mark.mission]
 
 MESSAGES = 10_000
 PER_TICK = 500  # the supervision loop ticks at 4 Hz: the flood lasts about 5 s

@@ -20,7 +20,7 @@ from swarm.mission.report import read_json
 from swarm.mission.run import RunState, run_mission
 from tests.helpers import SwarmPorts, kill_all, log_events, processes_mentioning
 
-pytestmark = pytest.mark.timeout(300)
+pytestmark = [pytest.mark.timeout(300), pytest.mark.mission]
 
 LOAD_S = 3.0
 LOAD_AFTER_TAKEOFF_S = 6.0  # every drone has been in the air this long when the load starts

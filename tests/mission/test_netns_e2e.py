@@ -24,6 +24,7 @@ from tests.helpers import SwarmPorts
 from tests.netem.measure import netem_problem
 
 pytestmark = [
+    pytest.mark.netns,
     pytest.mark.timeout(300),
     pytest.mark.skipif(netem_problem() is not None, reason=netem_problem() or ""),
 ]

@@ -3,11 +3,14 @@ the kernel, threads included."""
 
 from __future__ import annotations
 
+import pytest
 import os
 import sys
 from pathlib import Path
 
 from swarm.mission.processes import start_child
+
+pytestmark = pytest.mark.sim
 
 THREAD_NICENESS = ("import os, threading\n"
                    "threading.Thread(target=lambda: print(os.getpriority(os.PRIO_PROCESS, 0))).start()\n")

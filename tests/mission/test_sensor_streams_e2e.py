@@ -20,7 +20,7 @@ from swarm.mission.run import NO_WORLD_FOR_AGENTS, RunState, run_mission
 from swarm.sim.worlds import load_world
 from tests.helpers import SwarmPorts, processes_mentioning
 
-pytestmark = pytest.mark.timeout(300)
+pytestmark = [pytest.mark.timeout(300), pytest.mark.mission]
 
 
 def test_agents_given_no_world_map_from_the_simulated_cameras_streams_and_complete(

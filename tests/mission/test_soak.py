@@ -43,6 +43,9 @@ def test_the_soak_passes_only_when_every_mission_completes_nothing_is_lost_and_m
     assert summarise(missions)["passed"] is passed
 
 
+@pytest.mark.sim
+
+
 def test_a_one_mission_soak_flies_a_real_mission_and_measures_every_agent(
     tmp_path: Path, swarm_ports: SwarmPorts
 ) -> None:
@@ -63,6 +66,9 @@ def test_a_one_mission_soak_flies_a_real_mission_and_measures_every_agent(
         assert 3 <= agent["warm_fds"] <= agent["peak_fds"]
     assert (tmp_path / "soak" / "soak.json").is_file()
     assert result["summary"]["missions"] == 1 and result["summary"]["patches_lost"] == 0
+
+
+@pytest.mark.sim
 
 
 def test_bad_minutes_is_one_line_and_exit_2(tmp_path: Path) -> None:

@@ -14,7 +14,7 @@ from swarm.mission.run import run_mission
 from swarm.sim.worlds import floor_levels, load_world
 from tests.helpers import SwarmPorts, log_events, processes_mentioning
 
-pytestmark = pytest.mark.timeout(420)
+pytestmark = [pytest.mark.timeout(420), pytest.mark.mission]
 
 WORLD = "gen:3:size=16x12,storeys=2"
 

@@ -14,7 +14,7 @@ from swarm.mission.report import held_patch_ids, read_json, sealed_patch_ids
 from swarm.mission.run import run_mission
 from tests.helpers import SwarmPorts
 
-pytestmark = pytest.mark.timeout(300)
+pytestmark = [pytest.mark.timeout(300), pytest.mark.mission]
 
 
 def test_a_mission_over_mutual_tls_completes_and_converges(tmp_path: Path, swarm_ports: SwarmPorts) -> None:

@@ -14,7 +14,7 @@ from swarm.netem import LinkProfile, NetemUnavailable, SwarmNetwork
 from swarm.netem.commands import run
 from tests.netem.measure import netem_problem, tcp_goodput_kbit, udp_one_way
 
-pytestmark = pytest.mark.skipif(netem_problem() is not None, reason=netem_problem() or "")
+pytestmark = [pytest.mark.skipif(netem_problem() is not None, reason=netem_problem() or ""), pytest.mark.netns]
 
 N = 3000  # datagrams per flow for loss rates
 SMALL = 300  # datagrams per flow for all-or-nothing checks

@@ -153,6 +153,9 @@ except SwarmError as exc:
 """
 
 
+@pytest.mark.netns
+
+
 def test_a_real_non_root_user_gets_one_line(capsys: pytest.CaptureFixture[str]) -> None:
     setpriv = shutil.which("setpriv")
     if setpriv is None or os.geteuid() != 0:
@@ -174,6 +177,7 @@ def test_a_real_non_root_user_gets_one_line(capsys: pytest.CaptureFixture[str]) 
 
 
 @needs_root
+@pytest.mark.netns
 def test_up_creates_a_kept_network_and_prints_its_addresses(
     manual: Up, state_dir: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -201,6 +205,7 @@ def test_up_creates_a_kept_network_and_prints_its_addresses(
 
 
 @needs_root
+@pytest.mark.netns
 def test_apply_changes_the_rules_that_show_prints(manual: Up, capsys: pytest.CaptureFixture[str]) -> None:
     layout = manual(3, "rules")
     assert netem_apply("rules", "1-2", loss="30%") == 0
@@ -233,6 +238,7 @@ def test_apply_changes_the_rules_that_show_prints(manual: Up, capsys: pytest.Cap
 
 
 @needs_root
+@pytest.mark.netns
 def test_refused_applies_change_nothing(manual: Up, state_dir: Path) -> None:
     manual(3, "refuse")
     netem_apply("refuse", "1-3", loss=0.2)
@@ -258,6 +264,7 @@ def test_refused_applies_change_nothing(manual: Up, state_dir: Path) -> None:
 
 
 @needs_root
+@pytest.mark.netns
 def test_cut_stops_traffic_and_restore_brings_it_back(manual: Up) -> None:
     manual(3, "cut")
     netem_apply("cut", "2-1", cut=True)
@@ -269,6 +276,7 @@ def test_cut_stops_traffic_and_restore_brings_it_back(manual: Up) -> None:
 
 
 @needs_root
+@pytest.mark.netns
 def test_scenario_state_at_a_time(manual: Up, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     scenario = tmp_path / "links.toml"
     scenario.write_text('name = "heal"\n'
@@ -295,6 +303,7 @@ def test_scenario_state_at_a_time(manual: Up, tmp_path: Path, capsys: pytest.Cap
 
 
 @needs_root
+@pytest.mark.netns
 def test_down_removes_namespaces_control_links_processes_and_state(
     manual: Up, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -322,6 +331,7 @@ def test_down_removes_namespaces_control_links_processes_and_state(
 
 
 @needs_root
+@pytest.mark.netns
 def test_remove_leftovers_never_removes_a_manual_network(state_dir: Path, manual: Up) -> None:
     # Brought up by a process that has exited, as `swarm netem up` does: its creator is dead.
     script = "from swarm.netem.manual import netem_up; netem_up(2, 'kept')"
@@ -342,6 +352,7 @@ def test_remove_leftovers_never_removes_a_manual_network(state_dir: Path, manual
 
 
 @needs_root
+@pytest.mark.netns
 def test_down_all_removes_every_manual_network_and_orphans(
     manual: Up, state_dir: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -365,6 +376,7 @@ def test_down_all_removes_every_manual_network_and_orphans(
 
 
 @needs_root
+@pytest.mark.netns
 def test_attach_takes_over_without_creating_anything(manual: Up) -> None:
     layout = manual(2, "att")
     before = namespaces()

@@ -73,6 +73,9 @@ def test_ruleset_text() -> None:
     assert layout.namespace(2) == "swn-5b03-42-n2" and layout.hub == "swn-5b03-42-hub"
 
 
+@pytest.mark.netns
+
+
 def test_missing_tool_and_failing_command_are_one_line() -> None:
     with pytest.raises(NetemUnavailable, match="'no-such-tool-x' command is missing"):
         tool("no-such-tool-x")

@@ -12,7 +12,7 @@ from swarm.netem import NetemUnavailable, SwarmNetwork, remove_leftovers, topolo
 from swarm.netem.commands import namespaces, run, tool
 from tests.netem.measure import netem_problem
 
-pytestmark = pytest.mark.skipif(netem_problem() is not None, reason=netem_problem() or "")
+pytestmark = [pytest.mark.skipif(netem_problem() is not None, reason=netem_problem() or ""), pytest.mark.netns]
 
 
 def with_prefix(prefix: str) -> list[str]:

@@ -110,6 +110,9 @@ def test_a_bag_that_cannot_be_mapped_is_one_clear_error(tmp_path: Path, kwargs: 
         map_bags(load_config(), [bag], tmp_path / "map", topics)
 
 
+@pytest.mark.sim
+
+
 def test_swarm_map_on_a_missing_bag_is_one_line_and_a_non_zero_exit(tmp_path: Path) -> None:
     done = subprocess.run(swarm_cmd("map", str(tmp_path / "missing"), "--out", str(tmp_path / "o")),
                           capture_output=True, text=True, timeout=60)

@@ -23,6 +23,9 @@ from swarm.sim.worlds import load_world, mission_volume
 NODE = Path(__file__).with_name("ros2_camera_node.py")
 
 
+@pytest.mark.ros2
+
+
 def test_frames_from_a_ros2_node_map_onto_the_world(monkeypatch: pytest.MonkeyPatch) -> None:
     domain = str(random.randrange(1, 100))  # apart from any other test's ROS graph
     for name, value in (("ROS_DOMAIN_ID", domain), ("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")):

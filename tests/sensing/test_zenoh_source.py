@@ -42,6 +42,7 @@ def _attachment(seq: int) -> bytes:
 
 
 @pytest.mark.parametrize("layout", ["rmw_zenoh", "bridge"])
+@pytest.mark.bus
 def test_frames_arrive_with_the_pose_at_their_stamp_and_junk_is_counted(
     camera_side: tuple[zenoh.Session, str], layout: str
 ) -> None:

@@ -18,6 +18,8 @@ from swarm.sim.server import run_simulator
 from swarm.sim.worlds import World
 from tests.sim.support import ACCEPTED, NAN, gcs, running_sim, sim_config, wait_until
 
+pytestmark = pytest.mark.sim
+
 OFFBOARD = FlightMode.OFFBOARD.custom_mode
 HOLD = FlightMode.HOLD.custom_mode
 

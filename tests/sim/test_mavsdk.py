@@ -19,6 +19,8 @@ from swarm.config import gcs_port
 from swarm.sim.worlds import World
 from tests.sim.support import running_sim, sim_config
 
+pytestmark = pytest.mark.sim
+
 
 async def poll(read, condition, timeout: float, what: str):
     """Poll a latest-value telemetry read until condition(value) holds."""

@@ -43,6 +43,9 @@ class LineReader:
         return got
 
 
+@pytest.mark.sim
+
+
 def test_sim_command_prints_endpoints_and_stops_on_sigint(port_base: int) -> None:
     gbase = port_base + 20
     script = SCRIPT.format(vbase=port_base, gbase=gbase, sbase=port_base + 40)
@@ -72,6 +75,9 @@ def test_sim_command_prints_endpoints_and_stops_on_sigint(port_base: int) -> Non
     summary = reader.take(1, timeout=5)
     assert summary[0].startswith("sim stopped after ")
     assert "0 collisions" in summary[0] and "1: 0.0 m" in summary[0]
+
+
+@pytest.mark.sim
 
 
 def test_an_agent_listening_before_the_sim_starts_gets_a_warning_not_an_error(port_base: int) -> None:

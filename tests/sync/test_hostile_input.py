@@ -21,6 +21,8 @@ from swarm.bus.messages import AgentState
 from swarm.sync.chunks import PatchChunk
 from tests.sync.nodes import NodeSpec, NodeSwarm, holds_all
 
+pytestmark = pytest.mark.bus
+
 FAKE_ID = 9
 
 

@@ -9,6 +9,8 @@ import pytest
 
 from tests.sync.nodes import NodeSpec, NodeSwarm, holds_all
 
+pytestmark = pytest.mark.bus
+
 
 @pytest.fixture
 def swarm(tmp_path: Path) -> Iterator[NodeSwarm]:
