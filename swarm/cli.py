@@ -65,7 +65,9 @@ def _strategy_list(text: str) -> list[str]:
     names = [p.strip() for p in text.split(",")]
     unknown = [n for n in names if n not in STRATEGIES]
     if unknown or not names:
-        raise argparse.ArgumentTypeError(f"unknown strategy {', '.join(unknown) or text!r} (use {', '.join(STRATEGIES)})")
+        raise argparse.ArgumentTypeError(
+            f"unknown strategy {', '.join(unknown) or text!r} (use {', '.join(STRATEGIES)})"
+        )
     return names
 
 
@@ -81,8 +83,14 @@ def _percent_list(text: str) -> list[float]:
 
 def _add_config_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", type=Path, help="TOML file with [mission], [agent], [sim], [bus] tables")
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.FIELD=VALUE",
-                   help="override one setting (repeatable), e.g. --set agent.altitude_m=2.0")
+    p.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="SECTION.FIELD=VALUE",
+        help="override one setting (repeatable), e.g. --set agent.altitude_m=2.0",
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -91,26 +99,46 @@ def build_parser() -> argparse.ArgumentParser:
 
     run = sub.add_parser("run", help="fly a simulated swarm in a world and write a report")
     run.add_argument("--drones", type=_positive_int, help="number of drones (default 3)")
-    run.add_argument("--world", help="built-in world (office, warehouse, box, atrium, hall), gen:SEED[:options] "
-                     "or a .ply/.obj/.stl mesh")
+    run.add_argument(
+        "--world",
+        help="built-in world (office, warehouse, box, atrium, hall), gen:SEED[:options] or a .ply/.obj/.stl mesh",
+    )
     run.add_argument("--start", type=_vec3, help="take-off area x,y,z in world metres")
     run.add_argument("--out", type=Path, help="run directory (default runs/<time>-<world>)")
     run.add_argument("--max-time", type=float, dest="max_time", help="mission time limit in seconds")
     run.add_argument("--seed", type=int)
-    run.add_argument("--strategy", choices=STRATEGIES,
-                     help="how drones choose where to go (default coordinated: the cluster leader assigns targets)")
+    run.add_argument(
+        "--strategy",
+        choices=STRATEGIES,
+        help="how drones choose where to go (default coordinated: the cluster leader assigns targets)",
+    )
     run.add_argument("--no-live", action="store_true", help="plain progress lines instead of a live table")
-    run.add_argument("--network", choices=("loopback", "netns"),
-                     help="netns: each agent in its own network namespace on a virtual radio (root)")
+    run.add_argument(
+        "--network",
+        choices=("loopback", "netns"),
+        help="netns: each agent in its own network namespace on a virtual radio (root)",
+    )
     run.add_argument("--links", type=Path, help="link scenario TOML applied during the mission (needs --network netns)")
-    run.add_argument("--fault", action="append", metavar="SPEC",
-                     help="inject a fault (repeatable): kill:agent=K@T, restart:agent=K@T[+D], freeze:agent=K@T+D, "
-                     "telemetry-loss:agent=K@T+D (T: seconds after take-off; D: seconds)")
-    run.add_argument("--tls", action="store_true", default=None,
-                     help="mutual TLS with access control on every Zenoh session (certificates in OUT/certs)")
-    run.add_argument("--record", action="store_true", default=None,
-                     help="every agent records the sensor streams it received (depth, camera info, odometry) to "
-                     "OUT/bags/agent-K (ROS 2 MCAP)")
+    run.add_argument(
+        "--fault",
+        action="append",
+        metavar="SPEC",
+        help="inject a fault (repeatable): kill:agent=K@T, restart:agent=K@T[+D], freeze:agent=K@T+D, "
+        "telemetry-loss:agent=K@T+D (T: seconds after take-off; D: seconds)",
+    )
+    run.add_argument(
+        "--tls",
+        action="store_true",
+        default=None,
+        help="mutual TLS with access control on every Zenoh session (certificates in OUT/certs)",
+    )
+    run.add_argument(
+        "--record",
+        action="store_true",
+        default=None,
+        help="every agent records the sensor streams it received (depth, camera info, odometry) to "
+        "OUT/bags/agent-K (ROS 2 MCAP)",
+    )
     _add_config_flags(run)
 
     cameras = sub.add_parser("cameras", help="the simulated depth cameras as ROS 2 camera drivers over Zenoh")
@@ -177,16 +205,31 @@ def build_parser() -> argparse.ArgumentParser:
     _add_config_flags(sync)
     explore = bench_sub.add_parser("explore", help="time to 95 %% with 1..N drones, coordinated vs uncoordinated")
     explore.add_argument("--drones", type=_int_list, default=[1, 2, 3], help="swarm sizes, e.g. 1,2,3,5")
-    explore.add_argument("--strategies", type=_strategy_list, default=["coordinated", "uncoordinated"],
-                         help="comma-separated, e.g. coordinated,uncoordinated,frontier-only")
+    explore.add_argument(
+        "--strategies",
+        type=_strategy_list,
+        default=["coordinated", "uncoordinated"],
+        help="comma-separated, e.g. coordinated,uncoordinated,frontier-only",
+    )
     explore.add_argument("--world", help="one world (default office)")
-    explore.add_argument("--worlds", help="several: SPEC[,SPEC...], a spec a built-in name, a mesh file or "
-                         "gen:A..B[:options] (generated worlds A to B)")
-    explore.add_argument("--repeat", type=_positive_int, default=1,
-                         help="missions per strategy and size (the table gives medians and ranges; default 1)")
+    explore.add_argument(
+        "--worlds",
+        help="several: SPEC[,SPEC...], a spec a built-in name, a mesh file or "
+        "gen:A..B[:options] (generated worlds A to B)",
+    )
+    explore.add_argument(
+        "--repeat",
+        type=_positive_int,
+        default=1,
+        help="missions per strategy and size (the table gives medians and ranges; default 1)",
+    )
     explore.add_argument("--out", type=Path, help="where to keep the runs (default a temp dir)")
-    explore.add_argument("--resume", action="store_true", help="keep the missions already flown to their end in "
-                         "--out (same world, drones, strategy and seed) and fly only the rest")
+    explore.add_argument(
+        "--resume",
+        action="store_true",
+        help="keep the missions already flown to their end in "
+        "--out (same world, drones, strategy and seed) and fly only the rest",
+    )
     _add_config_flags(explore)
 
     experiment = sub.add_parser("experiment", help="several missions compared, with a table and figures")
@@ -194,13 +237,22 @@ def build_parser() -> argparse.ArgumentParser:
     dropout = experiment_sub.add_parser(
         "dropout", help="the same netns mission at several link loss levels and with a cut-and-heal (root)"
     )
-    dropout.add_argument("--levels", type=_percent_list, default=[0.0, 0.1, 0.3, 0.5],
-                         help="loss on every link in %%, e.g. 0,10,30,50 (0, the baseline, is always run)")
+    dropout.add_argument(
+        "--levels",
+        type=_percent_list,
+        default=[0.0, 0.1, 0.3, 0.5],
+        help="loss on every link in %%, e.g. 0,10,30,50 (0, the baseline, is always run)",
+    )
     dropout.add_argument("--no-cut", action="store_true", help="skip the cut-and-heal")
-    dropout.add_argument("--cut-at", type=float, default=20.0,
-                         help="seconds after take-off the highest-numbered drone is cut off (default 20)")
-    dropout.add_argument("--heal-at", type=float, default=50.0,
-                         help="seconds after take-off its links come back (default 50)")
+    dropout.add_argument(
+        "--cut-at",
+        type=float,
+        default=20.0,
+        help="seconds after take-off the highest-numbered drone is cut off (default 20)",
+    )
+    dropout.add_argument(
+        "--heal-at", type=float, default=50.0, help="seconds after take-off its links come back (default 50)"
+    )
     dropout.add_argument("--drones", type=_positive_int, help="swarm size (default 3)")
     dropout.add_argument("--world", default="office")
     dropout.add_argument("--out", type=Path, help="where to keep the runs (default a temp dir)")
@@ -218,19 +270,32 @@ def build_parser() -> argparse.ArgumentParser:
     deploy_sub = deploy.add_subparsers(dest="deploy", required=True, parser_class=_Parser)
     compose = deploy_sub.add_parser("compose", help="write a docker-compose file: simulator, N agents, observer")
     compose.add_argument("--drones", type=_positive_int, help="number of agents, 1 to 16 (default 3)")
-    compose.add_argument("--loss", type=float, default=0.0,
-                         help="radio loss on every link, each way, as a fraction 0..1 (default 0)")
-    compose.add_argument("--out", type=Path, default=Path("swarm-compose"),
-                         help="directory to write, new or empty (default swarm-compose)")
+    compose.add_argument(
+        "--loss", type=float, default=0.0, help="radio loss on every link, each way, as a fraction 0..1 (default 0)"
+    )
+    compose.add_argument(
+        "--out",
+        type=Path,
+        default=Path("swarm-compose"),
+        help="directory to write, new or empty (default swarm-compose)",
+    )
     compose.add_argument("--world", help="built-in world or a .ply/.obj/.stl mesh (copied next to the configs)")
     compose.add_argument("--image", default="swarm-agent", help="the image built from deploy/Dockerfile")
-    compose.add_argument("--build-context", type=Path, dest="build_context",
-                         help="the swarm repository: docker compose builds the image itself")
+    compose.add_argument(
+        "--build-context",
+        type=Path,
+        dest="build_context",
+        help="the swarm repository: docker compose builds the image itself",
+    )
     _add_config_flags(compose)
     certs = deploy_sub.add_parser("certs", help="a CA and per-drone certificates for mutual TLS (bus.tls_dir)")
     certs.add_argument("--drones", type=_positive_int, required=True, help="certificates for drones 1..N")
-    certs.add_argument("--out", type=Path, default=Path("swarm-certs"),
-                       help="directory to write; must not hold a CA yet (default swarm-certs)")
+    certs.add_argument(
+        "--out",
+        type=Path,
+        default=Path("swarm-certs"),
+        help="directory to write; must not hold a CA yet (default swarm-certs)",
+    )
     certs.add_argument("--days", type=_positive_int, default=365, help="validity in days (default 365)")
     radio = deploy_sub.add_parser("netem", help="impair this container's radio interface with tc netem")
     radio.add_argument("--address", required=True, help="IP address of the radio interface")
@@ -250,12 +315,17 @@ def build_parser() -> argparse.ArgumentParser:
     n_apply.add_argument("--name", default="default", help="network name (default: default)")
     n_apply.add_argument("--loss", help="drop probability each way: a fraction (0.3) or a percentage (30%%)")
     n_apply.add_argument("--cut", action="store_true", help="drop everything")
-    n_apply.add_argument("--rate-kbit", dest="rate_kbit", type=_non_negative_int,
-                         help="rate limit in kbit/s each way (a node or all; not a pair)")
+    n_apply.add_argument(
+        "--rate-kbit",
+        dest="rate_kbit",
+        type=_non_negative_int,
+        help="rate limit in kbit/s each way (a node or all; not a pair)",
+    )
     n_apply.add_argument("--delay-ms", dest="delay_ms", type=float, help="refused: needs sch_netem")
     n_apply.add_argument("--jitter-ms", dest="jitter_ms", type=float, help="refused: needs sch_netem")
-    n_apply.add_argument("--restore", action="store_true",
-                         help="remove LINK's own profile (all: every profile, all links clean)")
+    n_apply.add_argument(
+        "--restore", action="store_true", help="remove LINK's own profile (all: every profile, all links clean)"
+    )
     n_apply.add_argument("--scenario", type=Path, help="scenario TOML: make its state at --at T the whole table")
     n_apply.add_argument("--at", type=float, metavar="T", help="seconds after take-off (with --scenario)")
     n_down = netem_sub.add_parser("down", help="remove a network: processes inside, namespaces, links, state file")
@@ -291,14 +361,23 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "run":
-        config = _config_from(args, {
-            "mission.drones": args.drones, "mission.world": args.world, "mission.start": args.start,
-            "mission.out": str(args.out) if args.out else None, "mission.max_time_s": args.max_time,
-            "mission.seed": args.seed, "explore.strategy": args.strategy,
-            "mission.network": args.network, "mission.links": str(args.links) if args.links else None,
-            "mission.faults": args.fault, "mission.tls": args.tls,
-            "mission.record": args.record,
-        })
+        config = _config_from(
+            args,
+            {
+                "mission.drones": args.drones,
+                "mission.world": args.world,
+                "mission.start": args.start,
+                "mission.out": str(args.out) if args.out else None,
+                "mission.max_time_s": args.max_time,
+                "mission.seed": args.seed,
+                "explore.strategy": args.strategy,
+                "mission.network": args.network,
+                "mission.links": str(args.links) if args.links else None,
+                "mission.faults": args.fault,
+                "mission.tls": args.tls,
+                "mission.record": args.record,
+            },
+        )
         from swarm.mission.run import run_mission
 
         report = run_mission(config, live=False if args.no_live else None)
@@ -307,22 +386,33 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "map":
         from swarm.agent.bagmap import map_bags
 
-        report = map_bags(_config_from(args, {}), args.bags, args.out,
-                          {"depth": args.depth_topic, "info": args.info_topic, "pose": args.pose_topic})
+        report = map_bags(
+            _config_from(args, {}),
+            args.bags,
+            args.out,
+            {"depth": args.depth_topic, "info": args.info_topic, "pose": args.pose_topic},
+        )
         for bag in report["bags"]:
             dropped = ", ".join(f"{n} {why}" for why, n in bag["dropped"].items()) or "none dropped"
             print(f"{bag['bag']}: {bag['frames']} frames, {bag['patches']} patches ({dropped})")
-        print(f"map: {args.out / 'map.ply'} ({report['mesh']['vertices']} vertices, {report['known_voxels']} known "
-              f"voxels); report: {args.out / 'report.json'}")
+        print(
+            f"map: {args.out / 'map.ply'} ({report['mesh']['vertices']} vertices, {report['known_voxels']} known "
+            f"voxels); report: {args.out / 'report.json'}"
+        )
         return 0
     if args.command == "cameras":
         from swarm.sim.sensors import cameras_command
 
         return cameras_command(_config_from(args, {"mission.world": args.world, "mission.drones": args.vehicles}))
     if args.command == "sim":
-        config = _config_from(args, {
-            "mission.world": args.world, "mission.drones": args.vehicles, "mission.start": args.start,
-        })
+        config = _config_from(
+            args,
+            {
+                "mission.world": args.world,
+                "mission.drones": args.vehicles,
+                "mission.start": args.start,
+            },
+        )
         from swarm.sim.server import sim_command
 
         return sim_command(config)
@@ -372,8 +462,9 @@ def _dispatch(args: argparse.Namespace) -> int:
             raise ConfigError("--resume needs the --out of the bench to resume")
         worlds = expand_worlds(args.worlds) if args.worlds else None
         config = _config_from(args, {"mission.world": args.world or (worlds[0] if worlds else None)})
-        return bench_explore(config, args.drones, args.strategies, args.out, repeats=args.repeat, worlds=worlds,
-                            resume=args.resume)
+        return bench_explore(
+            config, args.drones, args.strategies, args.out, repeats=args.repeat, worlds=worlds, resume=args.resume
+        )
     if args.command == "experiment" and args.experiment == "dropout":
         from swarm.mission.experiment import experiment_dropout
 
@@ -406,9 +497,18 @@ def _dispatch(args: argparse.Namespace) -> int:
         if args.netem == "show":
             return netem_show(args.name)
         if args.netem == "apply":
-            return netem_apply(args.name, args.link, loss=args.loss, cut=args.cut, rate_kbit=args.rate_kbit,
-                               restore=args.restore, delay_ms=args.delay_ms, jitter_ms=args.jitter_ms,
-                               scenario=args.scenario, at=args.at)
+            return netem_apply(
+                args.name,
+                args.link,
+                loss=args.loss,
+                cut=args.cut,
+                rate_kbit=args.rate_kbit,
+                restore=args.restore,
+                delay_ms=args.delay_ms,
+                jitter_ms=args.jitter_ms,
+                scenario=args.scenario,
+                at=args.at,
+            )
         return netem_down(args.name, args.all)
     raise SwarmError(f"unknown command {args.command}")
 
@@ -422,20 +522,33 @@ def _print_summary(report: dict[str, Any]) -> None:
         f"explored {100 * report['explored_fraction']:.1f} % — {report['reason']}"
     )
     for a in agents:
-        print(f"  drone {a['id']}: flew {a['distance_m']:.1f} m, {a['patches_sealed']} patches sealed, "
-              f"{a['patches_held']} held, sent {a['bytes_sent']} B, received {a['bytes_received']} B, {a['phase']}")
+        print(
+            f"  drone {a['id']}: flew {a['distance_m']:.1f} m, {a['patches_sealed']} patches sealed, "
+            f"{a['patches_held']} held, sent {a['bytes_sent']} B, received {a['bytes_received']} B, {a['phase']}"
+        )
     t95 = report.get("time_to", {}).get("0.95")
-    print(f"exploration: {report.get('mission', {}).get('strategy', '?')}, 95 % explored "
-          f"{'at %.1f s' % t95 if t95 is not None else 'never'}, overlap {report.get('overlap_fraction', 0.0):.2f}, "
-          f"{len(report.get('leaders', []))} leader timeline entries; figures in {report.get('report_page') or 'report.json'}")
+    print(
+        f"exploration: {report.get('mission', {}).get('strategy', '?')}, 95 % explored "
+        f"{f'at {t95:.1f} s' if t95 is not None else 'never'}, overlap {report.get('overlap_fraction', 0.0):.2f}, "
+        f"{len(report.get('leaders', []))} leader timeline entries; "
+        f"figures in {report.get('report_page') or 'report.json'}"
+    )
     bandwidth = report["bandwidth"]
-    print(f"map sharing: converged {'yes' if report['converged'] else 'NO'}, "
-          f"{bandwidth['bytes_per_agent_s'] / 1000:.1f} kB per agent-second "
-          f"(whole-map baseline every {bandwidth['baseline_loop_s']} s: "
-          f"{bandwidth['whole_map_baseline_bytes_per_agent_s'] / 1000:.1f} kB, ratio {bandwidth['baseline_ratio']})")
+    print(
+        f"map sharing: converged {'yes' if report['converged'] else 'NO'}, "
+        f"{bandwidth['bytes_per_agent_s'] / 1000:.1f} kB per agent-second "
+        f"(whole-map baseline every {bandwidth['baseline_loop_s']} s: "
+        f"{bandwidth['whole_map_baseline_bytes_per_agent_s'] / 1000:.1f} kB, ratio {bandwidth['baseline_ratio']})"
+    )
     if report.get("map"):
         phantoms = report.get("phantoms") or {}
-        check = (f" ({phantoms['vertices']} vertices; {phantoms['phantoms']} phantom obstacles along the flown paths, "
-                 f"of {phantoms['near_paths']} vertices near them)") if phantoms else ""
+        check = (
+            (
+                f" ({phantoms['vertices']} vertices; {phantoms['phantoms']} phantom obstacles along the flown paths, "
+                f"of {phantoms['near_paths']} vertices near them)"
+            )
+            if phantoms
+            else ""
+        )
         print(f"map: {Path(report['run_dir']) / report['map']}{check}")
     print(f"report: {Path(report['run_dir']) / 'report.json'}")

@@ -17,8 +17,9 @@ import tomllib
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from swarm.errors import SwarmError
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from swarm.errors import SwarmError
 
 Vec3 = tuple[float, float, float]
 PositiveFloat = Annotated[float, Field(gt=0)]
@@ -113,15 +114,16 @@ class MissionSettings(_Section):
     name: str = Field("default", description="mission name; every key expression lives under swarm/<name>/")
     drones: int = Field(3, ge=1, le=16)
     world: str = Field(
-        "office", description="a built-in world name, a generated building gen:SEED[:options] or a path to a "
-        ".ply/.obj/.stl mesh"
+        "office",
+        description="a built-in world name, a generated building gen:SEED[:options] or a path to a .ply/.obj/.stl mesh",
     )
     start: Vec3 | None = Field(None, description="take-off area centre; the world's default when unset")
     spawn_spacing_m: PositiveFloat = 1.5
     volume: Box | None = Field(None, description="mission volume; the world mesh bounds when unset")
     max_time_s: PositiveFloat | None = Field(
-        None, description=f"the mission stops (drones land) after this long; unset: {DEFAULT_MAX_TIME_S:g} s, or "
-        f"{MAX_TIME_S_PER_M3_PER_DRONE:g} s per cubic metre of mission volume per drone when that is longer"
+        None,
+        description=f"the mission stops (drones land) after this long; unset: {DEFAULT_MAX_TIME_S:g} s, or "
+        f"{MAX_TIME_S_PER_M3_PER_DRONE:g} s per cubic metre of mission volume per drone when that is longer",
     )
     seed: int = 0
     out: Path | None = Field(None, description="run directory; runs/<timestamp>-<world> when unset")
@@ -136,17 +138,24 @@ class MissionSettings(_Section):
         default_factory=list, max_length=64, description=f"faults injected during the mission: {FAULT_SYNTAX}"
     )
     tls: bool = Field(
-        False, description="swarm run: a fresh CA and certificates in OUT/certs; every session on mutual TLS with "
-        "access control (a drone publishes only under its own id)"
+        False,
+        description="swarm run: a fresh CA and certificates in OUT/certs; every session on mutual TLS with "
+        "access control (a drone publishes only under its own id)",
     )
     # The simulator stands in for each drone's autopilot, which on a real drone runs on its own processor and is
     # never starved by the companion computer's load; the agents stand in for those companion computers. Above
     # the rest of the machine (niceness 0), a burst of other processes does not stall their telemetry.
-    record: bool = Field(False, description="swarm run: each agent records its sensor streams to OUT/bags/agent-K "
-                         "(needs camera.source = \"zenoh\")")
+    record: bool = Field(
+        False,
+        description="swarm run: each agent records its sensor streams to OUT/bags/agent-K "
+        '(needs camera.source = "zenoh")',
+    )
     sim_nice: int = Field(
-        -10, ge=-20, le=19, description="swarm run: the simulator's niceness (below 0 needs root or CAP_SYS_NICE; "
-        "when not permitted it runs at the harness's, and the report says so)"
+        -10,
+        ge=-20,
+        le=19,
+        description="swarm run: the simulator's niceness (below 0 needs root or CAP_SYS_NICE; "
+        "when not permitted it runs at the harness's, and the report says so)",
     )
     agent_nice: int = Field(-5, ge=-20, le=19, description="swarm run: each agent's niceness (as sim_nice)")
 
@@ -159,7 +168,7 @@ class MissionSettings(_Section):
     @model_validator(mode="after")
     def _links_need_netns(self) -> MissionSettings:
         if self.links is not None and self.network != "netns":
-            raise ValueError("a link scenario (links) needs network = \"netns\"")
+            raise ValueError('a link scenario (links) needs network = "netns"')
         return self
 
     @model_validator(mode="after")
@@ -198,8 +207,9 @@ class AgentSettings(_Section):
     start_delay_s: float = Field(0.0, ge=0.0, description="wait on the ground this long once healthy before arming")
     out_dir: Path | None = Field(None, description="where the agent writes its summary and logs")
     state_dir: Path | None = Field(
-        None, description="the agent keeps its own sealed patches here; started again, it reloads those of its "
-        "earlier runs (other epochs) before it asks its peers"
+        None,
+        description="the agent keeps its own sealed patches here; started again, it reloads those of its "
+        "earlier runs (other epochs) before it asks its peers",
     )
     mavsdk_threads: int = Field(8, ge=2, le=64)
 
@@ -232,14 +242,15 @@ class SimSettings(_Section):
     offboard_timeout_s: PositiveFloat = Field(1.0, description="no setpoint for this long: hold (as PX4)")
     spawns: list[Vec3] = Field(default_factory=list, description="vehicle home positions; set by swarm run")
     sensor_listen: list[str] = Field(
-        default_factory=list, description="when set, the simulator publishes each vehicle's odometry (ROS 2, in "
+        default_factory=list,
+        description="when set, the simulator publishes each vehicle's odometry (ROS 2, in "
         "camera.stream's layout, under /drone<k>) on a Zenoh router listening here, for `swarm cameras` and the "
-        "agents with camera.source = \"zenoh\""
+        'agents with camera.source = "zenoh"',
     )
     odometry_hz: float = Field(50.0, ge=5.0, le=500.0, description="odometry rate (sensor_listen)")
     status_path: Path | None = Field(None, description="where the simulator writes its status JSON")
     control_path: Path | None = Field(
-        None, description="fault injection: a JSON file the simulator polls, {\"telemetry_off\": [drone ids]}"
+        None, description='fault injection: a JSON file the simulator polls, {"telemetry_off": [drone ids]}'
     )
 
 
@@ -265,11 +276,13 @@ class BusSettings(_Section):
     shared_memory: bool = False
     base_port: int = Field(DEFAULT_BUS_BASE_PORT, ge=1024, le=65000, description="loopback ports for swarm run")
     tls_dir: Path | None = Field(
-        None, description="mutual TLS and access control: the directory `swarm deploy certs` wrote (ca.pem and "
-        "this process's certificate); every endpoint must then be tls/"
+        None,
+        description="mutual TLS and access control: the directory `swarm deploy certs` wrote (ca.pem and "
+        "this process's certificate); every endpoint must then be tls/",
     )
     tls_name: str | None = Field(
-        None, pattern=r"^(drone-[1-9][0-9]{0,2}|observer)$",
+        None,
+        pattern=r"^(drone-[1-9][0-9]{0,2}|observer)$",
         description="which certificate in tls_dir: drone-<id> (an agent's default) or observer",
     )
 
@@ -296,46 +309,58 @@ class SensorStreamSettings(_Section):
     """Where a camera on ROS 2 publishes, as seen through Zenoh (camera.source = "zenoh")."""
 
     layout: Literal["rmw_zenoh", "bridge"] = Field(
-        "rmw_zenoh", description="rmw_zenoh: keys <domain>/<topic>/<type>/<hash> (hash matched by *); bridge: "
-        "zenoh-bridge-ros2dds, keys [<namespace>/]<topic>"
+        "rmw_zenoh",
+        description="rmw_zenoh: keys <domain>/<topic>/<type>/<hash> (hash matched by *); bridge: "
+        "zenoh-bridge-ros2dds, keys [<namespace>/]<topic>",
     )
     domain_id: int = Field(0, ge=0, le=232, description="ROS_DOMAIN_ID (rmw_zenoh layout)")
     namespace: str = Field("", pattern=r"^([A-Za-z0-9_]+(/[A-Za-z0-9_]+)*)?$", description="bridge key prefix")
     depth_topic: str = Field("/camera/depth/image_rect_raw", pattern=_ROS_NAME, description="sensor_msgs/Image")
     info_topic: str = Field("/camera/depth/camera_info", pattern=_ROS_NAME, description="sensor_msgs/CameraInfo")
     pose_topic: str = Field("/odom", pattern=_ROS_NAME, description="the vehicle's pose in the world frame (ENU)")
-    pose_type: Literal["odometry", "pose_stamped"] = Field("odometry", description="nav_msgs/Odometry or "
-                                                           "geometry_msgs/PoseStamped")
-    mode: Literal["peer", "client"] = Field(
-        "client", description="the sensor session's Zenoh mode: client, through the router it connects to (rmw_zenohd "
-        "or the simulator's); peer, straight to the endpoints (a peer behind a router with no listen endpoint of "
-        "its own heard nothing from the other peers in a test here)"
+    pose_type: Literal["odometry", "pose_stamped"] = Field(
+        "odometry", description="nav_msgs/Odometry or geometry_msgs/PoseStamped"
     )
-    connect: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"],
-                               description="Zenoh endpoints of the camera's side (rmw_zenohd listens on 7447)")
+    mode: Literal["peer", "client"] = Field(
+        "client",
+        description="the sensor session's Zenoh mode: client, through the router it connects to (rmw_zenohd "
+        "or the simulator's); peer, straight to the endpoints (a peer behind a router with no listen endpoint of "
+        "its own heard nothing from the other peers in a test here)",
+    )
+    connect: list[str] = Field(
+        default_factory=lambda: ["tcp/127.0.0.1:7447"],
+        description="Zenoh endpoints of the camera's side (rmw_zenohd listens on 7447)",
+    )
     listen: list[str] = Field(default_factory=list, description="Zenoh endpoints this session listens on")
     max_gap_s: PositiveFloat = Field(0.25, description="an image between poses further apart is dropped")
-    max_hold_s: float = Field(0.05, ge=0.0, le=1.0, description="an image this much newer than the newest pose "
-                              "takes that pose; newer ones wait for the next")
+    max_hold_s: float = Field(
+        0.05,
+        ge=0.0,
+        le=1.0,
+        description="an image this much newer than the newest pose takes that pose; newer ones wait for the next",
+    )
 
     def under_vehicle(self, vehicle_id: int) -> SensorStreamSettings:
         """These settings with every topic under /drone<k>: the simulator's layout, one camera and one odometry
         per vehicle (what camera.source = "sim" hears)."""
-        return self.model_copy(update={
-            name: f"/drone{vehicle_id}/{getattr(self, name).lstrip('/')}"
-            for name in ("depth_topic", "info_topic", "pose_topic")
-        })
+        return self.model_copy(
+            update={
+                name: f"/drone{vehicle_id}/{getattr(self, name).lstrip('/')}"
+                for name in ("depth_topic", "info_topic", "pose_topic")
+            }
+        )
 
 
 class CameraSettings(_Section):
     """The depth camera (simulated by ray casting the world mesh, or a real one behind the same interface)."""
 
     source: Literal["sim", "zenoh", "ros2", "replay", "none"] = Field(
-        "sim", description="sim: the simulator's cameras (`swarm cameras`, which `swarm run` starts), heard as "
+        "sim",
+        description="sim: the simulator's cameras (`swarm cameras`, which `swarm run` starts), heard as "
         "zenoh does with camera.stream's topics under /drone<agent.id>; zenoh: a camera on ROS 2 heard through "
         "Zenoh (camera.stream); ros2: the same topics through rclpy (pip install 'swarm[ros2]'); replay: "
         "camera.replay_bag played back at its pace; an agent never loads a world, so all of these need "
-        "mission.volume (`swarm sim` prints its world's); none: no mapping"
+        "mission.volume (`swarm sim` prints its world's); none: no mapping",
     )
     width: int = Field(160, ge=8, le=1280)
     height: int = Field(120, ge=6, le=960)
@@ -347,13 +372,22 @@ class CameraSettings(_Section):
     stereo_sigma_coeff: PositiveFloat = Field(0.002418, description="sigma(z) = coeff * z^2, metres")
     pitch_deg: float = Field(0.0, ge=-90.0, le=90.0, description="camera pitch, positive looks down")
     mount: CameraMount = CameraMount()
-    record: Path | None = Field(None, description="camera.source = \"zenoh\": record every sensor message received "
-                                "to this ROS 2 MCAP bag (a directory that must not exist)")
-    replay_bag: Path | None = Field(None, description="camera.source = \"replay\": the bag played back as the "
-                                    "camera (ROS 2 directory or ROS 1 .bag; topics picked by type)")
+    record: Path | None = Field(
+        None,
+        description='camera.source = "zenoh": record every sensor message received '
+        "to this ROS 2 MCAP bag (a directory that must not exist)",
+    )
+    replay_bag: Path | None = Field(
+        None,
+        description='camera.source = "replay": the bag played back as the '
+        "camera (ROS 2 directory or ROS 1 .bag; topics picked by type)",
+    )
     peer_mask_m: float = Field(
-        0.5, ge=0.0, le=3.0, description="streamed frames: pixels whose rays meet a sphere of this radius round a "
-        "peer's reported position (half a body height up) are not mapped, so drones leave no phantom obstacles; 0: off"
+        0.5,
+        ge=0.0,
+        le=3.0,
+        description="streamed frames: pixels whose rays meet a sphere of this radius round a "
+        "peer's reported position (half a body height up) are not mapped, so drones leave no phantom obstacles; 0: off",
     )
     stream: SensorStreamSettings = SensorStreamSettings()
 
@@ -405,11 +439,15 @@ class SyncSettings(_Section):
     assembly_timeout_s: PositiveFloat = Field(30.0, description="a patch still incomplete after this is dropped")
     max_assembly_bytes: int = Field(64 << 20, ge=1 << 20, description="bytes of incomplete patches kept at most")
     linger_max_s: float = Field(
-        60.0, ge=0.0, le=3600.0,
+        60.0,
+        ge=0.0,
+        le=3600.0,
         description="after landing, stay on the bus until every peer has finished and holds what we hold, or this long",
     )
     linger_wait_departed_s: float = Field(
-        20.0, ge=0.0, le=600.0,
+        20.0,
+        ge=0.0,
+        le=600.0,
         description="while lingering, a peer that left before it was in step is waited for this long (a lossy "
         "link's lease expiry is often a flap)",
     )
@@ -445,46 +483,63 @@ class ExploreSettings(_Section):
     )
     utility_lambda: float = Field(0.2, ge=0.0, le=1.0, description="lambda of U = I exp(-lambda (d_i + (n_c-1)/d_tot))")
     sigma_m: PositiveFloat = Field(
-        6.0, description="gain scheduling: gains near an assigned target drop (Eq. 3.5); Mahdoui's 3 m with a 4 m "
-        "sensor, scaled to the 8 m camera (two viewpoints closer than its range see much of the same space)"
+        6.0,
+        description="gain scheduling: gains near an assigned target drop (Eq. 3.5); Mahdoui's 3 m with a 4 m "
+        "sensor, scaled to the 8 m camera (two viewpoints closer than its range see much of the same space)",
     )
     current_target_bonus: float = Field(
-        3.0, ge=1.0, le=10.0, description="utility factor for a drone's current target (fewer U-turns between loops: "
-        "with view gains, 1.5 let a drone be sent 12-17 m one way and back between two loops)"
+        3.0,
+        ge=1.0,
+        le=10.0,
+        description="utility factor for a drone's current target (fewer U-turns between loops: "
+        "with view gains, 1.5 let a drone be sent 12-17 m one way and back between two loops)",
     )
     clearance_m: PositiveFloat = Field(
-        0.25, description="planned paths keep this far from mapped obstacle cells (drone radius + 5 cm: at 0.2 m a "
-        "drone touched a wall end; at 0.35 m the 0.2 m grid cut 1.1 m doorways off)"
+        0.25,
+        description="planned paths keep this far from mapped obstacle cells (drone radius + 5 cm: at 0.2 m a "
+        "drone touched a wall end; at 0.35 m the 0.2 m grid cut 1.1 m doorways off)",
     )
     roomy_clearance_m: float = Field(
-        0.45, ge=0.0, le=2.0, description="paths keep this far from mapped obstacles where the space allows, and "
+        0.45,
+        ge=0.0,
+        le=2.0,
+        description="paths keep this far from mapped obstacles where the space allows, and "
         "come down to clearance_m only in narrow passages (at the minimum alone, a drone passed every wall end "
-        "0.05 m from contact); at most clearance_m: off"
+        "0.05 m from contact); at most clearance_m: off",
     )
     body_height_m: float = Field(
-        0.45, ge=0.0, le=2.0, description="the airframe reaches this far above the position it reports; planned "
-        "positions need clearance_m up to there (the simulator's drone: its sphere's top is 0.42 m up)"
+        0.45,
+        ge=0.0,
+        le=2.0,
+        description="the airframe reaches this far above the position it reports; planned "
+        "positions need clearance_m up to there (the simulator's drone: its sphere's top is 0.42 m up)",
     )
     min_altitude_m: PositiveFloat = Field(0.6, description="lowest flight height above the mission volume's floor")
     ceiling_margin_m: PositiveFloat = Field(0.3, description="highest flight: this far below the mission volume's top")
     gain_model: Literal["view", "box"] = Field(
-        "view", description="what a candidate is worth: view, the unknown volume its viewpoint's camera would see "
-        "(ray cast); box, the unknown volume in the gain_radius_m cube around its point (Mahdoui's window)"
+        "view",
+        description="what a candidate is worth: view, the unknown volume its viewpoint's camera would see "
+        "(ray cast); box, the unknown volume in the gain_radius_m cube around its point (Mahdoui's window)",
     )
     gain_radius_m: PositiveFloat = Field(
-        1.0, description="box gain: unknown cells within this half-width cube around a frontier point (also the "
-        "min_gain_m3 test under either model)"
+        1.0,
+        description="box gain: unknown cells within this half-width cube around a frontier point (also the "
+        "min_gain_m3 test under either model)",
     )
     min_gain_m3: float = Field(
         0.8, ge=0.0, description="frontier clusters with less unknown volume around them than this are ignored"
     )
     min_view_gain_m3: float = Field(
-        2.0, ge=0.0, description="view gain: a viewpoint that would see less unknown than this is not worth a trip "
+        2.0,
+        ge=0.0,
+        description="view gain: a viewpoint that would see less unknown than this is not worth a trip "
         "(what such views leave unseen are floor corners and slivers; chasing them across the building was most of "
-        "a mission's tail: office, 3 drones, 95 % at 63 s, the last targets of 0.5-2 m3 until 103 s)"
+        "a mission's tail: office, 3 drones, 95 % at 63 s, the last targets of 0.5-2 m3 until 103 s)",
     )
     seen_fraction: float = Field(
-        0.5, gt=0.0, le=1.0,
+        0.5,
+        gt=0.0,
+        le=1.0,
         description="a planning cell with no obstacle counts as seen free when this share of its voxels is known",
     )
     min_unknown_m3: float = Field(
@@ -505,8 +560,11 @@ class ExploreSettings(_Section):
     )
     return_home: bool = Field(True, description="when the mission is done, fly back above the take-off point")
     idle_home_s: float = Field(
-        6.0, ge=0.0, le=600.0, description="with return_home, a drone left without a target this long heads home "
-        "while the others finish (a new target stops it), so that it lands soon after its cluster is done"
+        6.0,
+        ge=0.0,
+        le=600.0,
+        description="with return_home, a drone left without a target this long heads home "
+        "while the others finish (a new target stops it), so that it lands soon after its cluster is done",
     )
 
 
@@ -531,7 +589,7 @@ class SwarmConfig(_Section):
         if self.explore.strategy != "scripted" and self.camera.source == "none":
             raise ValueError(
                 f"explore.strategy '{self.explore.strategy}' needs a camera (camera.source = \"sim\"); "
-                "without one only explore.strategy = \"scripted\" flies"
+                'without one only explore.strategy = "scripted" flies'
             )
         return self
 

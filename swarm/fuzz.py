@@ -173,9 +173,19 @@ def _seed_digest() -> DigestWire:
 def _seed_state() -> bytes:
     return encode(
         AgentState(
-            id=3, epoch=1_795_340_000_000, seq=41, t=1_700_000_000.25, position=(1.0, -2.5, 1.5),
-            velocity=(0.5, 0.0, -0.1), heading_to=(4.0, 4.0, 1.5), yaw_deg=-45.0, flight_mode="OFFBOARD",
-            phase="flying", role="explorer", leader=1, holdings=_seed_digest(),
+            id=3,
+            epoch=1_795_340_000_000,
+            seq=41,
+            t=1_700_000_000.25,
+            position=(1.0, -2.5, 1.5),
+            velocity=(0.5, 0.0, -0.1),
+            heading_to=(4.0, 4.0, 1.5),
+            yaw_deg=-45.0,
+            flight_mode="OFFBOARD",
+            phase="flying",
+            role="explorer",
+            leader=1,
+            holdings=_seed_digest(),
         )
     )
 
@@ -184,8 +194,15 @@ def _seed_frontiers() -> bytes:
     points = as_points([(1.0, 2.0, 1.5), (3.0, -1.0, 1.0), (0.5, 0.5, 2.0)])
     return encode(
         FrontierReport(
-            id=4, epoch=9, seq=2, position=(0.0, 0.0, 1.5), viewpoints=points, points=points + 0.5,
-            gains=np.array([3.0, 0.0, 1.5], dtype=np.float32), visited=points[:2], arrived=True,
+            id=4,
+            epoch=9,
+            seq=2,
+            position=(0.0, 0.0, 1.5),
+            viewpoints=points,
+            points=points + 0.5,
+            gains=np.array([3.0, 0.0, 1.5], dtype=np.float32),
+            visited=points[:2],
+            arrived=True,
         )
     )
 
@@ -193,8 +210,13 @@ def _seed_frontiers() -> bytes:
 def _seed_targets() -> bytes:
     return encode(
         TargetAssignment(
-            leader=1, epoch=9, round=7, members=[1, 2, 3], drones=[2, 3],
-            viewpoints=as_points([(1.0, 1.0, 1.0), (5.0, 5.0, 1.0)]), points=as_points([(2, 1, 1), (6, 5, 1)]),
+            leader=1,
+            epoch=9,
+            round=7,
+            members=[1, 2, 3],
+            drones=[2, 3],
+            viewpoints=as_points([(1.0, 1.0, 1.0), (5.0, 5.0, 1.0)]),
+            points=as_points([(2, 1, 1), (6, 5, 1)]),
         )
     )
 
@@ -301,8 +323,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             name, accepted = run_one(data)
         except Exception:
             traceback.print_exc()
-            print(f"unexpected exception in {route(data)[0].name} after {done} iterations, input: {data.hex()}",
-                  file=sys.stderr)
+            print(
+                f"unexpected exception in {route(data)[0].name} after {done} iterations, input: {data.hex()}",
+                file=sys.stderr,
+            )
             return 1
         counts[name][0 if accepted else 1] += 1
     print(f"iterations: {args.iterations} (seed {args.seed})")

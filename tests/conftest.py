@@ -56,6 +56,7 @@ def _unit_tests_do_no_io(request: pytest.FixtureRequest, monkeypatch: pytest.Mon
     def refuse(what: str):  # type: ignore[no-untyped-def]
         def refused(*args, **kwargs):  # type: ignore[no-untyped-def]
             raise UnitTestDidIO(f"a unit test may not {what}: mark it with its tier ({', '.join(HEAVY_TIERS)})")
+
         return refused
 
     for method in ("bind", "connect", "connect_ex", "sendto"):

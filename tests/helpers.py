@@ -26,14 +26,20 @@ class SwarmPorts:
 
     def settings(self) -> dict[str, int]:
         """The three port bases as `load_config` overrides."""
-        return {"sim.vehicle_base_port": self.vehicle_base, "sim.gcs_base_port": self.gcs_base,
-                "bus.base_port": self.bus_base}
+        return {
+            "sim.vehicle_base_port": self.vehicle_base,
+            "sim.gcs_base_port": self.gcs_base,
+            "bus.base_port": self.bus_base,
+        }
 
     def overrides(self) -> list[str]:
         return [
-            "--set", f"sim.vehicle_base_port={self.vehicle_base}",
-            "--set", f"sim.gcs_base_port={self.gcs_base}",
-            "--set", f"bus.base_port={self.bus_base}",
+            "--set",
+            f"sim.vehicle_base_port={self.vehicle_base}",
+            "--set",
+            f"sim.gcs_base_port={self.gcs_base}",
+            "--set",
+            f"bus.base_port={self.bus_base}",
         ]
 
 

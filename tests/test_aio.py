@@ -22,4 +22,3 @@ async def test_a_cancel_arriving_as_the_event_is_set_is_not_swallowed() -> None:
     task.cancel()
     with pytest.raises(asyncio.CancelledError):
         await task
-

@@ -39,8 +39,6 @@ def test_bad_input_is_one_line_and_exit_2(args: tuple[str, ...]) -> None:
 
 
 @pytest.mark.sim
-
-
 def test_help_lists_every_command() -> None:
     result = swarm("--help")
     assert result.returncode == 0

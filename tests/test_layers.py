@@ -3,10 +3,11 @@ a drone imports the simulator, the harness or a benchmark, and data flows one wa
 
 from __future__ import annotations
 
-import pytest
 import subprocess
 import sys
 from pathlib import Path
+
+import pytest
 
 pytestmark = pytest.mark.sim
 

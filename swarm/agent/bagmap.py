@@ -46,8 +46,10 @@ def map_bags(config: SwarmConfig, bags: list[Path], out: Path, topics: dict[str,
         raise SwarmError(str(exc)) from None
     vertices, triangles = fused.write_mesh(out / "map.ply")
     report = {
-        "bags": per_bag, "volume": {"min": bounds[0].tolist(), "max": bounds[1].tolist()},
-        "known_voxels": int(fused.voxel_count), "fused_digest": fused.digest(),
+        "bags": per_bag,
+        "volume": {"min": bounds[0].tolist(), "max": bounds[1].tolist()},
+        "known_voxels": int(fused.voxel_count),
+        "fused_digest": fused.digest(),
         "mesh": {"vertices": vertices, "triangles": triangles},
         "duration_s": round(time.monotonic() - started, 2),
     }
@@ -73,11 +75,19 @@ def _volume(config: SwarmConfig, bags: list[Path], topics: dict[str, str | None]
     return np.min(positions, axis=0) - reach, np.max(positions, axis=0) + reach
 
 
-def _map_one(config: SwarmConfig, producer: int, bag: Path, bounds: tuple[np.ndarray, np.ndarray],
-             topics: dict[str, str | None], fused: FusedMap, out: Path) -> dict[str, Any]:
+def _map_one(
+    config: SwarmConfig,
+    producer: int,
+    bag: Path,
+    bounds: tuple[np.ndarray, np.ndarray],
+    topics: dict[str, str | None],
+    fused: FusedMap,
+    out: Path,
+) -> dict[str, Any]:
     stream = config.camera.stream
-    frames = FrameAssembler(camera_mount(config.camera),
-                            PoseBuffer(max_gap_s=stream.max_gap_s, max_hold_s=stream.max_hold_s))
+    frames = FrameAssembler(
+        camera_mount(config.camera), PoseBuffer(max_gap_s=stream.max_gap_s, max_hold_s=stream.max_hold_s)
+    )
     mapper = Mapper(config.mapping, producer, 1, bounds, known_weight=config.mapping.known_weight)
     messages, sealed = 0, []
     with Progress(transient=True) as progress:
@@ -103,5 +113,11 @@ def _map_one(config: SwarmConfig, producer: int, bag: Path, bounds: tuple[np.nda
         assert data is not None
         write_atomic(out / "patches" / f"{patch.id}.patch", data)
         fused.add(patch)
-    return {"bag": str(bag), "producer": producer, "messages": messages, "frames": frames.frames,
-            "dropped": dict(frames.dropped), "patches": len(sealed)}
+    return {
+        "bag": str(bag),
+        "producer": producer,
+        "messages": messages,
+        "frames": frames.frames,
+        "dropped": dict(frames.dropped),
+        "patches": len(sealed),
+    }

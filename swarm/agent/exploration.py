@@ -9,7 +9,8 @@ publishes what it says and interrupts the flight when the target changes. Strate
 The flight side (`fly`) plans a path on the latest grid to the current target's viewpoint, flies it (the
 decision loop interrupts it when the target changes or the path becomes blocked), turns to the frontier point
 for `dwell_s`, and reports that it arrived. A drone whose map shuts it in where it is (a pocket) gets out
-before it calls a target unreachable, and instead of waiting for a target that cannot come. When the mission is done it returns above its take-off point.
+before it calls a target unreachable, and instead of waiting for a target that cannot come. When the mission is
+done it returns above its take-off point.
 """
 
 from __future__ import annotations
@@ -20,9 +21,9 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from swarm.aio import wait_event
 from swarm.agent.flight import Flight
 from swarm.agent.mapping import MappingTask
+from swarm.aio import wait_event
 from swarm.bus.bridge import AsyncBus
 from swarm.config import SwarmConfig, Vec3
 from swarm.explore.frontiers import ExplorationGrid
@@ -110,8 +111,11 @@ class Exploration:
         for event, fields in effects.events:
             self.log(event, **fields)
         for message in effects.publish:
-            key = (self.bus.keys.frontiers(self.id) if isinstance(message, FrontierReport)
-                   else self.bus.keys.targets(self.id))
+            key = (
+                self.bus.keys.frontiers(self.id)
+                if isinstance(message, FrontierReport)
+                else self.bus.keys.targets(self.id)
+            )
             self.bus.publish(key, message, reliable=True)
         if effects.retarget:
             self.retarget.set()
@@ -140,16 +144,26 @@ class Exploration:
         self._check_path()
         members = self.peers.cluster
         situation = Situation(
-            here=here, leader=self.peers.leader, cluster=members,
+            here=here,
+            leader=self.peers.leader,
+            cluster=members,
             positions={k: self.peers.peers[k].position for k in members if k != self.id and k in self.peers.peers},
-            frontiers=frontiers, map=self.grid, in_pocket=self.grid.in_pocket(here),
+            frontiers=frontiers,
+            map=self.grid,
+            in_pocket=self.grid.in_pocket(here),
         )
         self._apply(self.core.decide(time.monotonic(), situation))
         self.decision_ms.append((time.perf_counter() - started) * 1000)
         if self.core.loops % STATUS_EVERY_LOOPS == 0:  # a trace of quiet stretches (no new target for minutes)
-            self.log("explore_status", loops=self.core.loops, candidates=len(self.core.own),
-                     leader=self.peers.leader, target=_r(self.target.viewpoint) if self.target else None,
-                     path=len(self._path_ahead()), in_pocket=situation.in_pocket)
+            self.log(
+                "explore_status",
+                loops=self.core.loops,
+                candidates=len(self.core.own),
+                leader=self.peers.leader,
+                target=_r(self.target.viewpoint) if self.target else None,
+                path=len(self._path_ahead()),
+                in_pocket=situation.in_pocket,
+            )
 
     def _check_path(self) -> None:
         """Replan when the map now shows the path ahead blocked."""
@@ -237,9 +251,7 @@ class Exploration:
         assert grid is not None
         here = self.position()
         try:
-            path = await asyncio.to_thread(
-                plan_path, grid.planning_grid, here, goal, max_expansions=PLAN_EXPANSIONS
-            )
+            path = await asyncio.to_thread(plan_path, grid.planning_grid, here, goal, max_expansions=PLAN_EXPANSIONS)
         except NoPathError as exc:
             self.log("no_path", goal=_r(goal), reason=str(exc))
             return None

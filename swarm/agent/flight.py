@@ -224,8 +224,9 @@ class Flight:
         finally:
             self.path_ahead = []
 
-    async def face(self, point: Vec3, seconds: float, stop: asyncio.Event,
-                   interrupt: asyncio.Event | None = None) -> None:
+    async def face(
+        self, point: Vec3, seconds: float, stop: asyncio.Event, interrupt: asyncio.Event | None = None
+    ) -> None:
         """Hold position, turn towards `point` and look at it for `seconds` (the camera maps while we wait); a
         lower id coming close meanwhile is given way to, and the look ends there; so it does when `interrupt` is
         set."""
@@ -243,8 +244,14 @@ class Flight:
             await self.ap.set_setpoint(hold, yaw)
             await self._tick(stop, end + 1.0, "the end of a look")
 
-    async def _fly_segment_to(self, goal: Vec3, stop: asyncio.Event, interrupt: asyncio.Event | None = None,
-                              tolerance: float | None = None, lead: float = 0.0) -> bool:
+    async def _fly_segment_to(
+        self,
+        goal: Vec3,
+        stop: asyncio.Event,
+        interrupt: asyncio.Event | None = None,
+        tolerance: float | None = None,
+        lead: float = 0.0,
+    ) -> bool:
         """Fly the straight segment from the carrot (else the drone) to `goal`, reached within `tolerance` (by
         default the waypoint tolerance), the carrot starting `lead` metres along it; False when interrupted or a
         yield lasted too long."""
@@ -388,8 +395,11 @@ class Flight:
 
     def _below(self) -> list[Neighbour]:
         here = self.ap.telemetry.position
-        return [n for n in self.neighbours()
-                if n.position[2] < here[2] and math.dist(n.position[:2], here[:2]) < LAND_CLEAR_M]
+        return [
+            n
+            for n in self.neighbours()
+            if n.position[2] < here[2] and math.dist(n.position[:2], here[:2]) < LAND_CLEAR_M
+        ]
 
     def _on_the_ground(self, n: Neighbour) -> bool:
         home = self.ap.home_world
@@ -401,12 +411,18 @@ class Flight:
         here = np.array(self.ap.telemetry.position)
         centre = np.mean([n.position[:2] for n in below], axis=0)
         others = [np.asarray(n.position[:2], dtype=float) for n in self.neighbours()]
-        spots = [np.array([centre[0] + LAND_ASIDE_M * math.cos(a), centre[1] + LAND_ASIDE_M * math.sin(a), here[2]])
-                 for a in np.linspace(0.0, 2 * math.pi, 8, endpoint=False)]
+        spots = [
+            np.array([centre[0] + LAND_ASIDE_M * math.cos(a), centre[1] + LAND_ASIDE_M * math.sin(a), here[2]])
+            for a in np.linspace(0.0, 2 * math.pi, 8, endpoint=False)
+        ]
         spots.sort(key=lambda c: float(np.linalg.norm(c - here)))
         start = tuple(float(v) for v in here)
-        clear = [c for c in spots if self.is_clear(start, tuple(float(v) for v in c))
-                 and all(np.linalg.norm(c[:2] - o) >= LAND_CLEAR_M for o in others)]
+        clear = [
+            c
+            for c in spots
+            if self.is_clear(start, tuple(float(v) for v in c))
+            and all(np.linalg.norm(c[:2] - o) >= LAND_CLEAR_M for o in others)
+        ]
         if not clear:
             self.log("land_beside", below=[n.id for n in below], spot=None)
             return
@@ -525,8 +541,9 @@ class Flight:
             last_sample = self.ap.telemetry.updated
             heard = self.loop_monitor.heard_silence(now, last_sample)
             if heard > timeout:
-                raise TelemetryLost(f"no position telemetry for {self.ap.telemetry_age_s:.1f} s "
-                                    f"({heard:.1f} s of it heard)")
+                raise TelemetryLost(
+                    f"no position telemetry for {self.ap.telemetry_age_s:.1f} s ({heard:.1f} s of it heard)"
+                )
             if self._excused_sample != last_sample:
                 self._excused_sample = last_sample
                 self.log("telemetry_gap_unheard", age=round(self.ap.telemetry_age_s, 2), heard=round(heard, 2))
@@ -595,9 +612,13 @@ def moves_clear_of(here: np.ndarray, candidates: list[np.ndarray], neighbours: l
     """The refuges reached without passing within PASS_CLEARANCE_M of a drone: a drone under us must not be
     stepped down onto (with the ceiling above, "down" was the only vertical step left, and it went through the
     drone it gave way to)."""
-    return [c for c in candidates
-            if all(distance_to_segment(np.asarray(n.position, dtype=float), here, c) >= PASS_CLEARANCE_M
-                   for n in neighbours)]
+    return [
+        c
+        for c in candidates
+        if all(
+            distance_to_segment(np.asarray(n.position, dtype=float), here, c) >= PASS_CLEARANCE_M for n in neighbours
+        )
+    ]
 
 
 def parked(peer: Neighbour) -> bool:

@@ -25,21 +25,21 @@ from typing import Any, NoReturn
 import numpy as np
 import zenoh
 
-from swarm.aio import wait_event
 from swarm.agent.autopilot import Autopilot
 from swarm.agent.events import EventLog
 from swarm.agent.exploration import Exploration
 from swarm.agent.flight import Flight, Mission, Neighbour, Phase, parked, route_mission
 from swarm.agent.mapping import MappingTask
 from swarm.agent.sensing import StreamSource
+from swarm.aio import wait_event
 from swarm.bus.bridge import AsyncBus
 from swarm.bus.messages import AgentState
 from swarm.config import ConfigError, SwarmConfig
 from swarm.files import write_json_atomic
-from swarm.roles.membership import PeerTable
 from swarm.patches.lattice import Lattice
 from swarm.patches.patch import PatchId
 from swarm.patches.wire import decode_expected
+from swarm.roles.membership import PeerTable
 from swarm.sensing.frames import camera_mount
 from swarm.sensing.peers import PeerSighting
 from swarm.sensing.replay_source import BagReplaySource
@@ -97,18 +97,25 @@ class Agent:
         self._install_signal_handlers(loop)
         self.log("starting", epoch=self.epoch, autopilot=self.config.agent.autopilot, pid=os.getpid())
         bus = await AsyncBus.open(self.config.agent_bus(), self.config.mission.name)
-        autopilot = Autopilot(self.config.agent.autopilot, self.config.mission.origin, self.config.agent.command_timeout_s)
+        autopilot = Autopilot(
+            self.config.agent.autopilot, self.config.mission.origin, self.config.agent.command_timeout_s
+        )
         exploring = self.config.explore.strategy != "scripted"
         self.flight = Flight(
-            autopilot, self.config.agent, self.log,
+            autopilot,
+            self.config.agent,
+            self.log,
             separation_m=self.config.explore.separation_m if exploring else 0.0,
-            neighbours=self._neighbours, is_clear=self._is_clear,
+            neighbours=self._neighbours,
+            is_clear=self._is_clear,
         )
         keys = self.keys = bus.keys
         mapping_stop = asyncio.Event()
         mapping = self._make_mapping(loop)
         self.sync = PatchSync(
-            bus, self.config.sync, self.id,
+            bus,
+            self.config.sync,
+            self.id,
             sink=mapping.receive if mapping is not None else self._validate_only,
             position=self._position,
             max_patch_bytes=self.config.mapping.max_patch_bytes,
@@ -118,8 +125,16 @@ class Agent:
         mission: Mission = route_mission(list(self.config.agent.waypoints))
         if exploring and mapping is not None:
             self.exploration = Exploration(
-                self.config, self.epoch, bus, self.peers, mapping, self._position, lambda: autopilot.home_world,
-                float(mapping.bounds[1][2]), self.log, obstacles=self._obstacles,
+                self.config,
+                self.epoch,
+                bus,
+                self.peers,
+                mapping,
+                self._position,
+                lambda: autopilot.home_world,
+                float(mapping.bounds[1][2]),
+                self.log,
+                obstacles=self._obstacles,
             )
             self.exploration.start()
             mission = self.exploration.fly
@@ -175,8 +190,10 @@ class Agent:
         # The agent never loads a world: it learns the building only from its camera (DESIGN section 11).
         volume = self.config.mission.volume
         if volume is None:
-            raise ConfigError(f'camera.source = "{camera.source}" needs mission.volume (the agent loads no world to '
-                              "take it from; `swarm sim` prints its world's)")
+            raise ConfigError(
+                f'camera.source = "{camera.source}" needs mission.volume (the agent loads no world to '
+                "take it from; `swarm sim` prints its world's)"
+            )
         if camera.record is not None and camera.record.exists():
             raise ConfigError(f"camera.record: {camera.record} already exists (a bag is never overwritten)")
         bounds = (np.array(volume.min, dtype=float), np.array(volume.max, dtype=float))
@@ -186,19 +203,29 @@ class Agent:
                 raise ConfigError('camera.source = "replay" needs camera.replay_bag (the bag to play)')
             source = BagReplaySource(camera.replay_bag, camera.stream, camera_mount(camera))
         elif camera.source == "ros2":
-            source = Ros2SensorSource(camera.stream, camera_mount(camera), camera.record,
-                                      node_name=f"swarm_agent_{self.id}")
+            source = Ros2SensorSource(
+                camera.stream, camera_mount(camera), camera.record, node_name=f"swarm_agent_{self.id}"
+            )
         else:  # zenoh, or sim: the simulator's cameras, each vehicle's topics under /drone<k>
             stream = camera.stream.under_vehicle(self.id) if camera.source == "sim" else camera.stream
             source = ZenohSensorSource(stream, camera_mount(camera), record=camera.record)
-        return MappingTask(self.config, self.epoch, source, bounds, self.log, self.config.agent.out_dir, on_sealed,
-                           peers=self._sightings)
+        return MappingTask(
+            self.config,
+            self.epoch,
+            source,
+            bounds,
+            self.log,
+            self.config.agent.out_dir,
+            on_sealed,
+            peers=self._sightings,
+        )
 
     def _sightings(self) -> list[PeerSighting]:
         """Every peer's last heartbeat, its receive time on the wall clock of the sensor stamps."""
         wall_minus_monotonic = time.time() - time.monotonic()
-        return [PeerSighting(p.position, p.velocity, p.last_heard + wall_minus_monotonic)
-                for p in self.peers.peers.values()]
+        return [
+            PeerSighting(p.position, p.velocity, p.last_heard + wall_minus_monotonic) for p in self.peers.peers.values()
+        ]
 
     def _run_mapping(
         self, mapping: MappingTask, autopilot: Autopilot, stop: asyncio.Event, background: list[asyncio.Task[None]]
@@ -228,8 +255,7 @@ class Agent:
     def _obstacles(self) -> list[tuple[float, float, float]]:
         """What the planner must route around that the map does not hold (peers are masked out of it): drones
         whose agents died in the air, and peers parked in the air (no segment to fly: they will not move off)."""
-        return [*self.lost_in_air.values(),
-                *(n.position for n in self._neighbours() if not n.silent and parked(n))]
+        return [*self.lost_in_air.values(), *(n.position for n in self._neighbours() if not n.silent and parked(n))]
 
     def _position(self) -> tuple[float, float, float]:
         tel = self.flight.ap.telemetry
@@ -251,8 +277,11 @@ class Agent:
                 found.append(Neighbour(p.id, position, p.velocity, p.heading_to))
             else:  # no recent heartbeat, or its agent lost its drone (failsafe): it will not give way or move off
                 found.append(Neighbour(p.id, p.position, (0.0, 0.0, 0.0), silent=True))
-        found.extend(Neighbour(k, position, (0.0, 0.0, 0.0), silent=True) for k, position in self.lost_in_air.items()
-                     if k not in self.peers.peers)
+        found.extend(
+            Neighbour(k, position, (0.0, 0.0, 0.0), silent=True)
+            for k, position in self.lost_in_air.items()
+            if k not in self.peers.peers
+        )
         return found
 
     def _is_clear(self, a: tuple[float, float, float], b: tuple[float, float, float]) -> bool:
@@ -377,4 +406,3 @@ class Agent:
         path = Path(out_dir) / f"agent-{self.id}.json"
         path.parent.mkdir(parents=True, exist_ok=True)
         write_json_atomic(path, summary, indent=2)
-

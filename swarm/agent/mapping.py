@@ -8,7 +8,8 @@ loaded machine lowers the frame rate instead of building a queue.
 Every sealed patch goes to the private store and to the agent's fused map, to `on_sealed` (the patch sync, which
 pushes it), and, when the agent has an output directory, to `<out_dir>/patches/<id>.patch` in the wire format
 (the mission observer's referee view of what was mapped), and with `agent.state_dir` there too: an agent
-started again reloads its own patches of earlier runs from it (`recover`). Patches received from peers are decoded, validated
+started again reloads its own patches of earlier runs from it (`recover`). Patches received from peers are decoded,
+validated
 and fused in the same worker thread (`receive`). At the end the open patch is sealed too, so nothing seen is
 lost, and the agent writes its own fused mesh.
 
@@ -85,9 +86,7 @@ class MappingTask:
         self.bounds = bounds
         self.source = source
         self.log = log
-        self.mapper = Mapper(
-            config.mapping, config.agent.id, epoch, bounds, known_weight=config.mapping.known_weight
-        )
+        self.mapper = Mapper(config.mapping, config.agent.id, epoch, bounds, known_weight=config.mapping.known_weight)
         self.patches_dir = out_dir / "patches" if out_dir is not None else None
         if self.patches_dir is not None:
             self.patches_dir.mkdir(parents=True, exist_ok=True)
@@ -212,8 +211,15 @@ class MappingTask:
         for point in obstacles:
             _mark_occupied(states, origin, resolution, point, self.config.sim.drone_radius_m)
         grid = ExplorationGrid.from_states(
-            origin, resolution, states, self.config.explore, floor_z, top_z, free_points=[position],
-            occupied_fine=occupied_fine, view=ViewModel.from_camera(self.config.camera),
+            origin,
+            resolution,
+            states,
+            self.config.explore,
+            floor_z,
+            top_z,
+            free_points=[position],
+            occupied_fine=occupied_fine,
+            view=ViewModel.from_camera(self.config.camera),
         )
         return grid, grid.frontiers(position)
 
@@ -253,10 +259,19 @@ class MappingTask:
             "mapping_ms_per_frame": round(1000 * self.busy_s / self.frames, 2) if self.frames else 0.0,
             # every tick while airborne either took a frame or was skipped for being late
             "frame_rate_hz": round(self.config.camera.rate_hz * self.frames / (self.frames + self.frames_skipped), 2)
-            if self.frames else 0.0,
-            **({"sensor_stream": {**self.stream_counters, "pixels_masked_as_peers": self.pixels_masked,
-                                  "camera_silences": self.camera_silences}}
-               if self.stream_counters is not None else {}),
+            if self.frames
+            else 0.0,
+            **(
+                {
+                    "sensor_stream": {
+                        **self.stream_counters,
+                        "pixels_masked_as_peers": self.pixels_masked,
+                        "camera_silences": self.camera_silences,
+                    }
+                }
+                if self.stream_counters is not None
+                else {}
+            ),
             "known_voxels": int(self.mapper.fused.voxel_count),
             "patches_received": self.patches_received,
             "fused_digest": self.mapper.fused.digest(),

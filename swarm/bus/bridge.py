@@ -405,7 +405,7 @@ class AsyncBus:
         self.counters.sent(kind, len(selector.encode()))
         try:
             await asyncio.wait_for(asyncio.shield(done), timeout_s + _GET_GRACE_S)
-        except asyncio.TimeoutError:
+        except TimeoutError:
             self.counters.dropped(kind, "timeout")
             log.warning("query %s was not finished %.1f s after its timeout", selector, _GET_GRACE_S)
         return list(replies)
@@ -427,9 +427,7 @@ class AsyncBus:
         if token is not None:
             self._call(token.undeclare, f"undeclare token {key}")
 
-    def watch_liveliness(
-        self, key_expr: str, on_join: Callable[[str], None], on_leave: Callable[[str], None]
-    ) -> None:
+    def watch_liveliness(self, key_expr: str, on_join: Callable[[str], None], on_leave: Callable[[str], None]) -> None:
         """Call `on_join(key)` / `on_leave(key)` on the loop as tokens on `key_expr` appear and vanish.
 
         Tokens that exist already are reported as joins (history).
@@ -444,9 +442,7 @@ class AsyncBus:
             except Exception:
                 log.exception("liveliness callback for %s failed", key_expr)
 
-        self._declare(
-            lambda: self.session.liveliness().declare_subscriber(key_expr, on_sample, history=True), key_expr
-        )
+        self._declare(lambda: self.session.liveliness().declare_subscriber(key_expr, on_sample, history=True), key_expr)
 
     def _run_callback(self, callback: Callable[[str], None], key: str) -> None:
         if self._closed:
@@ -531,7 +527,7 @@ class AsyncBus:
         self._start_close(on_done)
         try:
             error = await asyncio.wait_for(asyncio.shield(done), timeout_s)
-        except asyncio.TimeoutError:
+        except TimeoutError:
             self._closing_ended(False, None, timeout_s)
         else:
             self._closing_ended(True, error, timeout_s)

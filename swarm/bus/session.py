@@ -90,38 +90,60 @@ _ALL_MESSAGES = _LISTEN_MESSAGES + _SPEAK_MESSAGES
 def access_control(max_id: int = MAX_AGENT_ID) -> dict[str, Any]:
     """The ACL of a swarm session: drone-<k> speaks only under agent/<k>/ and alive/<k>, for every k."""
     rules: list[dict[str, Any]] = [
-        {"id": "listen", "permission": "allow", "flows": ["ingress"], "messages": _LISTEN_MESSAGES,
-         "key_exprs": ["swarm/**"]},
-        {"id": "send", "permission": "allow", "flows": ["egress"], "messages": _ALL_MESSAGES,
-         "key_exprs": ["swarm/**"]},
+        {
+            "id": "listen",
+            "permission": "allow",
+            "flows": ["ingress"],
+            "messages": _LISTEN_MESSAGES,
+            "key_exprs": ["swarm/**"],
+        },
+        {
+            "id": "send",
+            "permission": "allow",
+            "flows": ["egress"],
+            "messages": _ALL_MESSAGES,
+            "key_exprs": ["swarm/**"],
+        },
     ]
     subjects: list[dict[str, Any]] = [{"id": TLS_OBSERVER_NAME, "cert_common_names": [TLS_OBSERVER_NAME]}]
     policies: list[dict[str, Any]] = [{"rules": ["listen", "send"], "subjects": [TLS_OBSERVER_NAME]}]
     for k in range(1, max_id + 1):
         name = tls_drone_name(k)
-        rules.append({"id": f"speak-{k}", "permission": "allow", "flows": ["ingress"], "messages": _SPEAK_MESSAGES,
-                      "key_exprs": [f"swarm/*/agent/{k}/**", f"swarm/*/alive/{k}"]})
+        rules.append(
+            {
+                "id": f"speak-{k}",
+                "permission": "allow",
+                "flows": ["ingress"],
+                "messages": _SPEAK_MESSAGES,
+                "key_exprs": [f"swarm/*/agent/{k}/**", f"swarm/*/alive/{k}"],
+            }
+        )
         subjects.append({"id": name, "cert_common_names": [name]})
         policies.append({"rules": ["listen", "send", f"speak-{k}"], "subjects": [name]})
-    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
-            "policies": policies}
+    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
 
 
 def _tls_settings(bus: BusSettings) -> dict[str, Any]:
     assert bus.tls_dir is not None
     if bus.tls_name is None:
         raise BusError("bus.tls_name is not set: which certificate in bus.tls_dir (drone-<id> or observer)")
-    files = {"ca": bus.tls_dir / "ca.pem", "certificate": bus.tls_dir / f"{bus.tls_name}.pem",
-             "key": bus.tls_dir / f"{bus.tls_name}.key"}
+    files = {
+        "ca": bus.tls_dir / "ca.pem",
+        "certificate": bus.tls_dir / f"{bus.tls_name}.pem",
+        "key": bus.tls_dir / f"{bus.tls_name}.key",
+    }
     for what, path in files.items():
         if not path.is_file():
             raise BusError(f"TLS {what} {path} not found (write them with `swarm deploy certs`)")
     ca, cert, key = (str(files[k].resolve()) for k in ("ca", "certificate", "key"))
     return {
         "transport/link/tls": {
-            "root_ca_certificate": ca, "enable_mtls": True,
-            "listen_certificate": cert, "listen_private_key": key,
-            "connect_certificate": cert, "connect_private_key": key,
+            "root_ca_certificate": ca,
+            "enable_mtls": True,
+            "listen_certificate": cert,
+            "listen_private_key": key,
+            "connect_certificate": cert,
+            "connect_private_key": key,
             "verify_name_on_connect": False,  # identity is the CA signature and the common name, not the address
         },
         "access_control": access_control(),

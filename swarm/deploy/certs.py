@@ -41,44 +41,68 @@ def key_path(directory: Path, name: str) -> Path:
 
 
 def _write_key(key: ec.EllipticCurvePrivateKey, path: Path) -> None:
-    data = key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
-                             serialization.NoEncryption())
+    data = key.private_bytes(
+        serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
+    )
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
     with os.fdopen(fd, "wb") as out:
         out.write(data)
 
 
 def _name(common_name: str) -> x509.Name:
-    return x509.Name([x509.NameAttribute(NameOID.ORGANIZATION_NAME, "swarm"),
-                      x509.NameAttribute(NameOID.COMMON_NAME, common_name)])
+    return x509.Name(
+        [x509.NameAttribute(NameOID.ORGANIZATION_NAME, "swarm"), x509.NameAttribute(NameOID.COMMON_NAME, common_name)]
+    )
 
 
 def _validity(builder: x509.CertificateBuilder, days: int) -> x509.CertificateBuilder:
-    now = datetime.datetime.now(datetime.timezone.utc)
+    now = datetime.datetime.now(datetime.UTC)
     return builder.not_valid_before(now - _BACKDATE).not_valid_after(now + datetime.timedelta(days=days))
 
 
 def _make_ca(days: int) -> tuple[ec.EllipticCurvePrivateKey, x509.Certificate]:
     key = ec.generate_private_key(ec.SECP256R1())
-    builder = (x509.CertificateBuilder().subject_name(_name(CA_COMMON_NAME)).issuer_name(_name(CA_COMMON_NAME))
-               .public_key(key.public_key()).serial_number(x509.random_serial_number())
-               .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
-               .add_extension(x509.KeyUsage(digital_signature=True, key_cert_sign=True, crl_sign=True,
-                                            content_commitment=False, key_encipherment=False,
-                                            data_encipherment=False, key_agreement=False, encipher_only=False,
-                                            decipher_only=False), critical=True))
+    builder = (
+        x509.CertificateBuilder()
+        .subject_name(_name(CA_COMMON_NAME))
+        .issuer_name(_name(CA_COMMON_NAME))
+        .public_key(key.public_key())
+        .serial_number(x509.random_serial_number())
+        .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
+        .add_extension(
+            x509.KeyUsage(
+                digital_signature=True,
+                key_cert_sign=True,
+                crl_sign=True,
+                content_commitment=False,
+                key_encipherment=False,
+                data_encipherment=False,
+                key_agreement=False,
+                encipher_only=False,
+                decipher_only=False,
+            ),
+            critical=True,
+        )
+    )
     return key, _validity(builder, days).sign(key, hashes.SHA256())
 
 
-def _make_leaf(ca_key: ec.EllipticCurvePrivateKey, ca: x509.Certificate, common_name: str,
-               days: int) -> tuple[ec.EllipticCurvePrivateKey, x509.Certificate]:
+def _make_leaf(
+    ca_key: ec.EllipticCurvePrivateKey, ca: x509.Certificate, common_name: str, days: int
+) -> tuple[ec.EllipticCurvePrivateKey, x509.Certificate]:
     key = ec.generate_private_key(ec.SECP256R1())
-    builder = (x509.CertificateBuilder().subject_name(_name(common_name)).issuer_name(ca.subject)
-               .public_key(key.public_key()).serial_number(x509.random_serial_number())
-               .add_extension(x509.SubjectAlternativeName([x509.DNSName(common_name)]), critical=False)
-               .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
-               .add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH,
-                                                     ExtendedKeyUsageOID.CLIENT_AUTH]), critical=False))
+    builder = (
+        x509.CertificateBuilder()
+        .subject_name(_name(common_name))
+        .issuer_name(ca.subject)
+        .public_key(key.public_key())
+        .serial_number(x509.random_serial_number())
+        .add_extension(x509.SubjectAlternativeName([x509.DNSName(common_name)]), critical=False)
+        .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
+        .add_extension(
+            x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]), critical=False
+        )
+    )
     return key, _validity(builder, days).sign(ca_key, hashes.SHA256())
 
 
@@ -110,7 +134,9 @@ def make_certs(directory: Path, drones: int, days: int = DEFAULT_DAYS) -> list[s
 
 def certs_command(directory: Path, drones: int, days: int) -> int:
     names = make_certs(directory, drones, days)
-    print(f"swarm deploy certs: wrote {len(names)} certificates to {directory} "
-          f"(ca, drone-1..drone-{drones}, observer), valid {days} days")
+    print(
+        f"swarm deploy certs: wrote {len(names)} certificates to {directory} "
+        f"(ca, drone-1..drone-{drones}, observer), valid {days} days"
+    )
     print(f"  each drone needs {CA_NAME}.pem and its own drone-<id>.pem/.key; keep {CA_NAME}.key off the drones")
     return 0

@@ -91,8 +91,26 @@ def netem_commands(ifname: str, loss: float, delay_ms: float = 0.0, jitter_ms: f
         ["ip", "link", "set", "dev", ifname, "gso_max_segs", "1", "gso_max_size", "1500"],
         ["tc", "qdisc", "replace", "dev", ifname, "root", "handle", "1:", "prio", "bands", "4"],
         ["tc", "qdisc", "replace", "dev", ifname, "parent", NETEM_BAND, "handle", "40:", *netem],
-        ["tc", "filter", "add", "dev", ifname, "parent", "1:", "protocol", "ip", "prio", "1",
-         "u32", "match", "ip", "dst", "0.0.0.0/0", "flowid", NETEM_BAND],
+        [
+            "tc",
+            "filter",
+            "add",
+            "dev",
+            ifname,
+            "parent",
+            "1:",
+            "protocol",
+            "ip",
+            "prio",
+            "1",
+            "u32",
+            "match",
+            "ip",
+            "dst",
+            "0.0.0.0/0",
+            "flowid",
+            NETEM_BAND,
+        ],
     ]
 
 

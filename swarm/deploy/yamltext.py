@@ -53,7 +53,7 @@ def _lines(value: Any, indent: int) -> list[str]:
     for item in value:
         if _is_block(item):
             inner = _lines(item, indent + 2)
-            out.append(f"{pad}- {inner[0][indent + 2:]}")
+            out.append(f"{pad}- {inner[0][indent + 2 :]}")
             out.extend(inner[1:])
         else:
             out.append(f"{pad}- {_inline(item)}")

@@ -106,8 +106,14 @@ class ViewModel:
         solid = math.radians(self.hfov_deg / nh) * math.radians(self.vfov_deg / nv) * np.cos(e)
         camera = np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)], axis=1)
         pitch = math.radians(self.pitch_deg)  # positive looks down: a turn about the camera's left axis
-        pitched = np.stack([camera[:, 0] * math.cos(pitch) + camera[:, 2] * math.sin(pitch), camera[:, 1],
-                            -camera[:, 0] * math.sin(pitch) + camera[:, 2] * math.cos(pitch)], axis=1)
+        pitched = np.stack(
+            [
+                camera[:, 0] * math.cos(pitch) + camera[:, 2] * math.sin(pitch),
+                camera[:, 1],
+                -camera[:, 0] * math.sin(pitch) + camera[:, 2] * math.cos(pitch),
+            ],
+            axis=1,
+        )
         return pitched, solid
 
 
@@ -123,9 +129,17 @@ class ExplorationGrid:
     """One loop's view of the fused map for exploration: what is safe to fly, what is reachable, where the
     frontiers are."""
 
-    def __init__(self, origin: np.ndarray, resolution: float, states: np.ndarray, safe: np.ndarray,
-                 band: tuple[int, int], settings: ExploreSettings, roomy: np.ndarray | None = None,
-                 view: ViewModel | None = None) -> None:
+    def __init__(
+        self,
+        origin: np.ndarray,
+        resolution: float,
+        states: np.ndarray,
+        safe: np.ndarray,
+        band: tuple[int, int],
+        settings: ExploreSettings,
+        roomy: np.ndarray | None = None,
+        view: ViewModel | None = None,
+    ) -> None:
         """Use `from_states`; this only stores what it computed."""
         self.origin, self.resolution, self.settings, self.view = origin, resolution, settings, view
         self._occupied = states == OCCUPIED
@@ -141,9 +155,18 @@ class ExplorationGrid:
         self.planning_grid = OccupancyGrid(origin, resolution, ~safe, roomy=roomy)
 
     @classmethod
-    def from_states(cls, origin: ArrayLike, resolution: float, states: np.ndarray, settings: ExploreSettings,
-                    floor_z: float, top_z: float, free_points: Sequence[Vec3] = (),
-                    occupied_fine: np.ndarray | None = None, view: ViewModel | None = None) -> ExplorationGrid:
+    def from_states(
+        cls,
+        origin: ArrayLike,
+        resolution: float,
+        states: np.ndarray,
+        settings: ExploreSettings,
+        floor_z: float,
+        top_z: float,
+        free_points: Sequence[Vec3] = (),
+        occupied_fine: np.ndarray | None = None,
+        view: ViewModel | None = None,
+    ) -> ExplorationGrid:
         """The grid for one loop; `states` as `FusedMap.occupancy_grid` exports them (not modified).
         `occupied_fine`: the occupied voxels of the same volume at a resolution f times finer (f an integer),
         for the clearance test (see the module docstring). `view`: the camera, for the view gain; without it
@@ -347,13 +370,20 @@ class ExplorationGrid:
         out = np.zeros((len(eyes), len(rays)))
         for start in range(0, len(eyes), _VIEW_CHUNK):
             cos, sin = np.cos(yaws[start : start + _VIEW_CHUNK, None]), np.sin(yaws[start : start + _VIEW_CHUNK, None])
-            direction = np.stack([rays[:, 0] * cos - rays[:, 1] * sin, rays[:, 0] * sin + rays[:, 1] * cos,
-                                  np.broadcast_to(rays[:, 2], cos.shape[:1] + rays.shape[:1])],
-                                 axis=-1).astype(np.float32)  # (C, rays, 3)
+            direction = np.stack(
+                [
+                    rays[:, 0] * cos - rays[:, 1] * sin,
+                    rays[:, 0] * sin + rays[:, 1] * cos,
+                    np.broadcast_to(rays[:, 2], cos.shape[:1] + rays.shape[:1]),
+                ],
+                axis=-1,
+            ).astype(np.float32)  # (C, rays, 3)
             # cell coordinates of every sample, in the padded grid (one cell of "outside" all round)
             eye = ((eyes[start : start + _VIEW_CHUNK] - self.origin) / self.resolution + 1.0).astype(np.float32)
-            cells = eye[:, None, None, :] + (r / self.resolution).astype(np.float32)[None, None, :, None] * (
-                direction[:, :, None, :])
+            cells = (
+                eye[:, None, None, :]
+                + (r / self.resolution).astype(np.float32)[None, None, :, None] * (direction[:, :, None, :])
+            )
             cells = np.clip(np.floor(cells), 0, np.array(codes.shape) - 1).astype(np.int64)
             found = codes.ravel()[cells @ strides]  # (C, rays, steps)
             seen = (found == _VIEW_UNKNOWN) & ~np.logical_or.accumulate(found == _VIEW_STOP, axis=-1)
@@ -471,8 +501,9 @@ def _without_specks(unknown: np.ndarray, min_cells: int) -> np.ndarray:
     return unknown & ~small[labels]
 
 
-def _mark_free(states: np.ndarray, origin: np.ndarray, resolution: float, points: Sequence[Vec3],
-               radius: float) -> np.ndarray:
+def _mark_free(
+    states: np.ndarray, origin: np.ndarray, resolution: float, points: Sequence[Vec3], radius: float
+) -> np.ndarray:
     """`states` with the UNKNOWN cells around each point (centre within `radius`, or holding it) made FREE."""
     if len(points) == 0:
         return states
@@ -555,14 +586,16 @@ def _inflate(occupied: np.ndarray, radius_cells: float) -> np.ndarray:
         top = np.uint64((1 << nz) - 1) if nz < _BITS else np.uint64(np.iinfo(np.uint64).max)
         runs = {h: _run_bits(column, h) & top for h in set(heights.values())}
     else:
-        runs = {h: ndimage.maximum_filter1d(occupied.view(np.uint8), 2 * h + 1, axis=2, mode="constant").view(bool)
-                for h in set(heights.values())}
+        runs = {
+            h: ndimage.maximum_filter1d(occupied.view(np.uint8), 2 * h + 1, axis=2, mode="constant").view(bool)
+            for h in set(heights.values())
+        }
     out = np.zeros_like(next(iter(runs.values())))
     for (dx, dy), h in heights.items():
         if abs(dx) < nx and abs(dy) < ny:
-            out[max(dx, 0) : nx + min(dx, 0), max(dy, 0) : ny + min(dy, 0)] |= (
-                runs[h][max(-dx, 0) : nx - max(dx, 0), max(-dy, 0) : ny - max(dy, 0)]
-            )
+            out[max(dx, 0) : nx + min(dx, 0), max(dy, 0) : ny + min(dy, 0)] |= runs[h][
+                max(-dx, 0) : nx - max(dx, 0), max(-dy, 0) : ny - max(dy, 0)
+            ]
     return _unpack_columns(out, nz) if nz <= _BITS else out
 
 

@@ -137,9 +137,7 @@ def _astar(grid: OccupancyGrid, start: np.ndarray, goal: np.ndarray, max_expansi
     shape = padded_free.shape
     strides = np.array([shape[1] * shape[2], shape[2], 1])
     steps_used = np.all((_NEIGHBOUR_STEPS == 0) | (np.array(grid.shape) > 1), axis=1)  # a flat grid: 8 steps
-    neighbours = list(
-        zip((_NEIGHBOUR_STEPS[steps_used] @ strides).tolist(), _STEP_LENGTHS[steps_used].tolist())
-    )
+    neighbours = list(zip((_NEIGHBOUR_STEPS[steps_used] @ strides).tolist(), _STEP_LENGTHS[steps_used].tolist()))
     start_cell = np.asarray(grid.index_of(start)) + 1
     goal_cell = np.asarray(grid.index_of(goal)) + 1
     start_flat = int(start_cell @ strides)

@@ -95,7 +95,11 @@ def bench_flight(config: SwarmConfig, sizes: list[int], out: Path | None) -> int
 
 def _summarise(n: int, report: dict[str, Any], sampler: Sampler) -> dict[str, Any]:
     processes = {
-        name: {"cpu_percent": round(s.cpu_percent, 1), "peak_rss_mb": round(s.peak_rss / 2**20, 1), "threads": s.threads}
+        name: {
+            "cpu_percent": round(s.cpu_percent, 1),
+            "peak_rss_mb": round(s.peak_rss / 2**20, 1),
+            "threads": s.threads,
+        }
         for name, s in sorted(sampler.samples.items())
     }
     agents = [p for name, p in processes.items() if name.startswith("agent-")]
@@ -113,16 +117,31 @@ def _summarise(n: int, report: dict[str, Any], sampler: Sampler) -> dict[str, An
 
 def _print(console: Console, results: list[dict[str, Any]]) -> None:
     table = Table(title="swarm bench flight (CPU in % of one core over the flight; peak RSS)")
-    for column in ("drones", "status", "flight s", "sim CPU %", "sim MB", "agent CPU % (mean)", "agent MB (max)",
-                   "observer CPU %", "total CPU %"):
+    for column in (
+        "drones",
+        "status",
+        "flight s",
+        "sim CPU %",
+        "sim MB",
+        "agent CPU % (mean)",
+        "agent MB (max)",
+        "observer CPU %",
+        "total CPU %",
+    ):
         table.add_column(column, justify="right")
     for r in results:
         p = r["processes"]
         sim, observer = p.get("sim", {}), p.get("observer", {})
         table.add_row(
-            str(r["drones"]), r["status"], f"{r['duration_s']:.0f}", str(sim.get("cpu_percent")),
-            str(sim.get("peak_rss_mb")), str(r["agent_cpu_percent_mean"]), str(r["agent_rss_mb_max"]),
-            str(observer.get("cpu_percent")), str(r["total_cpu_percent"]),
+            str(r["drones"]),
+            r["status"],
+            f"{r['duration_s']:.0f}",
+            str(sim.get("cpu_percent")),
+            str(sim.get("peak_rss_mb")),
+            str(r["agent_cpu_percent_mean"]),
+            str(r["agent_rss_mb_max"]),
+            str(observer.get("cpu_percent")),
+            str(r["total_cpu_percent"]),
         )
     console.print(table)
 
@@ -135,19 +154,29 @@ def bench_mapping_swarm(config: SwarmConfig, drones: int, out: Path | None) -> i
     run_config.mission.out = root / f"mapping-swarm-{drones}"
     run_config.explore.strategy = "scripted"  # the same flights at every size: comparable figures
 
-    console.print(f"bench mapping: {drones} agents mapping at {config.camera.rate_hz:g} Hz in '{config.mission.world}' ...")
+    console.print(
+        f"bench mapping: {drones} agents mapping at {config.camera.rate_hz:g} Hz in '{config.mission.world}' ..."
+    )
     report = run_mission(run_config, live=False)
     table = Table(title=f"{drones} agents mapping at once on this machine (target {config.camera.rate_hz:g} Hz each)")
     for column in ("drone", "frames", "sustained Hz", "mapping ms/frame (mask peers+integrate+seal)", "patches"):
         table.add_column(column, justify="right")
     for a in report["agents"]:
-        table.add_row(str(a["id"]), str(a["frames"]), str(a["frame_rate_hz"]), str(a["mapping_ms_per_frame"]),
-                      str(a["patches_sealed"]))
+        table.add_row(
+            str(a["id"]),
+            str(a["frames"]),
+            str(a["frame_rate_hz"]),
+            str(a["mapping_ms_per_frame"]),
+            str(a["patches_sealed"]),
+        )
     console.print(table)
     rates = [a["frame_rate_hz"] or 0.0 for a in report["agents"]]
     summary = {
-        "drones": drones, "status": report["status"], "explored_fraction": report["explored_fraction"],
-        "min_frame_rate_hz": min(rates), "agents": report["agents"],
+        "drones": drones,
+        "status": report["status"],
+        "explored_fraction": report["explored_fraction"],
+        "min_frame_rate_hz": min(rates),
+        "agents": report["agents"],
     }
     (root / "bench-mapping-swarm.json").write_text(json.dumps(summary, indent=2))
     console.print(f"slowest agent: {min(rates):.2f} Hz; figures: {root / 'bench-mapping-swarm.json'}")

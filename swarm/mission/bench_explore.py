@@ -76,8 +76,13 @@ def check_worlds(specs: list[str]) -> None:
 
 
 def bench_explore(
-    config: SwarmConfig, sizes: list[int], strategies: list[str] | None = None, out: Path | None = None,
-    repeats: int = 1, worlds: list[str] | None = None, resume: bool = False,
+    config: SwarmConfig,
+    sizes: list[int],
+    strategies: list[str] | None = None,
+    out: Path | None = None,
+    repeats: int = 1,
+    worlds: list[str] | None = None,
+    resume: bool = False,
 ) -> int:
     console, root = _console_and_root(out)
     worlds = worlds or [config.mission.world]
@@ -90,23 +95,31 @@ def bench_explore(
     for w, world in enumerate(worlds, start=1):
         world_config = config.model_copy(deep=True)
         world_config.mission.world = world
-        console.print(f"bench explore: oracle for '{world}' (world {w} of {len(worlds)}), "
-                      f"{', '.join(map(str, sizes))} drone(s) ...", markup=False)
+        console.print(
+            f"bench explore: oracle for '{world}' (world {w} of {len(worlds)}), "
+            f"{', '.join(map(str, sizes))} drone(s) ...",
+            markup=False,
+        )
         oracle[world] = oracle_times(world_config, sizes, root / "oracle")
         where = root if len(worlds) == 1 else root / _slug(world)
         for strategy, n, repeat in _missions(chosen, sizes, repeats):
             if n == 1 and strategy != chosen[0]:
                 # one drone is its own leader and picks by Eq. 3.3 either way: the same missions, flown once
-                rows.extend({**r, "strategy": strategy, "same_as": chosen[0]} for r in rows
-                            if r["world"] == world and r["drones"] == 1 and r["strategy"] == chosen[0]
-                            and r["repeat"] == repeat)
+                rows.extend(
+                    {**r, "strategy": strategy, "same_as": chosen[0]}
+                    for r in rows
+                    if r["world"] == world and r["drones"] == 1 and r["strategy"] == chosen[0] and r["repeat"] == repeat
+                )
                 continue
             run_config = world_config.model_copy(deep=True)
             run_config.mission.drones = n
             run_config.explore.strategy = strategy  # type: ignore[assignment]
             run_config.mission.out = where / (f"{strategy}-{n}" if repeats == 1 else f"{strategy}-{n}-{repeat}")
-            console.print(f"bench explore: {strategy}, {n} drone(s) in '{world}' (world {w} of {len(worlds)}, "
-                          f"seed {config.mission.seed}), mission {repeat} of {repeats} ...", markup=False)
+            console.print(
+                f"bench explore: {strategy}, {n} drone(s) in '{world}' (world {w} of {len(worlds)}, "
+                f"seed {config.mission.seed}), mission {repeat} of {repeats} ...",
+                markup=False,
+            )
             report = _finished_report(run_config) if resume else None
             if report is not None:
                 console.print(f"bench explore: kept the finished mission in {run_config.mission.out}", markup=False)
@@ -124,7 +137,9 @@ def bench_explore(
     _write(root, rows, oracle)
     _print(console, config, worlds, summary, oracle, repeats)
     plot_bench_explore(root / "bench-explore.png", rows, summary, oracle)
-    console.print(f"figures: {root / 'bench-explore.json'}, {root / 'bench-explore.png'}; runs (report.md each): {root}")
+    console.print(
+        f"figures: {root / 'bench-explore.json'}, {root / 'bench-explore.png'}; runs (report.md each): {root}"
+    )
     return 0 if rows and all(is_success(r) for r in rows) else 1
 
 
@@ -137,15 +152,18 @@ def _finished_report(config: SwarmConfig) -> dict[str, Any] | None:
         report = json.loads((config.mission.out / "report.json").read_text())
         mission = report["mission"]
         same = (mission["world"], report["drones"], mission["strategy"], mission["seed"]) == (
-            config.mission.world, config.mission.drones, config.explore.strategy, config.mission.seed)
+            config.mission.world,
+            config.mission.drones,
+            config.explore.strategy,
+            config.mission.seed,
+        )
     except (OSError, ValueError, KeyError, TypeError):
         return None
     return report if same and not was_interrupted(report) else None
 
 
 def is_success(row: dict[str, Any]) -> bool:
-    return (row["status"] == "complete" and row["explored_fraction"] >= SUCCESS_FRACTION
-            and row["collisions"] == 0)
+    return row["status"] == "complete" and row["explored_fraction"] >= SUCCESS_FRACTION and row["collisions"] == 0
 
 
 def oracle_times(config: SwarmConfig, sizes: list[int], cache: Path) -> dict[str, Any]:
@@ -169,11 +187,24 @@ def oracle_times(config: SwarmConfig, sizes: list[int], cache: Path) -> dict[str
         if oracle is None:
             oracle = Oracle(load_world(config.mission.world), config)
         plan = oracle.plan(n).to_json()
-        summary = {k: plan[k] for k in ("drones", "time_to_95_s", "coverage", "best_possible", "route_m",
-                                         "drone_s", "candidates", "compute_s", "notes")}
+        summary = {
+            k: plan[k]
+            for k in (
+                "drones",
+                "time_to_95_s",
+                "coverage",
+                "best_possible",
+                "route_m",
+                "drone_s",
+                "candidates",
+                "compute_s",
+                "notes",
+            )
+        }
         summary["views"] = len(plan["views"])
-        path.write_text(json.dumps({"key": key, "plan": summary, "routes": plan["routes"],
-                                    "views": plan["views"]}, indent=1))
+        path.write_text(
+            json.dumps({"key": key, "plan": summary, "routes": plan["routes"], "views": plan["views"]}, indent=1)
+        )
         out[str(n)] = summary
     return out
 
@@ -181,13 +212,21 @@ def oracle_times(config: SwarmConfig, sizes: list[int], cache: Path) -> dict[str
 def _oracle_key(config: SwarmConfig) -> dict[str, Any]:
     m = config.mission
     key: dict[str, Any] = {
-        "version": ORACLE_VERSION, "world": m.world, "start": m.start, "spawn_spacing_m": m.spawn_spacing_m,
-        "volume": m.volume.model_dump() if m.volume else None, "camera": config.camera.model_dump(mode="json"),
-        "altitude_m": config.agent.altitude_m, "cruise_speed_m_s": config.agent.cruise_speed_m_s,
-        "max_speed_up_m_s": config.sim.max_speed_up_m_s, "drone_radius_m": config.sim.drone_radius_m,
+        "version": ORACLE_VERSION,
+        "world": m.world,
+        "start": m.start,
+        "spawn_spacing_m": m.spawn_spacing_m,
+        "volume": m.volume.model_dump() if m.volume else None,
+        "camera": config.camera.model_dump(mode="json"),
+        "altitude_m": config.agent.altitude_m,
+        "cruise_speed_m_s": config.agent.cruise_speed_m_s,
+        "max_speed_up_m_s": config.sim.max_speed_up_m_s,
+        "drone_radius_m": config.sim.drone_radius_m,
         "planning_resolution_m": config.mapping.planning_resolution_m,
-        "explore": {k: getattr(config.explore, k) for k in ("clearance_m", "body_height_m", "min_altitude_m",
-                                                            "ceiling_margin_m", "dwell_s")},
+        "explore": {
+            k: getattr(config.explore, k)
+            for k in ("clearance_m", "body_height_m", "min_altitude_m", "ceiling_margin_m", "dwell_s")
+        },
     }
     path = Path(m.world)
     if path.is_file():  # a mesh file: a changed file is another world
@@ -209,7 +248,8 @@ def _missions(strategies: list[str], sizes: list[int], repeats: int) -> Iterator
 
 def _write(root: Path, rows: list[dict[str, Any]], oracle: dict[str, dict[str, Any]]) -> None:
     (root / "bench-explore.json").write_text(
-        json.dumps({"runs": rows, "oracle": oracle, "summary": summarise(rows, oracle)}, indent=2))
+        json.dumps({"runs": rows, "oracle": oracle, "summary": summarise(rows, oracle)}, indent=2)
+    )
 
 
 def _row(strategy: str, n: int, report: dict[str, Any]) -> dict[str, Any]:
@@ -272,29 +312,32 @@ def summarise(rows: list[dict[str, Any]], oracle: dict[str, dict[str, Any]] | No
             if plan and plan.get("time_to_95_s"):
                 vs_oracle.append(t / plan["time_to_95_s"])
         early = [r for r in runs if r["status"] == "complete" and r["explored_fraction"] < SUCCESS_FRACTION]
-        summary.append({
-            "strategy": strategy,
-            "drones": n,
-            "same_as": runs[0].get("same_as"),
-            "worlds": len({r.get("world", "") for r in runs}),
-            "missions": len(runs),
-            "success": sum(is_success(r) for r in runs),
-            "success_rate": round(sum(is_success(r) for r in runs) / len(runs), 3),
-            "complete": sum(r["status"] == "complete" for r in runs),
-            "complete_below_95": [
-                f"{r.get('world', '?')} #{r.get('repeat', 1)}: {100 * r['explored_fraction']:.1f} %" for r in early],
-            "reached_95": sum(r["time_to_95_s"] is not None for r in runs),
-            "time_to_95_s": _spread(t95),
-            "time_to_done_s": _spread([r["duration_s"] for r in runs]),
-            "explored_fraction": statistics.median(r["explored_fraction"] for r in runs),
-            "distance_per_drone_m": statistics.median(r["distance_per_drone_m"] for r in runs),
-            "overlap_fraction": statistics.median(r["overlap_fraction"] for r in runs),
-            "bytes_per_agent_s": statistics.median(r["bytes_per_agent_s"] for r in runs),
-            "collisions": sum(r["collisions"] for r in runs),
-            "closest_world_m": _smallest(r.get("closest_world_m") for r in runs),
-            "vs_1_drone": _median_or_none(vs_one),
-            "vs_oracle": _median_or_none(vs_oracle),
-        })
+        summary.append(
+            {
+                "strategy": strategy,
+                "drones": n,
+                "same_as": runs[0].get("same_as"),
+                "worlds": len({r.get("world", "") for r in runs}),
+                "missions": len(runs),
+                "success": sum(is_success(r) for r in runs),
+                "success_rate": round(sum(is_success(r) for r in runs) / len(runs), 3),
+                "complete": sum(r["status"] == "complete" for r in runs),
+                "complete_below_95": [
+                    f"{r.get('world', '?')} #{r.get('repeat', 1)}: {100 * r['explored_fraction']:.1f} %" for r in early
+                ],
+                "reached_95": sum(r["time_to_95_s"] is not None for r in runs),
+                "time_to_95_s": _spread(t95),
+                "time_to_done_s": _spread([r["duration_s"] for r in runs]),
+                "explored_fraction": statistics.median(r["explored_fraction"] for r in runs),
+                "distance_per_drone_m": statistics.median(r["distance_per_drone_m"] for r in runs),
+                "overlap_fraction": statistics.median(r["overlap_fraction"] for r in runs),
+                "bytes_per_agent_s": statistics.median(r["bytes_per_agent_s"] for r in runs),
+                "collisions": sum(r["collisions"] for r in runs),
+                "closest_world_m": _smallest(r.get("closest_world_m") for r in runs),
+                "vs_1_drone": _median_or_none(vs_one),
+                "vs_oracle": _median_or_none(vs_oracle),
+            }
+        )
     return summary
 
 
@@ -304,22 +347,52 @@ def _smallest(gaps: Iterable[float | None]) -> float | None:
     return min(measured) if measured else None
 
 
-def _print(console: Console, config: SwarmConfig, worlds: list[str], summary: list[dict[str, Any]],
-           oracle: dict[str, dict[str, Any]], repeats: int) -> None:
+def _print(
+    console: Console,
+    config: SwarmConfig,
+    worlds: list[str],
+    summary: list[dict[str, Any]],
+    oracle: dict[str, dict[str, Any]],
+    repeats: int,
+) -> None:
     where = f"'{worlds[0]}'" if len(worlds) == 1 else f"{len(worlds)} worlds"
-    table = Table(title=f"exploring {where} (seed {config.mission.seed}), {repeats} mission(s) per world and row: "
-                        "medians (quartiles); vs 1 and vs oracle: medians over worlds of the per-world ratios")
-    columns = ("strategy", "drones", "success", "done < 95 %", "to 95 %, s", "to done, s", "vs 1", "vs oracle",
-               "explored", "m/drone", "overlap", "kB/agent-s", "collisions", "closest, m")
+    table = Table(
+        title=f"exploring {where} (seed {config.mission.seed}), {repeats} mission(s) per world and row: "
+        "medians (quartiles); vs 1 and vs oracle: medians over worlds of the per-world ratios"
+    )
+    columns = (
+        "strategy",
+        "drones",
+        "success",
+        "done < 95 %",
+        "to 95 %, s",
+        "to done, s",
+        "vs 1",
+        "vs oracle",
+        "explored",
+        "m/drone",
+        "overlap",
+        "kB/agent-s",
+        "collisions",
+        "closest, m",
+    )
     for column in columns:
         table.add_column(column, justify="right")
     for c in summary:
         table.add_row(
-            c["strategy"] + (f" (= {c['same_as'][:5]}.)" if c["same_as"] else ""), str(c["drones"]),
-            f"{c['success']}/{c['missions']}", str(len(c["complete_below_95"])), _fmt_spread(c["time_to_95_s"]),
-            _fmt_spread(c["time_to_done_s"]), _ratio(c["vs_1_drone"]), _ratio(c["vs_oracle"]),
-            f"{100 * c['explored_fraction']:.1f} %", f"{c['distance_per_drone_m']:.1f}", f"{c['overlap_fraction']:.2f}",
-            f"{c['bytes_per_agent_s'] / 1000:.1f}", str(c["collisions"]),
+            c["strategy"] + (f" (= {c['same_as'][:5]}.)" if c["same_as"] else ""),
+            str(c["drones"]),
+            f"{c['success']}/{c['missions']}",
+            str(len(c["complete_below_95"])),
+            _fmt_spread(c["time_to_95_s"]),
+            _fmt_spread(c["time_to_done_s"]),
+            _ratio(c["vs_1_drone"]),
+            _ratio(c["vs_oracle"]),
+            f"{100 * c['explored_fraction']:.1f} %",
+            f"{c['distance_per_drone_m']:.1f}",
+            f"{c['overlap_fraction']:.2f}",
+            f"{c['bytes_per_agent_s'] / 1000:.1f}",
+            str(c["collisions"]),
             f"> {NEAR_GAP_M:g}" if c["closest_world_m"] is None else f"{c['closest_world_m']:.3f}",
         )
     console.print(table)
@@ -333,14 +406,18 @@ def _print(console: Console, config: SwarmConfig, worlds: list[str], summary: li
             cells = []
             for n in sizes:
                 p = plans.get(str(n))
-                cells.append("-" if p is None else "unreachable" if p["time_to_95_s"] is None
-                             else f"{p['time_to_95_s']:.1f} ({p['views']})")
+                cells.append(
+                    "-"
+                    if p is None
+                    else "unreachable"
+                    if p["time_to_95_s"] is None
+                    else f"{p['time_to_95_s']:.1f} ({p['views']})"
+                )
             otable.add_row(world, *cells)
         console.print(otable)
     for c in summary:
         for name in c["complete_below_95"]:
-            console.print(f"[bold red]declared complete below 95 %:[/] {c['strategy']}, {c['drones']} drone(s), "
-                          f"{name}")
+            console.print(f"[bold red]declared complete below 95 %:[/] {c['strategy']}, {c['drones']} drone(s), {name}")
 
 
 def _fmt_spread(s: dict[str, float]) -> str:

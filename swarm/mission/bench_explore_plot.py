@@ -12,8 +12,9 @@ from pathlib import Path
 from typing import Any
 
 
-def plot_bench_explore(path: Path, rows: list[dict[str, Any]], summary: list[dict[str, Any]],
-                       oracle: dict[str, dict[str, Any]]) -> Path | None:
+def plot_bench_explore(
+    path: Path, rows: list[dict[str, Any]], summary: list[dict[str, Any]], oracle: dict[str, dict[str, Any]]
+) -> Path | None:
     """Write the figure; None (nothing written) when there is no mission."""
     if not rows or not summary:
         return None

@@ -320,8 +320,9 @@ def _stream_costs(frames: list[tuple[np.ndarray, np.ndarray]], K: np.ndarray, se
     publisher, subscriber = zenoh.open(configs[0]), zenoh.open(configs[1])
     arrived = threading.Event()
     received: list[float] = []
-    sub = subscriber.declare_subscriber("bench/image", lambda sample: (received.append(time.perf_counter()),
-                                                                       arrived.set()))
+    sub = subscriber.declare_subscriber(
+        "bench/image", lambda sample: (received.append(time.perf_counter()), arrived.set())
+    )
     try:
         for _ in range(100):  # the subscription reaches the publisher
             publisher.put("bench/image", b"warm-up")
@@ -349,9 +350,13 @@ def _stream_costs(frames: list[tuple[np.ndarray, np.ndarray]], K: np.ndarray, se
         sub.undeclare()
         publisher.close()
         subscriber.close()
-    return {"stream_serialize_ms": _ms(serialize_s), "stream_transport_ms": _ms(transport_s),
-            "stream_decode_pose_ms": _ms(decode_s),
-            "stream_frame_ms": _ms(transport_s) + _ms(decode_s), "stream_frame_kb": float(np.median(sizes) / 1024)}
+    return {
+        "stream_serialize_ms": _ms(serialize_s),
+        "stream_transport_ms": _ms(transport_s),
+        "stream_decode_pose_ms": _ms(decode_s),
+        "stream_frame_ms": _ms(transport_s) + _ms(decode_s),
+        "stream_frame_kb": float(np.median(sizes) / 1024),
+    }
 
 
 def _child() -> None:

@@ -27,8 +27,8 @@ from rich.table import Table
 
 from swarm.config import SwarmConfig, dump_config
 from swarm.mission.bench import _console_and_root
-from swarm.mission.run import run_mission
 from swarm.mission.mapnodes import NodeSpec, NodeSwarm, holds_all
+from swarm.mission.run import run_mission
 
 HEAL_PATCHES = 100
 BASELINE_PERIODS_S = (1.0, 2.0, 5.0, 20.0)
@@ -82,7 +82,9 @@ def measure_heal(config: SwarmConfig, n: int, root: Path) -> dict[str, Any]:
     swarm = NodeSwarm(root / f"heal-{n}", f"bench-heal-{n}", config.bus.mode, _sets(config))
     swarm.tmp.mkdir(parents=True, exist_ok=True)
     producers = list(range(1, n))
-    share = [HEAL_PATCHES // len(producers) + (1 if i < HEAL_PATCHES % len(producers) else 0) for i in range(len(producers))]
+    share = [
+        HEAL_PATCHES // len(producers) + (1 if i < HEAL_PATCHES % len(producers) else 0) for i in range(len(producers))
+    ]
     try:
         for k, count in zip(producers, share):
             swarm.start(NodeSpec(k, patches=count, period_s=0.05, delay_s=3.0))
@@ -145,21 +147,40 @@ def bench_sync(config: SwarmConfig, sizes: list[int], out: Path | None, mission:
 
 
 def _print(console: Any, results: list[dict[str, Any]]) -> None:
-    table = Table(title="swarm bench sync (loopback; targets: p95 < 1 s at 5 agents, heal < 10 s, >= 10x less than baseline)")
-    for column in ("agents", "patch kB", "seal->all p50 s", "p95 s", "max s", "heal: 100 patches s",
-                   "mission B/agent-s", "whole-map baseline B/agent-s", "ratio", "converged"):
+    table = Table(
+        title="swarm bench sync (loopback; targets: p95 < 1 s at 5 agents, heal < 10 s, >= 10x less than baseline)"
+    )
+    for column in (
+        "agents",
+        "patch kB",
+        "seal->all p50 s",
+        "p95 s",
+        "max s",
+        "heal: 100 patches s",
+        "mission B/agent-s",
+        "whole-map baseline B/agent-s",
+        "ratio",
+        "converged",
+    ):
         table.add_column(column, justify="right")
     for r in results:
         lat, heal, m = r["latency"], r["heal"], r.get("mission", {})
         table.add_row(
-            str(r["agents"]), str(lat["patch_kb_mean"]), str(lat["seal_to_everyone_p50_s"]),
-            str(lat["seal_to_everyone_p95_s"]), str(lat["seal_to_everyone_max_s"]),
-            str(heal["converge_after_contact_s"]), str(m.get("bytes_per_agent_s", "-")),
+            str(r["agents"]),
+            str(lat["patch_kb_mean"]),
+            str(lat["seal_to_everyone_p50_s"]),
+            str(lat["seal_to_everyone_p95_s"]),
+            str(lat["seal_to_everyone_max_s"]),
+            str(heal["converge_after_contact_s"]),
+            str(m.get("bytes_per_agent_s", "-")),
             f"{m.get('whole_map_baseline_bytes_per_agent_s', '-')} (loop {m.get('baseline_loop_s', '-')} s)",
-            str(m.get("baseline_ratio", "-")), str(m.get("converged", "-")),
+            str(m.get("baseline_ratio", "-")),
+            str(m.get("converged", "-")),
         )
     console.print(table)
     for r in results:
         if "mission" in r:
-            console.print(f"{r['agents']} agents: whole-map baseline B/agent-s at other loop periods: "
-                          f"{r['mission']['baseline_at']}")
+            console.print(
+                f"{r['agents']} agents: whole-map baseline B/agent-s at other loop periods: "
+                f"{r['mission']['baseline_at']}"
+            )

@@ -183,22 +183,37 @@ def cells(r: dict[str, Any]) -> list[str]:
     kb = None if r["bytes_per_agent_s"] is None else r["bytes_per_agent_s"] / 1000
     points, leaders = vs.get("explored_points"), vs.get("leader_changes")
     return [
-        r["label"], r["status"], num(r["duration_s"], ".1f", times("duration")),
+        r["label"],
+        r["status"],
+        num(r["duration_s"], ".1f", times("duration")),
         "-" if explored is None else f"{explored:.1f} %" + ("" if points is None else f" ({points:+.1f} pt)"),
-        t95, {True: "yes", False: "NO"}.get(r["converged"], "-"), heal,
+        t95,
+        {True: "yes", False: "NO"}.get(r["converged"], "-"),
+        heal,
         num(kb, ".1f", times("bytes_per_agent_s")),
         num(r["leader_changes"], "d", None if leaders is None else f"{int(leaders):+d}"),
     ]
 
 
-COLUMNS = ("condition", "end", "mission time, s", "explored", "time to 95 %, s", "converged",
-           "convergence after heal, s", "kB/agent-s", "leader changes")
+COLUMNS = (
+    "condition",
+    "end",
+    "mission time, s",
+    "explored",
+    "time to 95 %, s",
+    "converged",
+    "convergence after heal, s",
+    "kB/agent-s",
+    "leader changes",
+)
 
 
 def table(config: SwarmConfig, rows: list[dict[str, Any]]) -> Table:
     m = config.mission
-    t = Table(title=f"link dropout: {m.drones} drones in '{m.world}' (seed {m.seed}), one mission per row; "
-                    "(×ratio / difference) against the unimpaired baseline")
+    t = Table(
+        title=f"link dropout: {m.drones} drones in '{m.world}' (seed {m.seed}), one mission per row; "
+        "(×ratio / difference) against the unimpaired baseline"
+    )
     for column in COLUMNS:
         t.add_column(column, justify="left" if column == "condition" else "right")
     for r in rows:
@@ -225,15 +240,21 @@ def experiment_dropout(
     scenarios = write_scenarios(found, root, config.mission.drones)
     m = config.mission
     summary: dict[str, Any] = {
-        "experiment": "dropout", "world": str(m.world), "drones": m.drones, "seed": m.seed,
+        "experiment": "dropout",
+        "world": str(m.world),
+        "drones": m.drones,
+        "seed": m.seed,
         "levels": [c.loss for c in found if not c.cut],
         "cut_and_heal": {"drone": m.drones, "cut_at_s": cut_at_s, "heal_at_s": heal_at_s} if cut_and_heal else None,
-        "rows": [], "plot": None,
+        "rows": [],
+        "plot": None,
     }
     rows: list[dict[str, Any]] = summary["rows"]
     for i, c in enumerate(found, 1):
-        console.print(f"experiment dropout ({i}/{len(found)}): {c.label}, {m.drones} drones in '{m.world}' "
-                      f"(seed {m.seed}) ...", markup=False)
+        console.print(
+            f"experiment dropout ({i}/{len(found)}): {c.label}, {m.drones} drones in '{m.world}' (seed {m.seed}) ...",
+            markup=False,
+        )
         rows.append(_run_condition(config, c, root / c.name, scenarios[c.name], run))
         console.print(f"  {_outcome(rows[-1])}", markup=False)
         relative(rows)

@@ -73,8 +73,16 @@ def plot_dropout(rows: Sequence[dict[str, Any]], path: Path, title: str) -> Path
                 if r["cut"] and HEAL_VALUE(r) is not None:
                     ax.plot(x, HEAL_VALUE(r), marker="*", markersize=13, color="tab:green", zorder=2)
                 if "duration_s" in r and value(r) is None:  # flown, but 95 % was never reached
-                    ax.text(x, 0.97, "never", transform=ax.get_xaxis_transform(), ha="center", va="top",
-                            color="red" if r["status"] != "complete" else "black", fontsize="small")
+                    ax.text(
+                        x,
+                        0.97,
+                        "never",
+                        transform=ax.get_xaxis_transform(),
+                        ha="center",
+                        va="top",
+                        color="red" if r["status"] != "complete" else "black",
+                        fontsize="small",
+                    )
         reference = value(base) if base is not None else None
         if reference is not None:
             ax.axhline(reference, linestyle="--", color="grey", linewidth=1.0, zorder=0)
@@ -100,13 +108,23 @@ def plot_dropout(rows: Sequence[dict[str, Any]], path: Path, title: str) -> Path
         handles=[
             Line2D([], [], color="tab:blue", marker="o", label="loss level (mission complete)"),
             Line2D([], [], color="tab:orange", marker="D", linestyle="none", label="cut and heal (mission complete)"),
-            Line2D([], [], color="tab:green", marker="*", markersize=13, linestyle="none",
-                   label="maps converged, s after the heal (slowest heal)"),
-            Line2D([], [], color="red", marker="x", markeredgewidth=2, linestyle="none",
-                   label="mission did not complete"),
+            Line2D(
+                [],
+                [],
+                color="tab:green",
+                marker="*",
+                markersize=13,
+                linestyle="none",
+                label="maps converged, s after the heal (slowest heal)",
+            ),
+            Line2D(
+                [], [], color="red", marker="x", markeredgewidth=2, linestyle="none", label="mission did not complete"
+            ),
             Line2D([], [], color="grey", linestyle="--", label="unimpaired baseline"),
         ],
-        loc="center", fontsize="medium", frameon=False,
+        loc="center",
+        fontsize="medium",
+        frameon=False,
     )
     fig.suptitle(title)
     fig.savefig(path, bbox_inches="tight")

@@ -47,8 +47,11 @@ class FaultInjector:
         self.restarts: dict[int, int] = {}  # agent -> restarts done
         self._pending = sorted(
             [_Action(f.at, 2 * i, f, "start") for i, f in enumerate(self.faults)]
-            + [_Action(f.at + (f.duration or 0.0), 2 * i + 1, f, "end") for i, f in enumerate(self.faults)
-               if f.kind != "kill"]
+            + [
+                _Action(f.at + (f.duration or 0.0), 2 * i + 1, f, "end")
+                for i, f in enumerate(self.faults)
+                if f.kind != "kill"
+            ]
         )
         self._down: set[int] = set()  # killed, waiting for their restart
         self._frozen: dict[int, Child] = {}
@@ -74,8 +77,13 @@ class FaultInjector:
     def _apply(self, action: _Action, t: float, agents: dict[int, Child]) -> None:
         fault, k = action.fault, action.fault.agent
         child = agents.get(k)
-        record: dict[str, Any] = {"t": round(t, 2), "wall_t": round(time.time(), 3), "index": action.order // 2,
-                                  "agent": k, "step": action.step}
+        record: dict[str, Any] = {
+            "t": round(t, 2),
+            "wall_t": round(time.time(), 3),
+            "index": action.order // 2,
+            "agent": k,
+            "step": action.step,
+        }
         if fault.kind in ("kill", "restart") and action.step == "start":
             record["result"] = self._kill(child)
             if record["result"].startswith("killed"):
@@ -138,8 +146,16 @@ class FaultInjector:
     def report(self) -> list[dict[str, Any]]:
         """Each fault as asked, with what was done and when (`actions`), in the order they were given."""
         return [
-            {"fault": str(f), "kind": f.kind, "agent": f.agent, "at": f.at, "duration": f.duration,
-             "takeoff_t": self.takeoff_t,
-             "actions": [{key: v for key, v in r.items() if key != "index"} for r in self.records if r["index"] == i]}
+            {
+                "fault": str(f),
+                "kind": f.kind,
+                "agent": f.agent,
+                "at": f.at,
+                "duration": f.duration,
+                "takeoff_t": self.takeoff_t,
+                "actions": [
+                    {key: v for key, v in r.items() if key != "index"} for r in self.records if r["index"] == i
+                ],
+            }
             for i, f in enumerate(self.faults)
         ]

@@ -78,8 +78,12 @@ class HealWatch:
     s: float | None = None
 
     def as_dict(self) -> dict[str, Any]:
-        return {"heal_t": round(self.heal_t, 2), "members": self.members, "patches": len(self.target),
-                "s": None if self.s is None else round(self.s, 2)}
+        return {
+            "heal_t": round(self.heal_t, 2),
+            "members": self.members,
+            "patches": len(self.target),
+            "s": None if self.s is None else round(self.s, 2),
+        }
 
 
 def any_vehicle_airborne(sim: Mapping[str, Any] | None) -> bool:
@@ -160,10 +164,15 @@ class LinkController:
         self._in_force = wanted
         for pair in sorted(wanted):
             if wanted[pair] != before[pair]:
-                self.impairments.append({
-                    "t": round(t, 2), "at": round(scenario_t, 2), "link": f"{pair[0]}-{pair[1]}",
-                    "profile": wanted[pair].describe(), "backend": "nftables",
-                })
+                self.impairments.append(
+                    {
+                        "t": round(t, 2),
+                        "at": round(scenario_t, 2),
+                        "link": f"{pair[0]}-{pair[1]}",
+                        "profile": wanted[pair].describe(),
+                        "backend": "nftables",
+                    }
+                )
         healed = [pair for pair in wanted if before[pair].cut and not wanted[pair].cut]
         if components(self.drones, before) != components(self.drones, wanted):
             self._open_partition(t)

@@ -85,7 +85,12 @@ class MapNode:
         bus = await AsyncBus.open(self.config.agent_bus(), self.config.mission.name)
         self.bus = bus
         self.sync = PatchSync(
-            bus, self.config.sync, self.id, self._receive, self.position, self.config.mapping.max_patch_bytes,
+            bus,
+            self.config.sync,
+            self.id,
+            self._receive,
+            self.position,
+            self.config.mapping.max_patch_bytes,
             on_holdings_changed=lambda: self._publish_state(),
         )
         bus.declare_token(bus.keys.alive(self.id))
@@ -160,9 +165,19 @@ class MapNode:
         self.bus.publish(
             self.bus.keys.state(self.id),
             AgentState(
-                id=self.id, epoch=self.epoch, seq=self._seq, t=time.time(), position=self.position(),
-                velocity=(0.0, 0.0, 0.0), yaw_deg=0.0, flight_mode="NONE", phase="landed" if done else "mapping",
-                role=self.peers.role, leader=self.peers.leader, finished=done, holdings=self.sync.holdings,
+                id=self.id,
+                epoch=self.epoch,
+                seq=self._seq,
+                t=time.time(),
+                position=self.position(),
+                velocity=(0.0, 0.0, 0.0),
+                yaw_deg=0.0,
+                flight_mode="NONE",
+                phase="landed" if done else "mapping",
+                role=self.peers.role,
+                leader=self.peers.leader,
+                finished=done,
+                holdings=self.sync.holdings,
             ),
         )
 

@@ -55,14 +55,25 @@ class NodeSwarm:
         self.hosts[spec.id] = host
         connect = spec.connect if spec.connect is not None else [k for k in sorted(self.hosts) if k < spec.id]
         sets = [
-            *self.sets, f"mission.name={self.mission}", f"bus.mode={self.mode}",
-            f"bus.listen=[\"tcp/{host}:{self.base + spec.id}\"]",
+            *self.sets,
+            f"mission.name={self.mission}",
+            f"bus.mode={self.mode}",
+            f'bus.listen=["tcp/{host}:{self.base + spec.id}"]',
             "bus.connect=[" + ",".join(f'"{self.endpoint(k)}"' for k in connect) + "]",
             *spec.extra,
         ]
         argv = swarm_command(
-            "mapnode", "--id", str(spec.id), "--status", str(self.status_path(spec.id)),
-            "--patches", str(spec.patches), "--period", str(spec.period_s), "--delay", str(spec.delay_s),
+            "mapnode",
+            "--id",
+            str(spec.id),
+            "--status",
+            str(self.status_path(spec.id)),
+            "--patches",
+            str(spec.patches),
+            "--period",
+            str(spec.period_s),
+            "--delay",
+            str(spec.delay_s),
         )
         if spec.position is not None:
             argv += ["--position", ",".join(str(c) for c in spec.position)]

@@ -163,8 +163,13 @@ class Observer:
         if "leader" in entry and entry["leader"] != state.leader:
             self.leader_changes += 1
         entry.update(
-            phase=state.phase, role=state.role, leader=state.leader, flight_mode=state.flight_mode,
-            position=list(state.position), epoch=state.epoch, last_heard=time.time(),
+            phase=state.phase,
+            role=state.role,
+            leader=state.leader,
+            flight_mode=state.flight_mode,
+            position=list(state.position),
+            epoch=state.epoch,
+            last_heard=time.time(),
             holdings=state.holdings.model_dump(mode="json"),
         )
         entry["heartbeats"] += 1

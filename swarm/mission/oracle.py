@@ -139,8 +139,15 @@ class Oracle:
     """The views, their cover and the distances of one world (independent of N); `plan(n)` routes them."""
 
     def __init__(
-        self, world: World, config: SwarmConfig, *, target: float = TARGET, view_spacing_m: float = VIEW_SPACING_M,
-        level_spacing_m: float = LEVEL_SPACING_M, headings: int = HEADINGS, pano_step_deg: float = PANO_STEP_DEG,
+        self,
+        world: World,
+        config: SwarmConfig,
+        *,
+        target: float = TARGET,
+        view_spacing_m: float = VIEW_SPACING_M,
+        level_spacing_m: float = LEVEL_SPACING_M,
+        headings: int = HEADINGS,
+        pano_step_deg: float = PANO_STEP_DEG,
     ) -> None:
         if not 0.0 < target <= 1.0:
             raise ValueError("target must be in (0, 1]")
@@ -211,11 +218,17 @@ class Oracle:
         floor = self.world.default_start[2] if cfg.mission.start is None else cfg.mission.start[2]
         band = (lo[2] + ex.min_altitude_m, hi[2] - ex.ceiling_margin_m)
         base = floor + cfg.agent.altitude_m
-        k = np.arange(math.floor((band[0] - base) / self.level_spacing_m), math.ceil((band[1] - base) / self.level_spacing_m) + 1)
+        k = np.arange(
+            math.floor((band[0] - base) / self.level_spacing_m), math.ceil((band[1] - base) / self.level_spacing_m) + 1
+        )
         levels = base + k * self.level_spacing_m
         levels = levels[(levels >= band[0]) & (levels <= band[1])]
         layer_z = np.unique(centres[:, 2])
-        chosen_z: np.ndarray = np.unique(layer_z[np.abs(layer_z[None, :] - levels[:, None]).argmin(axis=1)]) if len(levels) else np.zeros(0)
+        chosen_z: np.ndarray = (
+            np.unique(layer_z[np.abs(layer_z[None, :] - levels[:, None]).argmin(axis=1)])
+            if len(levels)
+            else np.zeros(0)
+        )
         keep = on_grid & np.isin(centres[:, 2], chosen_z) & (centres[:, 2] >= band[0]) & (centres[:, 2] <= band[1])
         pick = np.flatnonzero(keep)
         for lift in (0.0, ex.body_height_m / 2, ex.body_height_m):
@@ -232,8 +245,10 @@ class Oracle:
         """Lowest elevation of the panoramas and their number of rows: the pitched frustum's, one row of margin."""
         pitch = math.radians(self.config.camera.pitch_deg)
         s = np.linspace(-1.0, 1.0, 41)
-        edge = np.concatenate([np.stack([s, np.full_like(s, v)], 1) for v in (-1.0, 1.0)]
-                              + [np.stack([np.full_like(s, u), s], 1) for u in (-1.0, 1.0)])
+        edge = np.concatenate(
+            [np.stack([s, np.full_like(s, v)], 1) for v in (-1.0, 1.0)]
+            + [np.stack([np.full_like(s, u), s], 1) for u in (-1.0, 1.0)]
+        )
         x, y = edge[:, 0] * self.tan_h, edge[:, 1] * self.tan_v  # camera right, down, forward 1
         up = -y * math.cos(pitch) - math.sin(pitch)
         fwd = math.cos(pitch) - y * math.sin(pitch)
@@ -405,8 +420,9 @@ class Oracle:
         out = np.empty((len(nodes), len(nodes)))
         preds = np.empty((len(nodes), len(self.nodes.centres)), dtype=np.int32)
         for s in range(0, len(nodes), _DIJKSTRA_CHUNK):
-            block, pred = dijkstra(self.graph, directed=False, indices=nodes[s : s + _DIJKSTRA_CHUNK],
-                                   return_predecessors=True)
+            block, pred = dijkstra(
+                self.graph, directed=False, indices=nodes[s : s + _DIJKSTRA_CHUNK], return_predecessors=True
+            )
             out[s : s + _DIJKSTRA_CHUNK] = block[:, nodes]
             preds[s : s + _DIJKSTRA_CHUNK] = pred
         return out, preds
@@ -435,15 +451,36 @@ class Oracle:
         notes = [f"plan: {method}"]
         if not reached:
             notes.append(f"the candidate views see {100 * coverage:.1f} % of the reachable space")
-        plan = OraclePlan(drones, self.target, round(t95, 2) if reached and math.isfinite(t95) else None,
-                          round(coverage, 4), round(best, 4), views, routes, [round(m, 2) for m in route_m],
-                          [round(s, 2) for s in drone_s], len(self.candidates) * self.headings, notes=notes)
+        plan = OraclePlan(
+            drones,
+            self.target,
+            round(t95, 2) if reached and math.isfinite(t95) else None,
+            round(coverage, 4),
+            round(best, 4),
+            views,
+            routes,
+            [round(m, 2) for m in route_m],
+            [round(s, 2) for s in drone_s],
+            len(self.candidates) * self.headings,
+            notes=notes,
+        )
         if drones > 1:
             fewer = self.plan(drones - 1)
-            if fewer.time_to_95_s is not None and plan.time_to_95_s is not None and fewer.time_to_95_s < plan.time_to_95_s:
-                plan = OraclePlan(**{**fewer.__dict__, "drones": drones, "routes": fewer.routes + [[]],
-                                     "route_m": fewer.route_m + [0.0], "drone_s": fewer.drone_s + [0.0],
-                                     "notes": fewer.notes + [f"drone {drones} stays on the ground"]})
+            if (
+                fewer.time_to_95_s is not None
+                and plan.time_to_95_s is not None
+                and fewer.time_to_95_s < plan.time_to_95_s
+            ):
+                plan = OraclePlan(
+                    **{
+                        **fewer.__dict__,
+                        "drones": drones,
+                        "routes": fewer.routes + [[]],
+                        "route_m": fewer.route_m + [0.0],
+                        "drone_s": fewer.drone_s + [0.0],
+                        "notes": fewer.notes + [f"drone {drones} stays on the ground"],
+                    }
+                )
         plan.compute_s = round(time.monotonic() - self._t0, 2)
         self._plans[drones] = plan
         return plan
@@ -462,7 +499,9 @@ class Oracle:
         routes, t95, unique = fly(list(range(k)))
         return self._prune(fly, routes, t95, unique)
 
-    def _time_of(self, chosen: list[tuple[int, int]], routes: list[list[int]], spawns: list[int]) -> tuple[list[list[int]], float]:
+    def _time_of(
+        self, chosen: list[tuple[int, int]], routes: list[list[int]], spawns: list[int]
+    ) -> tuple[list[list[int]], float]:
         k = len(chosen)
         nodes, headings = [n for n, _ in chosen] + spawns, [h for _, h in chosen]
         preds = self._distances(nodes)[1]
@@ -510,7 +549,9 @@ class Oracle:
             picked.append((n, h))
         return picked, routes
 
-    def _prune(self, fly: Any, routes: list[list[int]], t95: float, unique: dict[int, int]) -> tuple[list[list[int]], float]:
+    def _prune(
+        self, fly: Any, routes: list[list[int]], t95: float, unique: dict[int, int]
+    ) -> tuple[list[list[int]], float]:
         """Drop views the flight no longer needs (what they alone see is seen on the way, or is beyond the target),
         fewest unique cells first, while that makes the time to target shorter."""
         for _ in range(_MAX_PRUNE):
@@ -524,8 +565,9 @@ class Oracle:
                 break
         return routes, t95
 
-    def _time_to_target(self, routes: list[list[int]], nodes: list[int], headings: list[int], preds: np.ndarray,
-                        starts: list[int]) -> tuple[float, dict[int, int]]:
+    def _time_to_target(
+        self, routes: list[list[int]], nodes: list[int], headings: list[int], preds: np.ndarray, starts: list[int]
+    ) -> tuple[float, dict[int, int]]:
         """When the swarm flying `routes` has seen `target` of the sampled cells (inf: never), and per view the
         cells only it sees (up to then): each drone looks ahead along its path (the nearest heading to its direction
         of travel) at every node, and at each view for the dwell."""

@@ -36,8 +36,9 @@ def flown_paths(trajectories: Mapping[str, Sequence[Sequence[float]]], lift_m: f
     return np.concatenate(points)
 
 
-def phantom_check(mesh: Path, trajectories: Mapping[str, Sequence[Sequence[float]]], world: World,
-                  lift_m: float) -> dict[str, Any] | None:
+def phantom_check(
+    mesh: Path, trajectories: Mapping[str, Sequence[Sequence[float]]], world: World, lift_m: float
+) -> dict[str, Any] | None:
     """Vertices of `mesh` near the flown paths, and the phantoms among them; None without a map or paths."""
     if not mesh.exists():
         return None

@@ -224,8 +224,11 @@ def plot_leaders(leaders: Sequence[Mapping[str, Any]], end_t: float, path: Path)
             bold = leader == agent
             height = 0.8 if bold else 0.5
             ax.broken_barh(
-                [(t0, t1 - t0)], (row - height / 2, height), facecolors=_colour(leader),
-                edgecolors="black" if bold else "none", linewidth=2.0 if bold else 0.0,
+                [(t0, t1 - t0)],
+                (row - height / 2, height),
+                facecolors=_colour(leader),
+                edgecolors="black" if bold else "none",
+                linewidth=2.0 if bold else 0.0,
             )
     leader_ids = sorted({leader for spans in segments.values() for _, _, leader in spans})
     ax.legend(

@@ -86,6 +86,7 @@ def _prepare_child(nice: int | None) -> Callable[[], None]:
                 os.setpriority(os.PRIO_PROCESS, 0, nice)
             except OSError:
                 pass  # not permitted: the child keeps the harness's niceness, and Child.nice says so
+
     return prepare
 
 
@@ -97,7 +98,11 @@ def start_child(
     log = open(log_path, "wb")
     child_env = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1", **(env or {})}
     popen = subprocess.Popen(
-        argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=child_env,
+        argv,
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        stdin=subprocess.DEVNULL,
+        env=child_env,
         preexec_fn=_prepare_child(nice),
     )
     try:

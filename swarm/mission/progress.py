@@ -66,7 +66,9 @@ class ProgressView:
         return Group(title, table)
 
 
-def _rows(sim: dict[str, Any] | None, observer: dict[str, Any] | None, exit_codes: dict[int, int]) -> list[dict[str, Any]]:
+def _rows(
+    sim: dict[str, Any] | None, observer: dict[str, Any] | None, exit_codes: dict[int, int]
+) -> list[dict[str, Any]]:
     agents = (observer or {}).get("agents", {})
     rows = []
     for v in (sim or {}).get("vehicles", []):

@@ -64,7 +64,8 @@ def build_report(
                 "patches_requested": int(sync.get("patches_requested", 0)),
                 "patches_served": int(sync.get("patches_served", 0)),
                 "patches_received": {
-                    "push": int(sync.get("received_by_push", 0)), "pull": int(sync.get("received_by_pull", 0))
+                    "push": int(sync.get("received_by_push", 0)),
+                    "pull": int(sync.get("received_by_pull", 0)),
                 },
                 "patches_rejected": sync.get("rejected", {}),
                 "duration_s": float(summary.get("duration_s", 0.0)),
@@ -113,8 +114,12 @@ def build_report(
         "convergence_after_heal_s": links.get("convergence_after_heal_s", []),
         "map": "map.ply" if (plan.out / "map.ply").exists() else None,
         # map surface along the flown paths that the building does not have (drones mapped as obstacles)
-        "phantoms": phantom_check(plan.out / "map.ply", (observer or {}).get("trajectories", {}), plan.world,
-                                  plan.config.sim.drone_radius_m + GROUND_GAP_M),
+        "phantoms": phantom_check(
+            plan.out / "map.ply",
+            (observer or {}).get("trajectories", {}),
+            plan.world,
+            plan.config.sim.drone_radius_m + GROUND_GAP_M,
+        ),
         "converged": converged(summaries, sealed_patch_ids(plan.out / "agents" / "patches")),
         "bandwidth": bandwidth(summaries),
         "collision_events": (sim or {}).get("collision_events", []),
@@ -150,15 +155,19 @@ def _judged_by_coverage(config: Any) -> bool:
 def _why_short(explored: float, agents: list[dict[str, Any]]) -> str:
     reasons = sorted({a["exploration_done_reason"] for a in agents if a.get("exploration_done_reason")})
     given_up = sum(len(a.get("frontiers_given_up") or []) for a in agents)
-    return (f"exploration ended at {math.floor(explored * 1000) / 10:.1f} % explored, below {COVERAGE_TARGET:.0%}: "
-            f"{'; '.join(reasons) or 'no agent said why'}; {given_up} frontier(s) given up (agents[].frontiers_given_up)")
+    return (
+        f"exploration ended at {math.floor(explored * 1000) / 10:.1f} % explored, below {COVERAGE_TARGET:.0%}: "
+        f"{'; '.join(reasons) or 'no agent said why'}; {given_up} frontier(s) given up (agents[].frontiers_given_up)"
+    )
 
 
 def run_priority(plan: RunPlan, state: RunState) -> dict[str, Any]:
     """The niceness asked for the simulator and the agents, the one each got, and whether every one got it."""
     m = plan.config.mission
-    got = {"sim": state.sim.nice if state.sim is not None else None,
-           "agents": {k: child.nice for k, child in state.agents.items()}}
+    got = {
+        "sim": state.sim.nice if state.sim is not None else None,
+        "agents": {k: child.nice for k, child in state.agents.items()},
+    }
     granted = got["sim"] == m.sim_nice and all(n == m.agent_nice for n in got["agents"].values())
     return {"asked": {"sim": m.sim_nice, "agents": m.agent_nice}, "got": got, "granted": granted}
 

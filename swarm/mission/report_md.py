@@ -63,8 +63,14 @@ def headline_rows(report: dict[str, Any]) -> list[tuple[str, str]]:
 def agent_rows(report: dict[str, Any]) -> list[list[Any]]:
     return [
         [
-            a.get("id"), a.get("distance_m"), a.get("patches_sealed"), a.get("patches_held"),
-            a.get("targets_assigned", 0), a.get("targets_self_selected", 0), a.get("landed"), a.get("exit_code"),
+            a.get("id"),
+            a.get("distance_m"),
+            a.get("patches_sealed"),
+            a.get("patches_held"),
+            a.get("targets_assigned", 0),
+            a.get("targets_self_selected", 0),
+            a.get("landed"),
+            a.get("exit_code"),
         ]
         for a in report.get("agents", [])
     ]
@@ -98,8 +104,16 @@ def render_report_page(report: dict[str, Any]) -> str:
         "## Drones",
         "",
         *_table(
-            ["drone", "distance (m)", "patches sealed", "patches held", "targets assigned", "targets self-selected",
-             "landed", "exit code"],
+            [
+                "drone",
+                "distance (m)",
+                "patches sealed",
+                "patches held",
+                "targets assigned",
+                "targets self-selected",
+                "landed",
+                "exit code",
+            ],
             agent_rows(report),
         ),
         "",

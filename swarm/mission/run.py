@@ -33,7 +33,17 @@ from typing import Any
 import numpy as np
 import tomli_w
 
-from swarm.config import TLS_OBSERVER_NAME, Box, ConfigError, SwarmConfig, bus_port, dump_config, gcs_port, tls_drone_name, vehicle_port
+from swarm.config import (
+    TLS_OBSERVER_NAME,
+    Box,
+    ConfigError,
+    SwarmConfig,
+    bus_port,
+    dump_config,
+    gcs_port,
+    tls_drone_name,
+    vehicle_port,
+)
 from swarm.deploy.certs import make_certs
 from swarm.errors import SwarmError
 from swarm.mission.faults import FaultInjector
@@ -126,8 +136,10 @@ def prepare(config: SwarmConfig) -> RunPlan:
         raise SwarmError(f"output directory {out} is not empty")
     sensor_port = None
     if m.record and config.camera.source not in STREAMED_SOURCES:
-        raise ConfigError(f'mission.record needs camera.source = "sim" or "zenoh", not "{config.camera.source}": '
-                          "only the simulated cameras' streams can be recorded")
+        raise ConfigError(
+            f'mission.record needs camera.source = "sim" or "zenoh", not "{config.camera.source}": '
+            "only the simulated cameras' streams can be recorded"
+        )
     if config.camera.source in STREAMED_SOURCES:
         sensor_port = bus_port(config.bus, SENSOR_PORT_OFFSET)
         if m.network == "loopback":
@@ -155,8 +167,10 @@ def _netns_scenario(config: SwarmConfig) -> Scenario:
         except NetemUnavailable as exc:
             raise NetemUnavailable(f"{m.links}: the event at {event.at:g} s: {exc}") from None
         if event.rate_kbit:
-            raise NetemUnavailable(f"{m.links}: the event at {event.at:g} s asks for a rate limit; the netns run "
-                                   "applies loss and cuts only (rates: swarm netem apply)")
+            raise NetemUnavailable(
+                f"{m.links}: the event at {event.at:g} s asks for a rate limit; the netns run "
+                "applies loss and cuts only (rates: swarm netem apply)"
+            )
     return scenario
 
 
@@ -172,10 +186,17 @@ def _with_tls(plan: RunPlan, bus: dict[str, Any], name: str) -> dict[str, Any]:
     """With mission.tls, the same endpoints over mutual TLS, with certificate `name` from OUT/certs."""
     if not plan.config.mission.tls:
         return bus
+
     def secure(endpoints: list[str]) -> list[str]:
         return ["tls/" + e.removeprefix("tcp/") if e.startswith("tcp/") else e for e in endpoints]
-    return {**bus, "listen": secure(bus["listen"]), "connect": secure(bus["connect"]),
-            "tls_dir": plan.out / "certs", "tls_name": name}
+
+    return {
+        **bus,
+        "listen": secure(bus["listen"]),
+        "connect": secure(bus["connect"]),
+        "tls_dir": plan.out / "certs",
+        "tls_name": name,
+    }
 
 
 def _write_config(path: Path, config: SwarmConfig) -> Path:
@@ -247,8 +268,12 @@ def _start_simulator(plan: RunPlan, state: RunState) -> None:
     if plan.config.mission.faults:
         sim_config.sim.control_path = _control_path(plan)
     path = _write_config(plan.out / "config" / "sim.toml", sim_config)
-    state.sim = start_child("sim", swarm_command("sim", "--config", str(path)), plan.out / "logs" / "sim.log",
-                            nice=plan.config.mission.sim_nice)
+    state.sim = start_child(
+        "sim",
+        swarm_command("sim", "--config", str(path)),
+        plan.out / "logs" / "sim.log",
+        nice=plan.config.mission.sim_nice,
+    )
     deadline = time.monotonic() + SIM_READY_TIMEOUT_S
     while True:
         status = read_json(plan.out / "sim.json")
@@ -272,11 +297,16 @@ def _start_cameras(plan: RunPlan, state: RunState, host: str) -> None:
     if plan.sensor_port is None:
         return
     config = plan.config.model_copy(deep=True)
-    config.camera.stream = config.camera.stream.model_copy(update={"connect": [_sensor_endpoint(plan, host)],
-                                                                    "mode": "client", "listen": []})
+    config.camera.stream = config.camera.stream.model_copy(
+        update={"connect": [_sensor_endpoint(plan, host)], "mode": "client", "listen": []}
+    )
     path = _write_config(plan.out / "config" / "cameras.toml", config)
-    state.cameras = start_child("cameras", swarm_command("cameras", "--config", str(path)),
-                                plan.out / "logs" / "cameras.log", nice=plan.config.mission.sim_nice)
+    state.cameras = start_child(
+        "cameras",
+        swarm_command("cameras", "--config", str(path)),
+        plan.out / "logs" / "cameras.log",
+        nice=plan.config.mission.sim_nice,
+    )
 
 
 def _agent_camera(plan: RunPlan, state: RunState, k: int) -> dict[str, Any]:
@@ -286,13 +316,18 @@ def _agent_camera(plan: RunPlan, state: RunState, k: int) -> dict[str, Any]:
         return {}
     host = state.net.layout.control_host_address if state.net is not None else plan.config.sim.host
     stream = plan.config.camera.stream.under_vehicle(k).model_copy(
-        update={"connect": [_sensor_endpoint(plan, host)], "mode": "client", "listen": []})
+        update={"connect": [_sensor_endpoint(plan, host)], "mode": "client", "listen": []}
+    )
     lo, hi = plan.volume
     # The agent is given no world at all: a path that does not exist, so that any attempt to load one fails.
-    mission = plan.config.mission.model_copy(update={
-        "volume": Box(min=(float(lo[0]), float(lo[1]), float(lo[2])), max=(float(hi[0]), float(hi[1]), float(hi[2]))),
-        "world": str(plan.out / "config" / NO_WORLD_FOR_AGENTS),
-    })
+    mission = plan.config.mission.model_copy(
+        update={
+            "volume": Box(
+                min=(float(lo[0]), float(lo[1]), float(lo[2])), max=(float(hi[0]), float(hi[1]), float(hi[2]))
+            ),
+            "world": str(plan.out / "config" / NO_WORLD_FOR_AGENTS),
+        }
+    )
     record = plan.out / "bags" / f"agent-{k}" if plan.config.mission.record else None
     camera = plan.config.camera.model_copy(update={"source": "zenoh", "stream": stream, "record": record})
     return {"camera": camera, "mission": mission}
@@ -332,9 +367,17 @@ def _start_swarm(plan: RunPlan, state: RunState) -> None:
     state.observer = start_child(
         "observer",
         swarm_command(
-            "observe", "--config", str(path), "--status", str(plan.out / "observer.json"),
-            "--patches", str(plan.out / "agents" / "patches"), "--map", str(plan.out / "map.ply"),
-            "--since", f"{state.started_wall:.3f}",
+            "observe",
+            "--config",
+            str(path),
+            "--status",
+            str(plan.out / "observer.json"),
+            "--patches",
+            str(plan.out / "agents" / "patches"),
+            "--map",
+            str(plan.out / "map.ply"),
+            "--since",
+            f"{state.started_wall:.3f}",
         ),
         plan.out / "logs" / "observer.log",
     )
@@ -344,31 +387,45 @@ def _start_swarm(plan: RunPlan, state: RunState) -> None:
             autopilot = f"udpout://{net.layout.control_host_address}:{vehicle_port(config.sim, k)}"
         else:
             autopilot = f"udpin://{config.sim.host}:{gcs_port(config.sim, k)}"
-        update: dict[str, Any] = {"id": k, "autopilot": autopilot, "out_dir": plan.out / "agents",
-                                  "state_dir": plan.out / "agents" / "state" / f"agent-{k}"}
+        update: dict[str, Any] = {
+            "id": k,
+            "autopilot": autopilot,
+            "out_dir": plan.out / "agents",
+            "state_dir": plan.out / "agents" / "state" / f"agent-{k}",
+        }
         if k in routes:
             route = routes[k]
-            update |= {"altitude_m": route.altitude_m, "waypoints": route.waypoints, "start_delay_s": route.start_delay_s}
+            update |= {
+                "altitude_m": route.altitude_m,
+                "waypoints": route.waypoints,
+                "start_delay_s": route.start_delay_s,
+            }
         agent = config.agent.model_copy(update=update)
         bus = _netns_bus_for(config, net, k) if net is not None else _bus_for(config, k)
         bus = _with_tls(plan, bus, tls_drone_name(k))
-        agent_config = config.model_copy(update={"agent": agent, "bus": config.bus.model_copy(update=bus),
-                                                 **_agent_camera(plan, state, k)})
+        agent_config = config.model_copy(
+            update={"agent": agent, "bus": config.bus.model_copy(update=bus), **_agent_camera(plan, state, k)}
+        )
         path = _write_config(plan.out / "config" / f"agent-{k}.toml", agent_config)
         argv = swarm_command("agent", "--config", str(path))
         if net is not None:
             argv = net.exec_argv(k, argv)
         state.agent_argv[k] = argv
-        state.agents[k] = start_child(f"agent-{k}", argv, plan.out / "logs" / f"agent-{k}.log", _agent_env(plan),
-                                      nice=config.mission.agent_nice)
+        state.agents[k] = start_child(
+            f"agent-{k}", argv, plan.out / "logs" / f"agent-{k}.log", _agent_env(plan), nice=config.mission.agent_nice
+        )
 
 
 def _warn_unless_prioritised(plan: RunPlan, state: RunState) -> None:
     p = run_priority(plan, state)
     if not p["granted"]:
-        print(f"swarm run: warning: niceness {p['asked']} asked, {p['got']} given (lowering it needs root or "
-              "CAP_SYS_NICE): a burst of load on this machine can stall the simulator's telemetry for longer than "
-              "the agents' telemetry timeout and land every drone", file=sys.stderr, flush=True)
+        print(
+            f"swarm run: warning: niceness {p['asked']} asked, {p['got']} given (lowering it needs root or "
+            "CAP_SYS_NICE): a burst of load on this machine can stall the simulator's telemetry for longer than "
+            "the agents' telemetry timeout and land every drone",
+            file=sys.stderr,
+            flush=True,
+        )
 
 
 def _control_path(plan: RunPlan) -> Path:
@@ -378,8 +435,13 @@ def _control_path(plan: RunPlan) -> Path:
 def _restart_agent(plan: RunPlan, state: RunState, k: int, restart: int) -> Child:
     """A restart fault: agent k again, with the same config and a log of its own (the new process takes a new
     epoch and takes its drone over in the air)."""
-    return start_child(f"agent-{k}", state.agent_argv[k], plan.out / "logs" / f"agent-{k}.restart{restart}.log",
-                       _agent_env(plan), nice=plan.config.mission.agent_nice)
+    return start_child(
+        f"agent-{k}",
+        state.agent_argv[k],
+        plan.out / "logs" / f"agent-{k}.restart{restart}.log",
+        _agent_env(plan),
+        nice=plan.config.mission.agent_nice,
+    )
 
 
 def _agent_env(plan: RunPlan) -> dict[str, str]:

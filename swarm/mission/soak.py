@@ -47,8 +47,15 @@ class AgentSample:
 
     def as_dict(self) -> dict[str, Any]:
         growth = None if self.warm_rss is None else round(self.peak_rss / self.warm_rss - 1.0, 4)
-        return {"agent": self.name, "pid": self.pid, "warm_rss_mb": _mb(self.warm_rss), "peak_rss_mb": _mb(self.peak_rss),
-                "rss_growth": growth, "warm_fds": self.warm_fds, "peak_fds": self.peak_fds}
+        return {
+            "agent": self.name,
+            "pid": self.pid,
+            "warm_rss_mb": _mb(self.warm_rss),
+            "peak_rss_mb": _mb(self.peak_rss),
+            "rss_growth": growth,
+            "warm_fds": self.warm_fds,
+            "peak_fds": self.peak_fds,
+        }
 
 
 def _mb(value: int | None) -> float | None:
@@ -117,9 +124,11 @@ def _one_mission(config: SwarmConfig, out: Path, fault: str, loss: float | None)
         scenario = out.parent / f"{out.name}-loss.toml"  # the run directory must start empty
         scenario.write_text(f'name = "soak-loss"\n[[event]]\nat = 0\nlink = "all"\nloss = {loss}\n')
         overrides["links"] = scenario
-    mission = config.model_copy(update={
-        "mission": type(config.mission).model_validate({**config.mission.model_dump(), **overrides}),
-    })
+    mission = config.model_copy(
+        update={
+            "mission": type(config.mission).model_validate({**config.mission.model_dump(), **overrides}),
+        }
+    )
     sampler = AgentSampler()
     started = time.monotonic()
     try:
@@ -128,9 +137,17 @@ def _one_mission(config: SwarmConfig, out: Path, fault: str, loss: float | None)
     except SwarmError as exc:
         status, reason = "failed", str(exc)
     sealed, lost = patches_lost(out, config.mission.drones)
-    return {"out": str(out), "fault": fault, "loss": loss, "status": status, "reason": reason,
-            "wall_s": round(time.monotonic() - started, 1), "patches_sealed": sealed, "patches_lost": lost,
-            "agents": [s.as_dict() for s in sampler.samples.values()]}
+    return {
+        "out": str(out),
+        "fault": fault,
+        "loss": loss,
+        "status": status,
+        "reason": reason,
+        "wall_s": round(time.monotonic() - started, 1),
+        "patches_sealed": sealed,
+        "patches_lost": lost,
+        "agents": [s.as_dict() for s in sampler.samples.values()],
+    }
 
 
 def summarise(missions: list[dict[str, Any]]) -> dict[str, Any]:
@@ -148,8 +165,11 @@ def summarise(missions: list[dict[str, Any]]) -> dict[str, Any]:
         "max_peak_rss_mb": max((a["peak_rss_mb"] for a in agents), default=None),
     }
     summary["passed"] = bool(
-        missions and summary["completed"] == len(missions) and summary["patches_lost"] == 0
-        and summary["max_rss_growth"] is not None and summary["max_rss_growth"] <= MAX_GROWTH
+        missions
+        and summary["completed"] == len(missions)
+        and summary["patches_lost"] == 0
+        and summary["max_rss_growth"] is not None
+        and summary["max_rss_growth"] <= MAX_GROWTH
     )
     return summary
 
@@ -174,11 +194,18 @@ def soak(config: SwarmConfig, minutes: float, out: Path, seed: int, console: Con
             console.print("swarm soak: interrupted")
             break
         growth = [a["rss_growth"] for a in result["agents"] if a["rss_growth"] is not None]
-        console.print(f"  {result['status']} in {result['wall_s']} s, patches sealed {result['patches_sealed']}, "
-                      f"lost {result['patches_lost']}, max agent memory growth "
-                      f"{max(growth) * 100 if growth else float('nan'):.1f} %")
-    result = {"minutes": minutes, "seed": seed, "network": "netns" if netns else "loopback",
-              "summary": summarise(missions), "missions": missions}
+        console.print(
+            f"  {result['status']} in {result['wall_s']} s, patches sealed {result['patches_sealed']}, "
+            f"lost {result['patches_lost']}, max agent memory growth "
+            f"{max(growth) * 100 if growth else float('nan'):.1f} %"
+        )
+    result = {
+        "minutes": minutes,
+        "seed": seed,
+        "network": "netns" if netns else "loopback",
+        "summary": summarise(missions),
+        "missions": missions,
+    }
     out.mkdir(parents=True, exist_ok=True)
     (out / "soak.json").write_text(json.dumps(result, indent=2, default=str))
     return result
@@ -191,16 +218,26 @@ def _print(console: Console, result: dict[str, Any]) -> None:
     for i, m in enumerate(result["missions"], 1):
         growth = [a["rss_growth"] for a in m["agents"] if a["rss_growth"] is not None]
         fds = [a["peak_fds"] - a["warm_fds"] for a in m["agents"] if a["warm_fds"] is not None]
-        table.add_row(str(i), m["fault"], "-" if m["loss"] is None else f"{m['loss']:.0%}", m["status"],
-                      str(m["wall_s"]), str(m["patches_sealed"]), str(m["patches_lost"]),
-                      f"{max(growth) * 100:+.1f} %" if growth else "-", str(max(fds)) if fds else "-")
+        table.add_row(
+            str(i),
+            m["fault"],
+            "-" if m["loss"] is None else f"{m['loss']:.0%}",
+            m["status"],
+            str(m["wall_s"]),
+            str(m["patches_sealed"]),
+            str(m["patches_lost"]),
+            f"{max(growth) * 100:+.1f} %" if growth else "-",
+            str(max(fds)) if fds else "-",
+        )
     console.print(table)
     s = result["summary"]
     growth = "n/a" if s["max_rss_growth"] is None else f"{s['max_rss_growth'] * 100:.1f} %"
-    console.print(f"missions {s['missions']}, completed {s['completed']}, patches sealed {s['patches_sealed']}, "
-                  f"lost {s['patches_lost']}, max agent memory growth after warm-up {growth} "
-                  f"(limit {MAX_GROWTH:.0%}), max fd growth {s['max_fd_growth']}, peak agent RSS "
-                  f"{s['max_peak_rss_mb']} MB: {'PASS' if s['passed'] else 'FAIL'}")
+    console.print(
+        f"missions {s['missions']}, completed {s['completed']}, patches sealed {s['patches_sealed']}, "
+        f"lost {s['patches_lost']}, max agent memory growth after warm-up {growth} "
+        f"(limit {MAX_GROWTH:.0%}), max fd growth {s['max_fd_growth']}, peak agent RSS "
+        f"{s['max_peak_rss_mb']} MB: {'PASS' if s['passed'] else 'FAIL'}"
+    )
 
 
 def soak_command(config: SwarmConfig, minutes: float, out: Path | None, seed: int) -> int:

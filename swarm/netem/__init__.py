@@ -37,10 +37,10 @@ and nothing else. Kept networks (`swarm netem up`) have pid field 0 and are neve
 
 from swarm.netem.commands import NetemUnavailable, check_prerequisites
 from swarm.netem.impair import Impairments
+from swarm.netem.manual import netem_apply, netem_down, netem_show, netem_up, open_network  # noqa: E402 (uses the above)
 from swarm.netem.network import SwarmNetwork
 from swarm.netem.profile import LinkProfile, kernel_has_netem
 from swarm.netem.topology import NAME_PREFIX, remove_leftovers
-from swarm.netem.manual import netem_apply, netem_down, netem_show, netem_up, open_network  # noqa: E402 (uses the above)
 
 __all__ = [
     "NAME_PREFIX",

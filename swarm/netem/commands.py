@@ -32,7 +32,6 @@ def tool(name: str) -> str:
     return found
 
 
-
 def check_prerequisites(tools: tuple[str, ...] = ("ip", "nft")) -> None:
     """Raise NetemUnavailable unless this process is root and the given tools exist."""
     if os.geteuid() != 0:

@@ -41,7 +41,7 @@ import re
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -97,8 +97,9 @@ def state_path(name: str) -> Path:
 def check_name(name: str) -> str:
     """The name if it can name a network (it becomes a file name), else ConfigError."""
     if not _NAME_RE.match(name):
-        raise ConfigError(f"network name {name!r} must be 1-32 letters, digits, '.', '_' or '-', starting with a "
-                          "letter or digit")
+        raise ConfigError(
+            f"network name {name!r} must be 1-32 letters, digits, '.', '_' or '-', starting with a letter or digit"
+        )
     return name
 
 
@@ -154,8 +155,9 @@ def load_state(name: str) -> ManualNetwork | None:
     except FileNotFoundError:
         return None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise SwarmError(f"the state file {path} is unreadable ({_why(exc)}); "
-                         "`swarm netem down --all` removes it and its network") from None
+        raise SwarmError(
+            f"the state file {path} is unreadable ({_why(exc)}); `swarm netem down --all` removes it and its network"
+        ) from None
     try:
         if tree.get("format") != STATE_FORMAT:
             raise ValueError(f"format {tree.get('format')!r}, expected {STATE_FORMAT}")
@@ -165,8 +167,9 @@ def load_state(name: str) -> ManualNetwork | None:
             raise ValueError(f"bad layout {lay}")
         return ManualNetwork(name, layout, impairments_from_json(tree["impairments"]), str(tree.get("created", "")))
     except (AttributeError, KeyError, TypeError, ValueError, ValidationError) as exc:
-        raise SwarmError(f"the state file {path} is unreadable ({_why(exc)}); "
-                         "`swarm netem down --all` removes it and its network") from None
+        raise SwarmError(
+            f"the state file {path} is unreadable ({_why(exc)}); `swarm netem down --all` removes it and its network"
+        ) from None
 
 
 def _why(exc: BaseException) -> str:
@@ -219,8 +222,9 @@ def _not_up(name: str) -> NetworkNotUp:
     others = [n for n in network_names() if n != name]
     if others:
         return NetworkNotUp(f"no swarm network named '{name}' is up (up: {', '.join(others)}; choose with --name)")
-    return NetworkNotUp(f"no swarm network named '{name}' is up (start one with: swarm netem up --nodes N"
-                        f"{_name_flag(name)})")
+    return NetworkNotUp(
+        f"no swarm network named '{name}' is up (start one with: swarm netem up --nodes N{_name_flag(name)})"
+    )
 
 
 def _present(layout: Layout) -> list[str]:
@@ -230,8 +234,10 @@ def _present(layout: Layout) -> list[str]:
 
 def _node_table(layout: Layout) -> list[str]:
     rows = [("node", "namespace", "radio", "control", "host control end")]
-    rows += [(str(k), layout.namespace(k), layout.address(k), layout.control_address(k), layout.control_host_address)
-             for k in layout.node_ids]
+    rows += [
+        (str(k), layout.namespace(k), layout.address(k), layout.control_address(k), layout.control_host_address)
+        for k in layout.node_ids
+    ]
     widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
     return ["  " + "  ".join(cell.ljust(w) for cell, w in zip(row, widths)).rstrip() for row in rows]
 
@@ -268,8 +274,9 @@ def parse_loss(value: str | float | None) -> float | None:
     return loss
 
 
-def _profile(loss: float | None, cut: bool, rate_kbit: int | None, delay_ms: float | None,
-             jitter_ms: float | None) -> LinkProfile:
+def _profile(
+    loss: float | None, cut: bool, rate_kbit: int | None, delay_ms: float | None, jitter_ms: float | None
+) -> LinkProfile:
     fields = {"loss": loss, "cut": cut or None, "rate_kbit": rate_kbit, "delay_ms": delay_ms, "jitter_ms": jitter_ms}
     try:
         return LinkProfile(**{k: v for k, v in fields.items() if v is not None})
@@ -302,14 +309,15 @@ def netem_up(nodes: int, name: str = DEFAULT_NAME) -> int:
         old = load_state(name)
         if old is not None:
             if _present(old.layout):
-                raise SwarmError(f"a swarm network named '{name}' is already up ({old.layout.nodes} nodes, "
-                                 f"{old.layout.prefix}-*); remove it first with: swarm netem down{_name_flag(name)}")
+                raise SwarmError(
+                    f"a swarm network named '{name}' is already up ({old.layout.nodes} nodes, "
+                    f"{old.layout.prefix}-*); remove it first with: swarm netem down{_name_flag(name)}"
+                )
             topology.remove_control_links(old.layout)
             state_path(name).unlink(missing_ok=True)
             print(f"note: the state of an earlier '{name}' whose namespaces were gone has been discarded")
         net = SwarmNetwork(nodes, keep=True)
-        state = ManualNetwork(name, net.layout, Impairments(),
-                              datetime.now(timezone.utc).isoformat(timespec="seconds"))
+        state = ManualNetwork(name, net.layout, Impairments(), datetime.now(UTC).isoformat(timespec="seconds"))
         save_state(state)  # first: whatever happens next, `down` can find what was created
         try:
             net.up()
@@ -318,14 +326,20 @@ def netem_up(nodes: int, name: str = DEFAULT_NAME) -> int:
             state_path(name).unlink(missing_ok=True)
             raise
     layout = net.layout
-    print(f"swarm network '{name}' is up: {nodes} node{'s' if nodes != 1 else ''}, radio {layout.subnet} "
-          f"(impairable), control links to the host at {layout.control_host_address} (never impaired)")
+    print(
+        f"swarm network '{name}' is up: {nodes} node{'s' if nodes != 1 else ''}, radio {layout.subnet} "
+        f"(impairable), control links to the host at {layout.control_host_address} (never impaired)"
+    )
     print("\n".join(_node_table(layout)))
-    print(f"run a command on node k:  ip netns exec {layout.prefix}-n<k> COMMAND   "
-          f"(e.g. ip netns exec {layout.namespace(1)} ping {layout.address(min(2, nodes))})")
+    print(
+        f"run a command on node k:  ip netns exec {layout.prefix}-n<k> COMMAND   "
+        f"(e.g. ip netns exec {layout.namespace(1)} ping {layout.address(min(2, nodes))})"
+    )
     flag = _name_flag(name)
-    print(f"impair:  swarm netem apply{flag} 1-2 --loss 30%   see:  swarm netem show{flag}   "
-          f"remove:  swarm netem down{flag}")
+    print(
+        f"impair:  swarm netem apply{flag} 1-2 --loss 30%   see:  swarm netem show{flag}   "
+        f"remove:  swarm netem down{flag}"
+    )
     return 0
 
 
@@ -338,8 +352,10 @@ def netem_show(name: str = DEFAULT_NAME) -> int:
     if state is None:
         raise _not_up(name)
     layout = state.layout
-    print(f"swarm network '{name}': {layout.nodes} nodes, radio {layout.subnet}, created {state.created}, "
-          f"state {state_path(name)}")
+    print(
+        f"swarm network '{name}': {layout.nodes} nodes, radio {layout.subnet}, created {state.created}, "
+        f"state {state_path(name)}"
+    )
     print("\n".join(_node_table(layout)))
     lines = describe_impairments(state.impairments)
     if lines:
@@ -349,8 +365,10 @@ def netem_show(name: str = DEFAULT_NAME) -> int:
         print("impairments: none (every link clean)")
     missing = sorted(set(layout.all_namespaces()) - set(_present(layout)))
     if missing:
-        print(f"broken: {len(missing)} of its namespaces are gone ({', '.join(missing[:3])}"
-              f"{', ...' if len(missing) > 3 else ''}); remove it with: swarm netem down{_name_flag(name)}")
+        print(
+            f"broken: {len(missing)} of its namespaces are gone ({', '.join(missing[:3])}"
+            f"{', ...' if len(missing) > 3 else ''}); remove it with: swarm netem down{_name_flag(name)}"
+        )
         return 1
     print(f"rules (nft in {layout.hub}):")
     print(state.network().rules().rstrip("\n"))
@@ -372,8 +390,17 @@ def netem_apply(
     """`swarm netem apply`: set (or with `restore` remove) the profile of LINK ("a-b", "k" or "all"), or make a
     scenario's state at time `at` the whole table; print what changed and what is in force."""
     check_name(name)
-    given = [flag for flag, value in (("--loss", loss), ("--cut", cut or None), ("--rate-kbit", rate_kbit),
-                                      ("--delay-ms", delay_ms), ("--jitter-ms", jitter_ms)) if value is not None]
+    given = [
+        flag
+        for flag, value in (
+            ("--loss", loss),
+            ("--cut", cut or None),
+            ("--rate-kbit", rate_kbit),
+            ("--delay-ms", delay_ms),
+            ("--jitter-ms", jitter_ms),
+        )
+        if value is not None
+    ]
     if scenario is not None:
         if link is not None or given or restore:
             raise ConfigError("--scenario FILE --at T replaces the whole table: give no LINK, impairment or --restore")
@@ -392,16 +419,19 @@ def netem_apply(
     profile = LinkProfile() if restore else _profile(parse_loss(loss), cut, rate_kbit, delay_ms, jitter_ms)
     refuse_delay(profile)
     if len(ids) == 2 and profile.rate_kbit:
-        raise NetemUnavailable(f"a rate limit on one pair ({link}) is not implemented; limit a node's radio "
-                               f"(swarm netem apply {ids[0]} --rate-kbit {profile.rate_kbit}) or all links")
+        raise NetemUnavailable(
+            f"a rate limit on one pair ({link}) is not implemented; limit a node's radio "
+            f"(swarm netem apply {ids[0]} --rate-kbit {profile.rate_kbit}) or all links"
+        )
     check_prerequisites()
     with _locked():
         state = load_state(name)
         if state is None:
             raise _not_up(name)
         if any(k > state.layout.nodes for k in ids):
-            raise ConfigError(f"link {link!r} names a node that network '{name}' does not have "
-                              f"(nodes are 1..{state.layout.nodes})")
+            raise ConfigError(
+                f"link {link!r} names a node that network '{name}' does not have (nodes are 1..{state.layout.nodes})"
+            )
         net = state.network()
         try:
             done = _change(net, ids, profile, restore)
@@ -454,8 +484,10 @@ def _apply_scenario(name: str, path: Path, at: float) -> int:
         for (a, b), profile in pairs.items():
             refuse_delay(profile)
             if profile.rate_kbit:
-                raise NetemUnavailable(f"scenario '{scenario.name}' at {at:g} s limits the rate of link {a}-{b}; "
-                                       "per-pair rate limits are not implemented")
+                raise NetemUnavailable(
+                    f"scenario '{scenario.name}' at {at:g} s limits the rate of link {a}-{b}; "
+                    "per-pair rate limits are not implemented"
+                )
         net = state.network()
         try:
             net.set_impairments(Impairments(pairs=pairs))
@@ -463,8 +495,10 @@ def _apply_scenario(name: str, path: Path, at: float) -> int:
             state.impairments = net.applied()
             save_state(state)
     radio = "; its [radio] model is not applied (it needs drone positions)" if scenario.radio is not None else ""
-    print(f"network '{name}': scenario '{scenario.name}' at {at:g} s ({len(events)} of {len(scenario.events)} "
-          f"events so far){radio}; in force: {_in_force(state.impairments)}")
+    print(
+        f"network '{name}': scenario '{scenario.name}' at {at:g} s ({len(events)} of {len(scenario.events)} "
+        f"events so far){radio}; in force: {_in_force(state.impairments)}"
+    )
     return 0
 
 
@@ -482,8 +516,11 @@ def netem_down(name: str = DEFAULT_NAME, all_networks: bool = False) -> int:
             orphans = topology.kept_namespaces()
             known = {s.layout.tag for n in network_names() if (s := _try_load(n)) is not None}
             stray = sorted(tag for tag in orphans if tag not in known)
-            extra = (f" ({len(stray)} kept network(s) without a state file remain: swarm netem down --all removes "
-                     "them)") if stray else ""
+            extra = (
+                (f" ({len(stray)} kept network(s) without a state file remain: swarm netem down --all removes them)")
+                if stray
+                else ""
+            )
             print(f"no swarm network named '{name}' is up: nothing to remove{extra}")
             return 0
         _remove(name, state.layout)

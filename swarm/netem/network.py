@@ -131,8 +131,10 @@ class SwarmNetwork:
     def impair_pair(self, a: int, b: int, profile: LinkProfile) -> None:
         """Apply `profile` to the link between nodes a and b, both directions."""
         if profile.rate_kbit:
-            raise NetemUnavailable("a per-pair rate limit is not implemented (needs htb + u32 on the hub ports); "
-                                   "rate_kbit works with impair_node and impair_all")
+            raise NetemUnavailable(
+                "a per-pair rate limit is not implemented (needs htb + u32 on the hub ports); "
+                "rate_kbit works with impair_node and impair_all"
+            )
         imp = self._imp.copy()
         imp.pairs[self._pair(a, b)] = profile
         self._change(imp, profile)

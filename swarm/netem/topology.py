@@ -133,30 +133,43 @@ def new_layout(nodes: int, keep: bool = False) -> Layout:
 
 def create_hub(layout: Layout) -> None:
     run(["ip", "netns", "add", layout.hub])
-    ip_batch(layout.hub, [
-        "link set lo up",
-        f"link add {BRIDGE} type bridge mcast_snooping 0",
-        f"link set {BRIDGE} up",
-    ])
+    ip_batch(
+        layout.hub,
+        [
+            "link set lo up",
+            f"link add {BRIDGE} type bridge mcast_snooping 0",
+            f"link set {BRIDGE} up",
+        ],
+    )
 
 
 def add_node(layout: Layout, k: int) -> None:
     """Node k's namespace, its veth to the bridge, address, GSO off, static neighbours; its control link."""
     ns, port = layout.namespace(k), layout.port(k)
     run(["ip", "netns", "add", ns])
-    ip_batch(layout.hub, [
-        f"link add {port} type veth peer name eth0 netns {ns}",
-        f"link set {port} master {BRIDGE} up",
-    ])
-    ip_batch(ns, [
-        "link set lo up",
-        f"link set dev eth0 address {layout.mac(k)} gso_max_segs 1 gso_max_size 1500",
-        f"addr add {layout.address(k)}/24 dev eth0",
-        "link set eth0 up",
-        f"route replace {layout.subnet} dev eth0 proto kernel scope link src {layout.address(k)} rto_min {RADIO_RTO_MIN}",
-        *(f"neigh replace {layout.address(j)} lladdr {layout.mac(j)} dev eth0 nud permanent"
-          for j in layout.node_ids if j != k),
-    ])
+    ip_batch(
+        layout.hub,
+        [
+            f"link add {port} type veth peer name eth0 netns {ns}",
+            f"link set {port} master {BRIDGE} up",
+        ],
+    )
+    ip_batch(
+        ns,
+        [
+            "link set lo up",
+            f"link set dev eth0 address {layout.mac(k)} gso_max_segs 1 gso_max_size 1500",
+            f"addr add {layout.address(k)}/24 dev eth0",
+            "link set eth0 up",
+            f"route replace {layout.subnet} dev eth0 proto kernel scope link src {layout.address(k)} "
+            f"rto_min {RADIO_RTO_MIN}",
+            *(
+                f"neigh replace {layout.address(j)} lladdr {layout.mac(j)} dev eth0 nud permanent"
+                for j in layout.node_ids
+                if j != k
+            ),
+        ],
+    )
     add_control_link(layout, k)
 
 
@@ -167,10 +180,13 @@ def add_control_link(layout: Layout, k: int) -> None:
     run(["ip", "link", "add", host_end, "type", "veth", "peer", "name", "ctl0", "netns", ns])
     run(["ip", "addr", "add", host, "peer", f"{node}/32", "dev", host_end])
     run(["ip", "link", "set", host_end, "up"])
-    ip_batch(ns, [
-        f"addr add {node} peer {host}/32 dev ctl0",
-        "link set ctl0 up",
-    ])
+    ip_batch(
+        ns,
+        [
+            f"addr add {node} peer {host}/32 dev ctl0",
+            "link set ctl0 up",
+        ],
+    )
 
 
 def remove_control_links(layout: Layout) -> None:
@@ -234,8 +250,11 @@ def remove_leftovers() -> list[str]:
     only when that pid no longer exists, so live instances and foreign namespaces are never touched. Kept
     networks (pid field 0, made by `swarm netem up`) are never removed here: their creator is dead by design.
     """
-    stale = [name for name in namespaces()
-             if (m := _NAME_RE.match(name)) and int(m.group("pid")) != KEPT_PID and not _alive(int(m.group("pid")))]
+    stale = [
+        name
+        for name in namespaces()
+        if (m := _NAME_RE.match(name)) and int(m.group("pid")) != KEPT_PID and not _alive(int(m.group("pid")))
+    ]
     destroy(stale)
     return stale
 

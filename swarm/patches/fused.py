@@ -19,9 +19,9 @@ and requiring the threshold let such a wall read as free space.
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator, Sequence
 
 import numpy as np
 import zstandard
@@ -317,7 +317,9 @@ class FusedMap:
         else:
             enough_known = _reduce_cells(known.astype(np.uint16), np.add, r, f) >= min_known * f**3 - _EPS
         any_occupied = _reduce_cells(occupied, np.logical_or, r, f)
-        cell_states = np.where(any_occupied, np.uint8(OCCUPIED), np.where(enough_known, np.uint8(FREE), np.uint8(UNKNOWN)))
+        cell_states = np.where(
+            any_occupied, np.uint8(OCCUPIED), np.where(enough_known, np.uint8(FREE), np.uint8(UNKNOWN))
+        )
         keys = self._keys[:n].astype(np.int64)
         steps = np.arange(c)
         gx, gy, gz = (offset[a] + keys[:, a : a + 1] * c + steps for a in range(3))  # (n, c) cell index per axis

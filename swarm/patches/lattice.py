@@ -55,9 +55,7 @@ class Lattice:
         object.__setattr__(self, "origin", tuple(float(c) for c in self.origin))
 
     @classmethod
-    def from_settings(
-        cls, settings: MappingSettings, origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    ) -> Lattice:
+    def from_settings(cls, settings: MappingSettings, origin: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> Lattice:
         return cls(
             voxel_size=settings.voxel_size_m,
             block_resolution=settings.block_resolution,

@@ -8,8 +8,8 @@ with the open patch included, for queries and export. Not thread-safe: call it f
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Iterator
 
 import numpy as np
 

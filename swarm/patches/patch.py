@@ -181,4 +181,3 @@ class Patch:
             and all(np.array_equal(a, b) for a, b in zip(self.bounds, other.bounds))
             and self.blocks.same_as(other.blocks)
         )
-

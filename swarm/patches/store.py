@@ -7,8 +7,8 @@ is fused. `get` decodes again when the arrays are wanted. Adding a patch already
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Iterator
 
 import numpy as np
 

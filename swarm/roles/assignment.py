@@ -4,7 +4,8 @@ Pure functions over `Candidate`s, so the agent, the harness and the tests share 
 leader's decision can be replayed from what it received. Each loop the leader turns every member's reported
 candidates into one set G, with `merge_candidates` when maps are shared or `remove_overlapped` when only frontiers
 travel, then `assign_targets` hands G out greedily, the best (member, target) pair first, and lowers the gains near
-every target it hands out so the next member goes elsewhere. An empty G after processing is the thesis's stop condition (2.7);
+every target it hands out so the next member goes elsewhere. An empty G after processing is the thesis's stop
+condition (2.7);
 what to do then is the caller's business.
 
 Deviations from the thesis, all from working in 3D with viewpoints: distances are Euclidean in 3D, to the
@@ -71,8 +72,9 @@ def _utilities(gain: np.ndarray, d_self: np.ndarray, d_tot: np.ndarray, n_others
 def utility(gain: float, d_self: float, d_others: Sequence[float], lam: float) -> float:
     """Mahdoui Eq. 3.2: U = I exp(-lam (d_i + (n_c - 1) / d_tot)), d_tot the sum of the other members' distances
     to the target; with no others (n_c = 1) Eq. 3.3: U = I exp(-lam d_i). d_tot == 0 -> U = 0."""
-    u = _utilities(np.array([gain], float), np.array([d_self], float), np.array([math.fsum(d_others)]),
-                   len(d_others), lam)
+    u = _utilities(
+        np.array([gain], float), np.array([d_self], float), np.array([math.fsum(d_others)]), len(d_others), lam
+    )
     return float(u[0])
 
 
@@ -109,9 +111,16 @@ def _suppress_duplicates(ordered: Sequence[Candidate], radius: float) -> list[Ca
     return [c for c, k in zip(ordered, kept) if k]
 
 
-def merge_candidates(own: Sequence[Candidate], received: Mapping[int, Sequence[Candidate]], *,
-                     gain_now: Callable[[np.ndarray], np.ndarray] | None, min_gain: float,
-                     exhausted: Sequence[Vec3], exhausted_radius: float, merge_radius: float) -> list[Candidate]:
+def merge_candidates(
+    own: Sequence[Candidate],
+    received: Mapping[int, Sequence[Candidate]],
+    *,
+    gain_now: Callable[[np.ndarray], np.ndarray] | None,
+    min_gain: float,
+    exhausted: Sequence[Vec3],
+    exhausted_radius: float,
+    merge_radius: float,
+) -> list[Candidate]:
     """The leader's frontier processing with shared maps: the union of every member's candidates, minus
     (1) candidates whose frontier point the leader's own fused map already knows (gain_now(points) < min_gain:
         a member reported it before patches from another drone that mapped it arrived; skipped when None),
@@ -154,7 +163,7 @@ def overlapped(points_a: np.ndarray, points_b: np.ndarray, eps: float = 0.5) -> 
     if len(b) == 0:
         return out
     for start in range(0, len(a), _BLOCK):
-        out[start:start + _BLOCK] = _overlapped_block(a[start:start + _BLOCK], b, eps)
+        out[start : start + _BLOCK] = _overlapped_block(a[start : start + _BLOCK], b, eps)
     return out
 
 
@@ -173,8 +182,15 @@ def remove_overlapped(sets: Mapping[int, Sequence[Candidate]], eps: float = 0.5)
     return sorted(kept, key=_order_key)
 
 
-def _bonus(member: int, views: np.ndarray, owners: np.ndarray, current: Vec3 | None, current_bonus: float,
-           own_bonus: float, keep_radius: float) -> np.ndarray:
+def _bonus(
+    member: int,
+    views: np.ndarray,
+    owners: np.ndarray,
+    current: Vec3 | None,
+    current_bonus: float,
+    own_bonus: float,
+    keep_radius: float,
+) -> np.ndarray:
     """Utility factors: staying on the current target avoids a U-turn every loop when a marginally better
     candidate appears; preferring own frontiers keeps a drone's direction (thesis 3.7)."""
     factor = np.where(owners == member, own_bonus, 1.0)
@@ -187,10 +203,20 @@ def _within(views: np.ndarray, point: Vec3, radius: float) -> np.ndarray:
     return np.linalg.norm(views - np.asarray(point, dtype=float), axis=1) <= radius
 
 
-def assign_targets(candidates: Sequence[Candidate], positions: Mapping[int, Vec3], *, lam: float, sigma: float,
-                   current: Mapping[int, Vec3] | None = None, current_bonus: float = 1.0, own_bonus: float = 1.0,
-                   keep_radius: float = 1.0, unreachable: Mapping[int, Sequence[Vec3] | np.ndarray] | None = None,
-                   unreachable_radius: float = 1.0, min_gain: float = 0.0) -> dict[int, Candidate | None]:
+def assign_targets(
+    candidates: Sequence[Candidate],
+    positions: Mapping[int, Vec3],
+    *,
+    lam: float,
+    sigma: float,
+    current: Mapping[int, Vec3] | None = None,
+    current_bonus: float = 1.0,
+    own_bonus: float = 1.0,
+    keep_radius: float = 1.0,
+    unreachable: Mapping[int, Sequence[Vec3] | np.ndarray] | None = None,
+    unreachable_radius: float = 1.0,
+    min_gain: float = 0.0,
+) -> dict[int, Candidate | None]:
     """Alg. 3.5 with the best pair first: while a member is without a target, the (member, candidate) pair of
     highest utility over every member still waiting and every unassigned candidate is assigned (the leader
     assigns itself too); then the candidate is taken out and the gains of the rest are scheduled around its

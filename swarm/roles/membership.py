@@ -40,9 +40,15 @@ class PeerTable:
     peers: dict[int, Peer] = field(default_factory=dict)
     ever_seen: set[int] = field(default_factory=set)
 
-    def heard(self, peer_id: int, position: tuple[float, float, float], phase: str, epoch: int,
-              velocity: tuple[float, float, float] = (0.0, 0.0, 0.0),
-              heading_to: tuple[float, float, float] | None = None) -> None:
+    def heard(
+        self,
+        peer_id: int,
+        position: tuple[float, float, float],
+        phase: str,
+        epoch: int,
+        velocity: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        heading_to: tuple[float, float, float] | None = None,
+    ) -> None:
         """A heartbeat arrived from `peer_id`."""
         if peer_id == self.own_id:
             return

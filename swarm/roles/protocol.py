@@ -214,8 +214,13 @@ class ExplorationCore:
         blocked = self._blocked_for_me(now)
         reachable = [c for c in self.own if not _near(c.viewpoint, blocked, self.settings.visited_radius_m)]
         choice = assign_targets(
-            reachable, {self.id: situation.here}, lam=self.settings.utility_lambda, sigma=self.settings.sigma_m,
-            current=self._current(), current_bonus=self.settings.current_target_bonus, keep_radius=KEEP_RADIUS_M,
+            reachable,
+            {self.id: situation.here},
+            lam=self.settings.utility_lambda,
+            sigma=self.settings.sigma_m,
+            current=self._current(),
+            current_bonus=self.settings.current_target_bonus,
+            keep_radius=KEEP_RADIUS_M,
         ).get(self.id)
         if choice is not None:
             self.empty_since = None
@@ -227,15 +232,22 @@ class ExplorationCore:
 
     def _explore(self, now: float, situation: Situation, effects: Effects) -> None:
         self.report_seq += 1
-        effects.publish.append(FrontierReport(
-            id=self.id, epoch=self.epoch, seq=self.report_seq, position=situation.here,
-            viewpoints=as_points([c.viewpoint for c in self.own]), points=as_points([c.point for c in self.own]),
-            gains=np.asarray([c.gain for c in self.own], dtype=np.float32),
-            visited=as_points(self.visited[-MAX_VISITED:]),
-            looked_at=as_points([p for _, p in self.looks[-MAX_VISITED:]]),
-            unreachable=as_points(self._blocked_for_me(now)[-MAX_VISITED:]), arrived=self.arrived,
-            in_pocket=situation.in_pocket,
-        ))
+        effects.publish.append(
+            FrontierReport(
+                id=self.id,
+                epoch=self.epoch,
+                seq=self.report_seq,
+                position=situation.here,
+                viewpoints=as_points([c.viewpoint for c in self.own]),
+                points=as_points([c.point for c in self.own]),
+                gains=np.asarray([c.gain for c in self.own], dtype=np.float32),
+                visited=as_points(self.visited[-MAX_VISITED:]),
+                looked_at=as_points([p for _, p in self.looks[-MAX_VISITED:]]),
+                unreachable=as_points(self._blocked_for_me(now)[-MAX_VISITED:]),
+                arrived=self.arrived,
+                in_pocket=situation.in_pocket,
+            )
+        )
         leader = situation.leader
         if self.following[0] != leader:
             # tau runs from our first report to this leader: before it, the leader had nothing to assign us
@@ -257,41 +269,78 @@ class ExplorationCore:
         radius = self.settings.visited_radius_m
         if self.strategy == "frontier-only":
             pooled = remove_overlapped({self.id: self.own, **received})
-            merged = merge_candidates(pooled, {}, gain_now=None, min_gain=0.0, exhausted=[],
-                                      exhausted_radius=radius, merge_radius=self.settings.cluster_size_m)
+            merged = merge_candidates(
+                pooled,
+                {},
+                gain_now=None,
+                min_gain=0.0,
+                exhausted=[],
+                exhausted_radius=radius,
+                merge_radius=self.settings.cluster_size_m,
+            )
         else:
-            merged = merge_candidates(self.own, received, gain_now=situation.map.gain_at,
-                                      min_gain=self.settings.min_gain_m3, exhausted=[], exhausted_radius=radius,
-                                      merge_radius=self.settings.cluster_size_m)
+            merged = merge_candidates(
+                self.own,
+                received,
+                gain_now=situation.map.gain_at,
+                min_gain=self.settings.min_gain_m3,
+                exhausted=[],
+                exhausted_radius=radius,
+                merge_radius=self.settings.cluster_size_m,
+            )
         merged = [c for c in merged if not _looked_at(c, looks, radius)]
         positions = {self.id: situation.here}
         positions.update({k: p for k, p in situation.positions.items() if k in members and k != self.id})
         blocked = {self.id: self._blocked_for_me(now), **{k: _points(r.unreachable) for k, r in reports.items()}}
         assignable = [c for c in merged if any(not _near(c.viewpoint, blocked.get(k, []), radius) for k in positions)]
-        self._record_given_up(now, [c for c in merged if c not in assignable],
-                              f"unreachable by every member of {sorted(positions)}")
+        self._record_given_up(
+            now, [c for c in merged if c not in assignable], f"unreachable by every member of {sorted(positions)}"
+        )
         self.round += 1
         if not assignable:
-            self._maybe_done(now, effects, situation, f"leader {self.id}: no reachable frontier left in cluster "
-                             f"{members}", members, reports)
+            self._maybe_done(
+                now,
+                effects,
+                situation,
+                f"leader {self.id}: no reachable frontier left in cluster {members}",
+                members,
+                reports,
+            )
             return
         self.empty_since = None
         choice = assign_targets(
-            assignable, positions, lam=self.settings.utility_lambda, sigma=self.settings.sigma_m,
+            assignable,
+            positions,
+            lam=self.settings.utility_lambda,
+            sigma=self.settings.sigma_m,
             current={k: v for k, v in self.assigned_current.items() if k in positions},
-            current_bonus=self.settings.current_target_bonus, own_bonus=self.settings.own_frontier_bonus,
-            keep_radius=KEEP_RADIUS_M, unreachable_radius=radius, unreachable=blocked, min_gain=self._trip_gain(),
+            current_bonus=self.settings.current_target_bonus,
+            own_bonus=self.settings.own_frontier_bonus,
+            keep_radius=KEEP_RADIUS_M,
+            unreachable_radius=radius,
+            unreachable=blocked,
+            min_gain=self._trip_gain(),
         )
         assigned = {k: c for k, c in choice.items() if c is not None}
         self.assigned_current = {k: c.viewpoint for k, c in assigned.items()}
-        effects.log("assignment", round=self.round, candidates=len(assignable),
-                    gains={k: round(c.gain, 2) for k, c in assigned.items()})
+        effects.log(
+            "assignment",
+            round=self.round,
+            candidates=len(assignable),
+            gains={k: round(c.gain, 2) for k, c in assigned.items()},
+        )
         drones = sorted(assigned)
-        effects.publish.append(TargetAssignment(
-            leader=self.id, epoch=self.epoch, round=self.round, members=members, drones=drones,
-            viewpoints=as_points([assigned[k].viewpoint for k in drones]),
-            points=as_points([assigned[k].point for k in drones]),
-        ))
+        effects.publish.append(
+            TargetAssignment(
+                leader=self.id,
+                epoch=self.epoch,
+                round=self.round,
+                members=members,
+                drones=drones,
+                viewpoints=as_points([assigned[k].viewpoint for k in drones]),
+                points=as_points([assigned[k].point for k in drones]),
+            )
+        )
         mine = assigned.get(self.id)
         if mine is not None:
             self.set_target(effects, Target(mine.viewpoint, mine.point, "leader", mine.gain))
@@ -301,8 +350,15 @@ class ExplorationCore:
         s = self.settings
         return s.min_view_gain_m3 if s.gain_model == "view" else s.min_gain_m3
 
-    def _maybe_done(self, now: float, effects: Effects, situation: Situation, reason: str, members: list[int],
-                    reports: dict[int, FrontierReport] | None = None) -> None:
+    def _maybe_done(
+        self,
+        now: float,
+        effects: Effects,
+        situation: Situation,
+        reason: str,
+        members: list[int],
+        reports: dict[int, FrontierReport] | None = None,
+    ) -> None:
         """No candidate left: done once that has held for a loop in which every member reported afresh, and
         nobody is in a pocket (see the module docstring)."""
         if self.target is not None or situation.in_pocket:
@@ -312,8 +368,10 @@ class ExplorationCore:
             self.empty_since = now
             return
         others = [k for k in members if k != self.id]
-        confirmed = all(k in self.reports and self.reports[k][0] > self.empty_since
-                        and not self.reports[k][1].in_pocket for k in others)
+        confirmed = all(
+            k in self.reports and self.reports[k][0] > self.empty_since and not self.reports[k][1].in_pocket
+            for k in others
+        )
         if confirmed and now - self.empty_since >= self.settings.loop_s:
             self.finish(effects, reason)
             if situation.leader == self.id and self.strategy != "uncoordinated":
@@ -338,17 +396,23 @@ class ExplorationCore:
             self.targets_self_selected += 1
         else:
             self.targets_assigned += 1
-        effects.log("target", viewpoint=_r(target.viewpoint), point=_r(target.point), source=target.source,
-                    gain=None if target.gain is None else round(target.gain, 2),
-                    replaces=_r(current.viewpoint) if current is not None else None)
+        effects.log(
+            "target",
+            viewpoint=_r(target.viewpoint),
+            point=_r(target.point),
+            source=target.source,
+            gain=None if target.gain is None else round(target.gain, 2),
+            replaces=_r(current.viewpoint) if current is not None else None,
+        )
         effects.retarget = True
         return True
 
     def finish(self, effects: Effects, reason: str) -> None:
         if not self.done:
             self.done, self.done_reason = True, reason
-            effects.log("exploration_done", reason=reason, loops=self.loops,
-                        given_up=[_given_up_dict(g) for g in self.given_up])
+            effects.log(
+                "exploration_done", reason=reason, loops=self.loops, given_up=[_given_up_dict(g) for g in self.given_up]
+            )
         self.target = None
         effects.retarget = True
 
@@ -446,8 +510,10 @@ def _near(point: Vec3, centres: Sequence[Vec3] | np.ndarray, radius: float) -> b
 
 
 def _report_candidates(report: FrontierReport) -> list[Candidate]:
-    return [Candidate(_vec(v), _vec(p), float(g), report.id)
-            for v, p, g in zip(report.viewpoints, report.points, report.gains)]
+    return [
+        Candidate(_vec(v), _vec(p), float(g), report.id)
+        for v, p, g in zip(report.viewpoints, report.points, report.gains)
+    ]
 
 
 def _report_looks(report: FrontierReport) -> list[tuple[Vec3, Vec3]]:

@@ -51,7 +51,8 @@ class BagRecorder:
             connection = self._connections.get(topic)
             if connection is None:
                 connection = self._connections[topic] = self._writer.add_connection(
-                    topic, msgtype, typestore=typestore())
+                    topic, msgtype, typestore=typestore()
+                )
             self._writer.write(connection, t_ns, raw)
             self.messages += 1
 
@@ -95,8 +96,9 @@ def bag_topics(reader: Any, depth: str | None = None, info: str | None = None, p
     return BagTopics(depth_topic, info_topic, pose_topic, by_topic[pose_topic])
 
 
-def bag_streams(paths: Sequence[Path], depth: str | None = None, info: str | None = None,
-                pose: str | None = None) -> Iterator[tuple[str, str, bytes, int]]:
+def bag_streams(
+    paths: Sequence[Path], depth: str | None = None, info: str | None = None, pose: str | None = None
+) -> Iterator[tuple[str, str, bytes, int]]:
     """(kind, msgtype, raw CDR, bag time ns) of one recording's depth ('depth'), camera info ('info') and pose
     ('pose') messages, in bag time order. A ROS 1 bag's messages come as ROS 1 serialisation: they are converted
     to CDR first."""

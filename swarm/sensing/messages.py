@@ -153,12 +153,14 @@ def pose_of(message: Any) -> Pose:
 
 # -- writing (the simulator publishes, tests and recordings make bags) --------------------------------------------
 
+
 def header(t: float, frame_id: str) -> Any:
     types = typestore().types
     sec = math.floor(t)
     nanosec = min(round((t - sec) * 1e9), 999_999_999)
-    return types["std_msgs/msg/Header"](stamp=types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec),
-                                        frame_id=frame_id)
+    return types["std_msgs/msg/Header"](
+        stamp=types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec), frame_id=frame_id
+    )
 
 
 def image_message(t: float, depth_m: np.ndarray, frame_id: str = "camera_optical", encoding: str = "32FC1") -> Any:
@@ -172,8 +174,13 @@ def image_message(t: float, depth_m: np.ndarray, frame_id: str = "camera_optical
         raise ValueError(f"cannot write depth as '{encoding}'")
     h, w = depth.shape
     return typestore().types[IMAGE](
-        header=header(t, frame_id), height=h, width=w, encoding=encoding, is_bigendian=0,
-        step=w * pixels.dtype.itemsize, data=np.frombuffer(pixels.tobytes(), dtype=np.uint8),
+        header=header(t, frame_id),
+        height=h,
+        width=w,
+        encoding=encoding,
+        is_bigendian=0,
+        step=w * pixels.dtype.itemsize,
+        data=np.frombuffer(pixels.tobytes(), dtype=np.uint8),
     )
 
 
@@ -183,8 +190,16 @@ def camera_info_message(t: float, intrinsics: Intrinsics, frame_id: str = "camer
     P = np.zeros((3, 4))
     P[:, :3] = K
     return types[CAMERA_INFO](
-        header=header(t, frame_id), height=intrinsics.height, width=intrinsics.width, distortion_model="plumb_bob",
-        d=np.zeros(5), k=K.reshape(9), r=np.eye(3).reshape(9), p=P.reshape(12), binning_x=0, binning_y=0,
+        header=header(t, frame_id),
+        height=intrinsics.height,
+        width=intrinsics.width,
+        distortion_model="plumb_bob",
+        d=np.zeros(5),
+        k=K.reshape(9),
+        r=np.eye(3).reshape(9),
+        p=P.reshape(12),
+        binning_x=0,
+        binning_y=0,
         roi=types["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False),
     )
 
@@ -198,8 +213,10 @@ def odometry_message(pose: Pose, frame_id: str = "map", child_frame_id: str = "b
     )
     zero = types["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
     return types[ODOMETRY](
-        header=header(pose.t, frame_id), child_frame_id=child_frame_id,
+        header=header(pose.t, frame_id),
+        child_frame_id=child_frame_id,
         pose=types["geometry_msgs/msg/PoseWithCovariance"](pose=geometry, covariance=np.zeros(36)),
         twist=types["geometry_msgs/msg/TwistWithCovariance"](
-            twist=types["geometry_msgs/msg/Twist"](linear=zero, angular=zero), covariance=np.zeros(36)),
+            twist=types["geometry_msgs/msg/Twist"](linear=zero, angular=zero), covariance=np.zeros(36)
+        ),
     )

@@ -4,7 +4,8 @@ A real camera sees the other drones of the swarm. Mapped, they would leave phant
 they fly, so the agent masks the pixels whose rays meet a sphere of `camera.peer_mask_m` round each peer's
 position before it integrates a frame: those pixels count as invalid (no surface, no free space carved). A
 heartbeat is up to a period old when it arrives and a frame is integrated a little after it was taken, so each
-peer is placed where its last heartbeat's position and velocity put it at the frame's stamp (`PeerSighting.at`). The simulated camera uses the same geometry the other way round, to draw each drone into the
+peer is placed where its last heartbeat's position and velocity put it at the frame's stamp (`PeerSighting.at`).
+The simulated camera uses the same geometry the other way round, to draw each drone into the
 images of the others (a sphere of the drone's radius).
 """
 
@@ -42,8 +43,9 @@ def pixel_rays(K: np.ndarray, height: int, width: int) -> np.ndarray:
     return rays
 
 
-def sphere_depth(rays: np.ndarray, T_world_cam: np.ndarray, centres: Sequence[Sequence[float]] | np.ndarray,
-                 radius: float) -> np.ndarray:
+def sphere_depth(
+    rays: np.ndarray, T_world_cam: np.ndarray, centres: Sequence[Sequence[float]] | np.ndarray, radius: float
+) -> np.ndarray:
     """(H, W) z-depth at which each ray first meets one of the spheres (in front of the camera); inf where none."""
     out = np.full(rays.shape[:2], np.inf)
     centres_ = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
@@ -63,8 +65,13 @@ def sphere_depth(rays: np.ndarray, T_world_cam: np.ndarray, centres: Sequence[Se
     return out
 
 
-def mask_peers(depth: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray,
-               peers: Sequence[Sequence[float]] | np.ndarray, radius: float) -> tuple[np.ndarray, int]:
+def mask_peers(
+    depth: np.ndarray,
+    K: np.ndarray,
+    T_world_cam: np.ndarray,
+    peers: Sequence[Sequence[float]] | np.ndarray,
+    radius: float,
+) -> tuple[np.ndarray, int]:
     """`depth` with 0 in every pixel whose ray meets a sphere of `radius` round a peer before its surface (or
     at all, where the pixel had no surface); and how many pixels that was. `depth` is not modified."""
     if len(peers) == 0:

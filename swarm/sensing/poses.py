@@ -65,8 +65,9 @@ class PoseBuffer:
         if after.t - before.t > self.max_gap_s:
             return Miss.GAP
         s = (t - before.t) / (after.t - before.t)
-        return Pose(t, before.position + s * (after.position - before.position),
-                    slerp(before.orientation, after.orientation, s))
+        return Pose(
+            t, before.position + s * (after.position - before.position), slerp(before.orientation, after.orientation, s)
+        )
 
 
 def slerp(q0: np.ndarray, q1: np.ndarray, s: float) -> np.ndarray:

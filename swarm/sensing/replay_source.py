@@ -52,6 +52,3 @@ class BagReplaySource(StreamInbox):
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=5.0)
-
-
-

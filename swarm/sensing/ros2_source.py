@@ -30,8 +30,13 @@ def _ros_type(msgtype: str) -> Any:
 
 
 class Ros2SensorSource(StreamInbox):
-    def __init__(self, settings: SensorStreamSettings, mount: np.ndarray, record: Path | None = None,
-                 node_name: str = "swarm_camera") -> None:
+    def __init__(
+        self,
+        settings: SensorStreamSettings,
+        mount: np.ndarray,
+        record: Path | None = None,
+        node_name: str = "swarm_camera",
+    ) -> None:
         super().__init__(settings, mount, record)
         self.node_name = node_name
         self._context: Any = None
@@ -51,6 +56,7 @@ class Ros2SensorSource(StreamInbox):
         self._node = rclpy.create_node(self.node_name, context=self._context)
         self.open_recording()
         for topic, msgtype, handler in self.topics():
+
             def on_raw(raw: bytes, topic: str = topic, msgtype: str = msgtype, handler: Any = handler) -> None:
                 self.deliver(topic, msgtype, handler, bytes(raw))
 

@@ -42,8 +42,12 @@ def topic_key(settings: SensorStreamSettings, topic: str, msgtype: str) -> str:
 
 def session_config(settings: SensorStreamSettings) -> zenoh.Config:
     config = zenoh.Config()
-    values: dict[str, Any] = {"mode": settings.mode, "connect/endpoints": settings.connect,
-                              "listen/endpoints": settings.listen, "scouting/multicast/enabled": False}
+    values: dict[str, Any] = {
+        "mode": settings.mode,
+        "connect/endpoints": settings.connect,
+        "listen/endpoints": settings.listen,
+        "scouting/multicast/enabled": False,
+    }
     for key, value in values.items():
         try:
             config.insert_json5(key, json.dumps(value))
@@ -69,8 +73,7 @@ class ZenohSensorSource(StreamInbox):
             key = topic_key(self.settings, topic, msgtype)
             self._subscribers.append(self._session.declare_subscriber(key, self._on_sample(handler, topic, msgtype)))
 
-    def _on_sample(self, handler: Callable[[bytes], None], topic: str,
-                   msgtype: str) -> Callable[[zenoh.Sample], None]:
+    def _on_sample(self, handler: Callable[[bytes], None], topic: str, msgtype: str) -> Callable[[zenoh.Sample], None]:
         def on_sample(sample: zenoh.Sample) -> None:
             self.deliver(topic, msgtype, handler, sample.payload.to_bytes())
 

@@ -49,8 +49,9 @@ GROUND_REFRESH_M = 0.05  # the floor under the vehicle is looked up again after 
 
 
 class Autopilot:
-    def __init__(self, home: Vec3, params: Params, position_gain: float,
-                 floor_below: Callable[[np.ndarray], float] | None = None) -> None:
+    def __init__(
+        self, home: Vec3, params: Params, position_gain: float, floor_below: Callable[[np.ndarray], float] | None = None
+    ) -> None:
         """`floor_below(position)`: the z of the first surface under the vehicle (the world's floors: a vehicle
         landing on an upper storey touches its slab, as a real one would); None or NaN: the home height."""
         self.home = np.array(home, dtype=np.float64)

@@ -88,7 +88,7 @@ def is_spec(spec: str) -> bool:
 
 def parse_spec(spec: str) -> BuildingOptions:
     """`gen:SEED` or `gen:SEED:key=value,...` (size=WxD, storeys=N, rooms=N, furniture=0|1); WorldError else."""
-    body = spec[len(PREFIX):] if is_spec(spec) else spec
+    body = spec[len(PREFIX) :] if is_spec(spec) else spec
     seed_text, _, option_text = body.partition(":")
     if not re.fullmatch(r"\d+", seed_text):
         raise WorldError(f"world '{spec}': seed '{seed_text}' is not a whole number (use {SPEC_HELP})")
@@ -128,8 +128,7 @@ def _option(spec: str, key: str, value: str) -> object:
 
 def layout_from_spec(spec: str) -> Layout:
     options = parse_spec(spec)
-    return generate(options.seed, options.size, options.storeys, options.rooms, options.furniture,
-                    name=options.name)
+    return generate(options.seed, options.size, options.storeys, options.rooms, options.furniture, name=options.name)
 
 
 # --- plans -------------------------------------------------------------------------------------------------------

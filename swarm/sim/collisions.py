@@ -34,8 +34,12 @@ class CollisionEvent:
     position: list[float]
 
     def to_json(self) -> dict:
-        return {"t": round(self.t, 3), "kind": self.kind, "vehicles": self.vehicles,
-                "position": [round(c, 3) for c in self.position]}
+        return {
+            "t": round(self.t, 3),
+            "kind": self.kind,
+            "vehicles": self.vehicles,
+            "position": [round(c, 3) for c in self.position],
+        }
 
 
 class CollisionMonitor:
@@ -74,8 +78,9 @@ class CollisionMonitor:
         gap = self._closest_drone[self.ids.index(vid)]
         return float(gap) if np.isfinite(gap) else None
 
-    def update(self, t: float, positions: np.ndarray, airborne: np.ndarray,
-               cruising: np.ndarray | None = None) -> list[CollisionEvent]:
+    def update(
+        self, t: float, positions: np.ndarray, airborne: np.ndarray, cruising: np.ndarray | None = None
+    ) -> list[CollisionEvent]:
         """Check one physics step; positions (N,3) are the vehicles' feet, in the order of `vehicle_ids`;
         `cruising` (default: `airborne`) selects the vehicles whose world gap counts for closest_world."""
         positions = np.asarray(positions, dtype=np.float64)

@@ -81,9 +81,7 @@ def mission_reachable_space(world: World, config: SwarmConfig) -> ReachableSpace
     """`reachable_free_space` with the mission's defaults: volume, planning resolution, start, drone radius."""
     lo, hi = mission_volume(world, config.mission.volume)
     start = config.mission.start if config.mission.start is not None else world.default_start
-    return reachable_free_space(
-        world, lo, hi, config.mapping.planning_resolution_m, start, config.sim.drone_radius_m
-    )
+    return reachable_free_space(world, lo, hi, config.mapping.planning_resolution_m, start, config.sim.drone_radius_m)
 
 
 def explored_fraction(space: ReachableSpace, is_known: Callable[[np.ndarray], np.ndarray]) -> float:

@@ -105,4 +105,3 @@ def tilt(body: Body) -> tuple[float, float]:
 
 def wrap_pi(angle: float) -> float:
     return (angle + math.pi) % (2.0 * math.pi) - math.pi
-

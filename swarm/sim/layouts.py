@@ -66,7 +66,12 @@ class Layout:
             self.add((sx - wall, wall, z0), (sx, sy - wall, z1))
 
     def wall_x(
-        self, y0: float, x0: float, x1: float, doors: Sequence[float | Doorway] = (), thickness: float = WALL,
+        self,
+        y0: float,
+        x0: float,
+        x1: float,
+        doors: Sequence[float | Doorway] = (),
+        thickness: float = WALL,
         storey: int = 0,
     ) -> None:
         """A wall along x from x0 to x1 (y from y0 to y0 + thickness), with doorways centred at `doors` (a centre
@@ -74,14 +79,25 @@ class Layout:
         self._wall(0, y0, x0, x1, doors, thickness, storey)
 
     def wall_y(
-        self, x0: float, y0: float, y1: float, doors: Sequence[float | Doorway] = (), thickness: float = WALL,
+        self,
+        x0: float,
+        y0: float,
+        y1: float,
+        doors: Sequence[float | Doorway] = (),
+        thickness: float = WALL,
         storey: int = 0,
     ) -> None:
         """A wall along y from y0 to y1 (x from x0 to x0 + thickness), with doorways centred at `doors`."""
         self._wall(1, x0, y0, y1, doors, thickness, storey)
 
     def _wall(
-        self, axis: int, across: float, a0: float, a1: float, doors: Sequence[float | Doorway], thickness: float,
+        self,
+        axis: int,
+        across: float,
+        a0: float,
+        a1: float,
+        doors: Sequence[float | Doorway],
+        thickness: float,
         storey: int,
     ) -> None:
         floor, h = self.floor_z(storey), self.size[2]

@@ -67,8 +67,15 @@ class StreamPublisher:
 
 
 class CameraDriver:
-    def __init__(self, world: World, camera: CameraSettings, vehicle_ids: list[int], seed: int = 0,
-                 log: Callable[[str], None] | None = None, drone_radius_m: float = 0.2) -> None:
+    def __init__(
+        self,
+        world: World,
+        camera: CameraSettings,
+        vehicle_ids: list[int],
+        seed: int = 0,
+        log: Callable[[str], None] | None = None,
+        drone_radius_m: float = 0.2,
+    ) -> None:
         self.camera_settings = camera
         self.drone_radius_m = drone_radius_m
         self.streams = {k: camera.stream.under_vehicle(k) for k in vehicle_ids}
@@ -94,8 +101,10 @@ class CameraDriver:
         base = self.camera_settings.stream
         session = zenoh.open(session_config(base))
         try:
-            subscribers = [session.declare_subscriber(topic_key(s, s.pose_topic, POSE_TYPES[s.pose_type]),
-                                                      self._on_pose(k)) for k, s in self.streams.items()]
+            subscribers = [
+                session.declare_subscriber(topic_key(s, s.pose_topic, POSE_TYPES[s.pose_type]), self._on_pose(k))
+                for k, s in self.streams.items()
+            ]
             publishers = {k: StreamPublisher(session, s, gid=1000 + k) for k, s in self.streams.items()}
             period = 1.0 / self.camera_settings.rate_hz
             next_tick = time.monotonic()
@@ -178,13 +187,22 @@ def cameras_command(config: SwarmConfig) -> int:
     (sim.sensor_listen) or any publisher's."""
     world = load_world(config.mission.world)
     ids = list(range(1, config.mission.drones + 1))
-    driver = CameraDriver(world, config.camera, ids, config.mission.seed,
-                          log=lambda text: print(text, file=sys.stderr, flush=True), drone_radius_m=config.sim.drone_radius_m)
+    driver = CameraDriver(
+        world,
+        config.camera,
+        ids,
+        config.mission.seed,
+        log=lambda text: print(text, file=sys.stderr, flush=True),
+        drone_radius_m=config.sim.drone_radius_m,
+    )
     stop = threading.Event()
     handlers = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
-    print(f"swarm cameras: {len(ids)} depth cameras at {config.camera.rate_hz:g} Hz on "
-          f"{', '.join(config.camera.stream.connect) or 'no endpoint'} ({config.camera.stream.layout} keys, "
-          f"{config.camera.stream.under_vehicle(1).depth_topic} ...)", flush=True)
+    print(
+        f"swarm cameras: {len(ids)} depth cameras at {config.camera.rate_hz:g} Hz on "
+        f"{', '.join(config.camera.stream.connect) or 'no endpoint'} ({config.camera.stream.layout} keys, "
+        f"{config.camera.stream.under_vehicle(1).depth_topic} ...)",
+        flush=True,
+    )
     try:
         driver.run(stop)
     except Exception as exc:
@@ -193,6 +211,8 @@ def cameras_command(config: SwarmConfig) -> int:
         for sig, handler in handlers.items():
             signal.signal(sig, handler)
     frames = sum(driver.published.values())
-    print(f"swarm cameras: published {frames} images, render {1000 * driver.render_s / max(frames, 1):.1f} ms each",
-          flush=True)
+    print(
+        f"swarm cameras: published {frames} images, render {1000 * driver.render_s / max(frames, 1):.1f} ms each",
+        flush=True,
+    )
     return 0

@@ -15,14 +15,14 @@ import socket
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
+from swarm.bus.session import zenoh_error_text
 from swarm.config import ConfigError, SwarmConfig, gcs_port, vehicle_port
 from swarm.errors import PortInUseError, SwarmError, WorldError
-from swarm.bus.session import zenoh_error_text
 from swarm.files import write_json_atomic
 from swarm.sim.collisions import CRUISE_HEIGHT_M, CollisionMonitor
 from swarm.sim.px4 import FlightMode
@@ -50,8 +50,14 @@ class SimServer:
         self.ids = list(range(1, len(homes) + 1))
         self._start = time.monotonic() if start_time is None else start_time
         self.vehicles = {
-            vid: SimVehicle(vid, home, config, Downlink(None, (sim.host, gcs_port(sim, vid))), self._start,
-                            floor_below=self._floor_below)
+            vid: SimVehicle(
+                vid,
+                home,
+                config,
+                Downlink(None, (sim.host, gcs_port(sim, vid))),
+                self._start,
+                floor_below=self._floor_below,
+            )
             for vid, home in zip(self.ids, homes)
         }
         self.collisions = CollisionMonitor(world, self.ids, sim.drone_radius_m)
@@ -253,24 +259,26 @@ class SimServer:
             vehicles = []
             for vid, vehicle in self.vehicles.items():
                 v = vehicle.status()
-                vehicles.append({
-                    "id": vid,
-                    "vehicle_port": vehicle_port(self.config.sim, vid),
-                    "gcs_port": gcs_port(self.config.sim, vid),
-                    "home": v["home"],
-                    "position": v["position"],
-                    "velocity": v["velocity"],
-                    "armed": v["armed"],
-                    "mode": v["mode"],
-                    "landed_state": v["landed_state"],
-                    "distance_m": v["distance_m"],
-                    "collisions": self.collisions.counts[vid],
-                    "closest_world_m": _rounded(self.collisions.closest_world(vid)),
-                    "closest_world_at": _rounded_point(self.collisions.closest_world_at(vid)),
-                    "closest_drone_m": _rounded(self.collisions.closest_drone(vid)),
-                    "gcs_seen": v["gcs_seen"],
-                    "last_gcs_message_age_s": v["last_gcs_message_age_s"],
-                })
+                vehicles.append(
+                    {
+                        "id": vid,
+                        "vehicle_port": vehicle_port(self.config.sim, vid),
+                        "gcs_port": gcs_port(self.config.sim, vid),
+                        "home": v["home"],
+                        "position": v["position"],
+                        "velocity": v["velocity"],
+                        "armed": v["armed"],
+                        "mode": v["mode"],
+                        "landed_state": v["landed_state"],
+                        "distance_m": v["distance_m"],
+                        "collisions": self.collisions.counts[vid],
+                        "closest_world_m": _rounded(self.collisions.closest_world(vid)),
+                        "closest_world_at": _rounded_point(self.collisions.closest_world_at(vid)),
+                        "closest_drone_m": _rounded(self.collisions.closest_drone(vid)),
+                        "gcs_seen": v["gcs_seen"],
+                        "last_gcs_message_age_s": v["last_gcs_message_age_s"],
+                    }
+                )
             return {
                 "ready": self._ready,
                 "done": self._done,
@@ -352,16 +360,20 @@ def sim_command(config: SwarmConfig) -> int:
     if not config.sim.sensor_listen and config.camera.source != "none":
         # Alone, the simulator is the robot side's Zenoh router (rmw_zenohd's place): its odometry is where
         # `swarm cameras` and the agents' sensor sessions dial by default (camera.stream.connect).
-        config = config.model_copy(update={"sim": config.sim.model_copy(
-            update={"sensor_listen": list(config.camera.stream.connect)})})
+        config = config.model_copy(
+            update={"sim": config.sim.model_copy(update={"sensor_listen": list(config.camera.stream.connect)})}
+        )
     server = SimServer(config, world)
     server.open(check_gcs_ports=False)
     stop = threading.Event()
     handlers = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         for vid, port in server.taken_gcs_ports():
-            print(f"swarm sim: warning: UDP port {port} (GCS of vehicle {vid}) is already bound; fine if it is "
-                  f"agent {vid}, but a second listener there would split its traffic", file=sys.stderr)
+            print(
+                f"swarm sim: warning: UDP port {port} (GCS of vehicle {vid}) is already bound; fine if it is "
+                f"agent {vid}, but a second listener there would split its traffic",
+                file=sys.stderr,
+            )
         lo, hi = mission_volume(world, config.mission.volume)
         volume = f"mission.volume={{min=[{', '.join(f'{v:g}' for v in lo)}],max=[{', '.join(f'{v:g}' for v in hi)}]}}"
         status = server.run(stop, on_ready=lambda endpoints: _print_endpoints(endpoints, volume, config))
@@ -381,8 +393,10 @@ def _print_endpoints(endpoints: list[dict], volume: str, config: SwarmConfig) ->
             f"  (agent: swarm agent --id {ep['id']} --autopilot {ep['connect_url']} --set '{volume}')"
         )
     if config.sim.sensor_listen:
-        print(f"sensor streams: odometry on {', '.join(config.sim.sensor_listen)} (the depth cameras: swarm cameras "
-              f"--world {config.mission.world} --vehicles {len(endpoints)})")
+        print(
+            f"sensor streams: odometry on {', '.join(config.sim.sensor_listen)} (the depth cameras: swarm cameras "
+            f"--world {config.mission.world} --vehicles {len(endpoints)})"
+        )
     sys.stdout.flush()
 
 

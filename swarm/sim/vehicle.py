@@ -15,8 +15,8 @@ from __future__ import annotations
 import logging
 import math
 import socket
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
@@ -260,9 +260,7 @@ class SimVehicle:
         ap = self.autopilot
         base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (mavlink.MAV_MODE_FLAG_SAFETY_ARMED if ap.armed else 0)
         state = mavlink.MAV_STATE_ACTIVE if ap.armed else mavlink.MAV_STATE_STANDBY
-        self.mav.heartbeat_send(
-            mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, base, ap.mode.custom_mode, state
-        )
+        self.mav.heartbeat_send(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, base, ap.mode.custom_mode, state)
 
     def _send_sys_status(self) -> None:
         self.mav.sys_status_send(_SENSORS, _SENSORS, _SENSORS, 150, 16200, -1, 100, 0, 0, 0, 0, 0, 0)
@@ -276,16 +274,18 @@ class SimVehicle:
 
     def _send_home(self) -> None:
         lat, lon, alt = self._geo(self.home)
-        self.mav.home_position_send(lat, lon, alt, 0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0,
-                                    int(self._now * 1e6))
+        self.mav.home_position_send(
+            lat, lon, alt, 0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, int(self._now * 1e6)
+        )
 
     def _send_gps_raw(self) -> None:
         ap = self.autopilot
         lat, lon, alt = self._geo(ap.position)
         speed = math.hypot(ap.velocity[0], ap.velocity[1])
         cog = round(math.degrees(math.atan2(ap.velocity[0], ap.velocity[1])) % 360 * 100) if speed > 0.1 else 65535
-        self.mav.gps_raw_int_send(int(self._now * 1e6), mavlink.GPS_FIX_TYPE_3D_FIX, lat, lon, alt, 80, 120,
-                                  round(speed * 100), cog, 14)
+        self.mav.gps_raw_int_send(
+            int(self._now * 1e6), mavlink.GPS_FIX_TYPE_3D_FIX, lat, lon, alt, 80, 120, round(speed * 100), cog, 14
+        )
 
     def _send_attitude(self) -> None:
         body = self.autopilot.body
@@ -303,28 +303,44 @@ class SimVehicle:
         lat, lon, alt = self._geo(ap.position)
         vn, ve, vd = (_clamp_int16(v * 100) for v in geo.enu_to_ned(tuple(ap.velocity)))
         heading = round(math.degrees(ap.body.yaw) % 360 * 100) % 36000
-        self.mav.global_position_int_send(self._boot_ms(), lat, lon, alt, round(ap.height * 1000), vn, ve, vd,
-                                          heading)
+        self.mav.global_position_int_send(self._boot_ms(), lat, lon, alt, round(ap.height * 1000), vn, ve, vd, heading)
 
     def _send_autopilot_version(self) -> None:
-        self.mav.autopilot_version_send(_CAPABILITIES, _PX4_VERSION, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0,
-                                        self.id)
+        self.mav.autopilot_version_send(_CAPABILITIES, _PX4_VERSION, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, self.id)
 
     # --- commands ----------------------------------------------------------------------------------------------
 
     def _on_command_long(self, msg: mavlink.MAVLink_command_long_message) -> None:
         if not self._for_me(msg):
             return
-        self._run(_Command(msg.command, (msg.param1, msg.param2, msg.param3, msg.param4), msg.param5, msg.param6,
-                           msg.param7, mavlink.MAV_FRAME_GLOBAL, (msg.get_srcSystem(), msg.get_srcComponent())))
+        self._run(
+            _Command(
+                msg.command,
+                (msg.param1, msg.param2, msg.param3, msg.param4),
+                msg.param5,
+                msg.param6,
+                msg.param7,
+                mavlink.MAV_FRAME_GLOBAL,
+                (msg.get_srcSystem(), msg.get_srcComponent()),
+            )
+        )
 
     def _on_command_int(self, msg: mavlink.MAVLink_command_int_message) -> None:
         if not self._for_me(msg):
             return
         lat = math.nan if msg.x == INT32_MAX else msg.x / 1e7
         lon = math.nan if msg.y == INT32_MAX else msg.y / 1e7
-        self._run(_Command(msg.command, (msg.param1, msg.param2, msg.param3, msg.param4), lat, lon, msg.z,
-                           msg.frame, (msg.get_srcSystem(), msg.get_srcComponent())))
+        self._run(
+            _Command(
+                msg.command,
+                (msg.param1, msg.param2, msg.param3, msg.param4),
+                lat,
+                lon,
+                msg.z,
+                msg.frame,
+                (msg.get_srcSystem(), msg.get_srcComponent()),
+            )
+        )
 
     def _run(self, cmd: _Command) -> None:
         handler = self._commands.get(cmd.command)
@@ -441,8 +457,13 @@ class SimVehicle:
     # --- parameters, pings, missions ---------------------------------------------------------------------------
 
     def _send_param(self, name: str) -> None:
-        self.mav.param_value_send(name.encode(), self.params.wire_value(name), self.params.get(name).type,
-                                  len(self.params), self.params.index(name))
+        self.mav.param_value_send(
+            name.encode(),
+            self.params.wire_value(name),
+            self.params.get(name).type,
+            len(self.params),
+            self.params.index(name),
+        )
 
     def _on_param_request_list(self, msg: mavlink.MAVLink_param_request_list_message) -> None:
         if self._for_me(msg):
@@ -477,13 +498,15 @@ class SimVehicle:
 
     def _on_mission_count(self, msg: mavlink.MAVLink_mission_count_message) -> None:
         if self._for_me(msg):
-            self.mav.mission_ack_send(msg.get_srcSystem(), msg.get_srcComponent(),
-                                      mavlink.MAV_MISSION_UNSUPPORTED, msg.mission_type)
+            self.mav.mission_ack_send(
+                msg.get_srcSystem(), msg.get_srcComponent(), mavlink.MAV_MISSION_UNSUPPORTED, msg.mission_type
+            )
 
     def _on_mission_clear_all(self, msg: mavlink.MAVLink_mission_clear_all_message) -> None:
         if self._for_me(msg):
-            self.mav.mission_ack_send(msg.get_srcSystem(), msg.get_srcComponent(), mavlink.MAV_MISSION_ACCEPTED,
-                                      msg.mission_type)
+            self.mav.mission_ack_send(
+                msg.get_srcSystem(), msg.get_srcComponent(), mavlink.MAV_MISSION_ACCEPTED, msg.mission_type
+            )
 
     def _for_me(self, msg: mavlink.MAVLink_message) -> bool:
         target = getattr(msg, "target_system", 0)
@@ -553,4 +576,3 @@ def _clamp_int16(v: float) -> int:
 
 def _rounded(v: np.ndarray) -> list[float]:
     return [round(float(c), 3) + 0.0 for c in v]
-

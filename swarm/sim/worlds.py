@@ -12,9 +12,9 @@ from __future__ import annotations
 import math
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import open3d as o3d
@@ -250,7 +250,8 @@ def world_command(spec: str, out: Path | None) -> int:
     floors = floor_levels(world)
     x, y, z = world.default_start
     print(
-        f"world {world.name}: {size[0]:.1f} x {size[1]:.1f} x {size[2]:.1f} m, {len(floors)} {'storey' if len(floors) == 1 else 'storeys'} (floors at z "
+        f"world {world.name}: {size[0]:.1f} x {size[1]:.1f} x {size[2]:.1f} m, "
+        f"{len(floors)} {'storey' if len(floors) == 1 else 'storeys'} (floors at z "
         f"{', '.join(f'{f:g}' for f in floors) or '?'} m), start ({x:g}, {y:g}, {z:g}), {len(world.triangles)} "
         f"triangles, {'closed' if world.closed else 'open'}, loaded in {built_s:.2f} s"
     )

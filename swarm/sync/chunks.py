@@ -68,8 +68,15 @@ def split_patch(sender: int, pid: PatchId, data: bytes, chunk_bytes: int) -> lis
     crc = zlib.crc32(data)
     return [
         PatchChunk(
-            sender=sender, producer=pid.producer, epoch=pid.epoch, seq=pid.seq, index=i, count=count,
-            total_bytes=len(data), crc32=crc, data=data[i * chunk_bytes : (i + 1) * chunk_bytes],
+            sender=sender,
+            producer=pid.producer,
+            epoch=pid.epoch,
+            seq=pid.seq,
+            index=i,
+            count=count,
+            total_bytes=len(data),
+            crc32=crc,
+            data=data[i * chunk_bytes : (i + 1) * chunk_bytes],
         )
         for i in range(count)
     ]

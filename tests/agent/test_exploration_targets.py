@@ -38,8 +38,14 @@ def _give(exploration: Exploration, target: Target) -> None:
 def _exploration(events: list[dict[str, Any]], **overrides: Any) -> Exploration:
     config = load_config(overrides={"agent.id": 2, **overrides})
     return Exploration(
-        config, epoch=1, bus=None, peers=PeerTable(2), mapping=None,  # type: ignore[arg-type]  # unused here
-        position=lambda: (0.0, 0.0, 1.5), home=lambda: (0.0, 0.0, 0.0), top_z=3.0,
+        config,
+        epoch=1,
+        bus=None,
+        peers=PeerTable(2),
+        mapping=None,  # type: ignore[arg-type]  # unused here
+        position=lambda: (0.0, 0.0, 1.5),
+        home=lambda: (0.0, 0.0, 0.0),
+        top_z=3.0,
         log=lambda event, **fields: events.append({"event": event, **fields}),
     )
 
@@ -90,7 +96,8 @@ def test_a_path_is_checked_from_the_drone_on_not_back_to_the_waypoints_it_passed
     events: list[dict[str, Any]] = []
     exploration = _exploration(events)
     exploration.grid = SimpleNamespace(  # type: ignore[assignment]  # only these two are read
-        planning_grid=grid, is_frontier_near=lambda point, radius: True)
+        planning_grid=grid, is_frontier_near=lambda point, radius: True
+    )
     exploration.target = Target((0.5, 1.9, 1.5), (0.3, 2.2, 1.5), "leader")
     exploration.position = lambda: (1.2, 1.9, 1.5)  # on the last leg, west, back past the wall's end
     flight = SimpleNamespace(path_ahead=[(0.5, 1.9, 1.5)])  # passed: (0.5, 0.5), (1.9, 0.5), (1.9, 1.9)
@@ -120,7 +127,9 @@ class _FakeFlight:
         self.paths.append(path)
         return True
 
-    async def face(self, point: Any, seconds: float, stop: asyncio.Event, interrupt: asyncio.Event | None = None) -> None:
+    async def face(
+        self, point: Any, seconds: float, stop: asyncio.Event, interrupt: asyncio.Event | None = None
+    ) -> None:
         self.looks.append((point, list(self.exploration.visited)))
         if self.on_look is not None:
             self.on_look(point)
@@ -130,7 +139,6 @@ class _FakeFlight:
 async def test_a_target_counts_as_visited_when_its_look_starts_so_the_next_is_decided_meanwhile() -> None:
     """An explorer's next target takes two decisions (its report, then its leader's assignment): decided only
     after the look, every target cost most of a second of hovering."""
-
 
     exploration = _exploration([])
     exploration.grid = SimpleNamespace(planning_grid=OccupancyGrid(np.zeros(3), 0.2, np.zeros((20, 20, 15), bool)))  # type: ignore[assignment]
@@ -234,15 +242,16 @@ async def test_a_drone_whose_target_was_dropped_waits_for_the_next_instead_of_sp
     calls = []
 
     class Waiting(_FakeFlight):
-        async def face(self, point: Any, seconds: float, stop: asyncio.Event,
-                       interrupt: asyncio.Event | None = None) -> None:
+        async def face(
+            self, point: Any, seconds: float, stop: asyncio.Event, interrupt: asyncio.Event | None = None
+        ) -> None:
             calls.append(point)
             if interrupt is not None and interrupt.is_set():
                 await asyncio.sleep(0)  # the real look returns at once, without even this
                 return
             try:
                 await asyncio.wait_for(interrupt.wait() if interrupt else asyncio.sleep(seconds), seconds)
-            except asyncio.TimeoutError:
+            except TimeoutError:
                 pass
 
     exploration.target = None
@@ -286,8 +295,9 @@ async def test_a_drone_in_a_pocket_gets_out_before_it_calls_its_target_unreachab
             grid.pocket = False  # out: the next failure counts
             return True
 
-        async def face(self, point: Any, seconds: float, stop: asyncio.Event,
-                       interrupt: asyncio.Event | None = None) -> None:
+        async def face(
+            self, point: Any, seconds: float, stop: asyncio.Event, interrupt: asyncio.Event | None = None
+        ) -> None:
             exploration._finish("done")  # waiting for a new target: end the test's mission
             await asyncio.sleep(0)
 
@@ -326,8 +336,9 @@ async def test_a_drone_with_no_target_in_a_pocket_gets_out_instead_of_waiting() 
             grid.pocket = False
             return True
 
-        async def face(self, point: Any, seconds: float, stop: asyncio.Event,
-                       interrupt: asyncio.Event | None = None) -> None:
+        async def face(
+            self, point: Any, seconds: float, stop: asyncio.Event, interrupt: asyncio.Event | None = None
+        ) -> None:
             looks.append(point)
             exploration._finish("done")
             await asyncio.sleep(0)
@@ -349,7 +360,8 @@ async def test_a_drone_left_without_a_target_heads_home_until_a_new_target_comes
     exploration = _exploration(events, **{"explore.idle_home_s": idle_home_s})
     exploration.position = lambda: (3.0, 3.0, 1.5)
     exploration.grid = SimpleNamespace(  # type: ignore[assignment]  # only these are read
-        planning_grid=OccupancyGrid(np.zeros(3), 0.2, np.zeros((25, 25, 15), bool)), in_pocket=lambda here: False)
+        planning_grid=OccupancyGrid(np.zeros(3), 0.2, np.zeros((25, 25, 15), bool)), in_pocket=lambda here: False
+    )
     above_home = (0.0, 0.0, exploration.config.agent.altitude_m)
     late = Target((4.0, 1.0, 1.5), (4.5, 1.0, 1.5), "leader")
 
@@ -363,8 +375,9 @@ async def test_a_drone_left_without_a_target_heads_home_until_a_new_target_comes
                 exploration._finish("done")
             return True
 
-        async def face(self, point: Any, seconds: float, stop: asyncio.Event,
-                       interrupt: asyncio.Event | None = None) -> None:
+        async def face(
+            self, point: Any, seconds: float, stop: asyncio.Event, interrupt: asyncio.Event | None = None
+        ) -> None:
             if point != late.point:  # waiting: the wait ends with a target after a while
                 _give(exploration, late)
             await asyncio.sleep(0)

@@ -40,18 +40,34 @@ def test_telemetry_loss_holds_then_lands_and_a_late_hold_is_landed_again(tmp_pat
     with running_sim(config, world) as server:
         url = f"udpin://127.0.0.1:{gcs_port(config.sim, 1)}"
         agent = subprocess.Popen(
-            swarm_cmd("agent", "--id", "1", "--autopilot", url, "--set", "agent.hover_s=60",
-                      "--set", "agent.altitude_m=2.5", "--set", "explore.strategy=scripted",
-                      "--set", "camera.source=none"),  # flight only: no camera driver runs
-            stdout=log.open("w"), stderr=subprocess.STDOUT,
+            swarm_cmd(
+                "agent",
+                "--id",
+                "1",
+                "--autopilot",
+                url,
+                "--set",
+                "agent.hover_s=60",
+                "--set",
+                "agent.altitude_m=2.5",
+                "--set",
+                "explore.strategy=scripted",
+                "--set",
+                "camera.source=none",
+            ),  # flight only: no camera driver runs
+            stdout=log.open("w"),
+            stderr=subprocess.STDOUT,
         )
         try:
             wait_until(lambda: any(e.get("phase") == "hovering" for e in _events(log)), 60, "hovering")
             assert server.status()["vehicles"][0]["position"][2] > 2.0  # airborne, by simulator truth
             cut_at = time.monotonic()
             server.set_telemetry_enabled(1, False)
-            wait_until(lambda: any(e["event"] == "failsafe_command" and e["command"] == "land" for e in _events(log)),
-                       15, "the failsafe land command")
+            wait_until(
+                lambda: any(e["event"] == "failsafe_command" and e["command"] == "land" for e in _events(log)),
+                15,
+                "the failsafe land command",
+            )
             server.set_telemetry_enabled(1, True)
             # MAVSDK retries an unacknowledged command for about 1.5 s; HOLD once the vehicle has been descending
             # for longer, or a retried LAND would undo it (when that happens this test fails, it cannot pass)

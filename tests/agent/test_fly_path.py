@@ -63,8 +63,6 @@ async def _redirected_mid_segment() -> tuple[np.ndarray, np.ndarray, np.ndarray,
 
 
 @pytest.mark.sim
-
-
 def test_a_new_path_starts_from_the_drone_not_from_the_interrupted_paths_setpoint() -> None:
     start, goal, flown, setpoints, status = asyncio.run(_redirected_mid_segment())
     assert status["collisions"] == 0
@@ -111,8 +109,6 @@ async def _replanned_straight_on() -> tuple[list[float], float]:
 
 
 @pytest.mark.sim
-
-
 def test_a_new_path_straight_on_does_not_brake_the_drone() -> None:
     speeds, cruise = asyncio.run(_replanned_straight_on())
     assert speeds[0] > 0.6 * cruise  # it was flying

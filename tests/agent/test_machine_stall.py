@@ -22,15 +22,39 @@ FREEZE_S = 1.8  # longer than the 1.5 s telemetry timeout, shorter than the 2 s 
 
 def test_a_stall_of_simulator_and_agent_together_is_not_taken_for_a_lost_link(tmp_path: Path) -> None:
     base = free_port_block()
-    ports = ["--set", f"sim.vehicle_base_port={base}", "--set", f"sim.gcs_base_port={base + 20}",
-             "--set", "camera.source=none", "--set", "explore.strategy=scripted"]  # flight only: no sensor router
+    ports = [
+        "--set",
+        f"sim.vehicle_base_port={base}",
+        "--set",
+        f"sim.gcs_base_port={base + 20}",
+        "--set",
+        "camera.source=none",
+        "--set",
+        "explore.strategy=scripted",
+    ]  # flight only: no sensor router
     sim_log, log = tmp_path / "sim.log", tmp_path / "agent.log"
-    sim = subprocess.Popen(swarm_cmd("sim", "--world", "box", "--vehicles", "1", *ports),
-                           stdout=sim_log.open("w"), stderr=subprocess.STDOUT)
+    sim = subprocess.Popen(
+        swarm_cmd("sim", "--world", "box", "--vehicles", "1", *ports),
+        stdout=sim_log.open("w"),
+        stderr=subprocess.STDOUT,
+    )
     agent = subprocess.Popen(
-        swarm_cmd("agent", "--id", "1", "--autopilot", f"udpin://127.0.0.1:{base + 20}", *ports,
-                  "--set", "agent.hover_s=12", "--set", "agent.altitude_m=2.0", "--set", "explore.strategy=scripted"),
-        stdout=log.open("w"), stderr=subprocess.STDOUT,
+        swarm_cmd(
+            "agent",
+            "--id",
+            "1",
+            "--autopilot",
+            f"udpin://127.0.0.1:{base + 20}",
+            *ports,
+            "--set",
+            "agent.hover_s=12",
+            "--set",
+            "agent.altitude_m=2.0",
+            "--set",
+            "explore.strategy=scripted",
+        ),
+        stdout=log.open("w"),
+        stderr=subprocess.STDOUT,
     )
     try:
         wait_until(lambda: any(e.get("phase") == "hovering" for e in log_events(log)), 60, "hovering")

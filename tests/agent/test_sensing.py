@@ -30,8 +30,14 @@ def test_a_camera_without_a_mission_volume_is_one_clear_error(source: str) -> No
 def test_the_simulators_camera_is_heard_under_the_vehicles_namespace_and_a_zenoh_one_as_configured(
     source: str, prefix: str
 ) -> None:
-    config = load_config(overrides={"camera.source": source, "agent.id": 3, "mission.world": "/nonexistent/world.ply",
-                                    "mission.volume": VOLUME})
+    config = load_config(
+        overrides={
+            "camera.source": source,
+            "agent.id": 3,
+            "mission.world": "/nonexistent/world.ply",
+            "mission.volume": VOLUME,
+        }
+    )
     loop = asyncio.new_event_loop()
     try:
         mapping = Agent(config)._make_mapping(loop)

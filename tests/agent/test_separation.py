@@ -89,15 +89,18 @@ def test_distance_to_track_is_measured_to_the_covered_segment() -> None:
 
 
 @pytest.mark.sim
-
-
 def test_a_silent_drone_is_an_obstacle_held_for_only_when_our_segment_would_touch_it() -> None:
     # Drone 1 went silent (agent killed, vehicle hovering). Giving way to it by id would never end (a soak
     # mission livelocked so for 400 s); holding for it is right only when the segment passes through it.
     settings = sim_config(free_port_block()).agent.model_copy(update={"id": 2})
     silent = [Neighbour(1, (2.0, 0.0, 1.5), (0.0, 0.0, 0.0), silent=True)]
-    flight = Flight(Autopilot("udpin://127.0.0.1:9", sim_config(free_port_block()).mission.origin), settings,
-                    lambda *a, **kw: None, separation_m=1.2, neighbours=lambda: silent)
+    flight = Flight(
+        Autopilot("udpin://127.0.0.1:9", sim_config(free_port_block()).mission.origin),
+        settings,
+        lambda *a, **kw: None,
+        separation_m=1.2,
+        neighbours=lambda: silent,
+    )
     here = np.array([1.0, 0.0, 1.5])
     assert flight._rival(here, here) is None  # hovering near it: no stepping aside
     assert flight._rival(here, np.array([3.0, 0.0, 1.5])) is not None  # straight through it: hold
@@ -114,11 +117,13 @@ def test_a_silent_drone_is_an_obstacle_held_for_only_when_our_segment_would_touc
 def clear_in(world):
     """`Flight.is_clear` from the world mesh: every point of a-b (every 5 cm) at least 0.6 m up and its airframe
     0.5 m from every surface."""
+
     def is_clear(a, b) -> bool:
         a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
         t = np.linspace(0.0, 1.0, max(2, int(np.linalg.norm(b - a) / 0.05) + 1))[:, None]
         points = a + t * (b - a)
         return bool((points[:, 2] >= 0.6).all() and (world.distance(points + [0.0, 0.0, 0.22]) > 0.5).all())
+
     return is_clear
 
 
@@ -136,14 +141,22 @@ async def _encounter(separation_m: float, hover_in_the_way: bool = False) -> tup
                 other = flights[1 - k]
                 tel = other.ap.telemetry
                 return [Neighbour(2 - k, tel.position, tel.velocity, other.heading_to)] if other.airborne else []
-            return neighbours
 
+            return neighbours
 
         for k in range(2):
             autopilot = Autopilot(f"udpin://127.0.0.1:{gcs_port(config.sim, k + 1)}", config.mission.origin)
             settings = config.agent.model_copy(update={"id": k + 1, "altitude_m": ALTITUDE, "hover_s": 0.0})
-            flights.append(Flight(autopilot, settings, lambda *a, **kw: None, separation_m=separation_m,
-                                  neighbours=neighbours_of(k), is_clear=clear_in(world)))
+            flights.append(
+                Flight(
+                    autopilot,
+                    settings,
+                    lambda *a, **kw: None,
+                    separation_m=separation_m,
+                    neighbours=neighbours_of(k),
+                    is_clear=clear_in(world),
+                )
+            )
         arrived = [False, False]
         both_up = asyncio.Event()
 
@@ -157,6 +170,7 @@ async def _encounter(separation_m: float, hover_in_the_way: bool = False) -> tup
                     if await flight.fly_path([target], stop):
                         arrived[k] = True
                         return
+
             return mission
 
         async def hover(flight: Flight, stop: asyncio.Event) -> None:
@@ -183,8 +197,6 @@ def _drone_collisions(status: dict) -> list[dict]:
 
 
 @pytest.mark.sim
-
-
 def test_without_separation_the_head_on_drones_collide() -> None:
     status, _, arrived = asyncio.run(_encounter(separation_m=0.0))
     assert arrived == [True, True]
@@ -192,8 +204,6 @@ def test_without_separation_the_head_on_drones_collide() -> None:
 
 
 @pytest.mark.sim
-
-
 def test_the_higher_id_steps_aside_and_both_drones_arrive_without_touching() -> None:
     status, flights, arrived = asyncio.run(_encounter(separation_m=1.2))
     assert status["collision_events"] == []
@@ -205,8 +215,6 @@ def test_the_higher_id_steps_aside_and_both_drones_arrive_without_touching() -> 
 
 
 @pytest.mark.sim
-
-
 def test_a_hovering_higher_id_in_the_way_moves_off_the_line() -> None:
     status, flights, arrived = asyncio.run(_encounter(separation_m=1.2, hover_in_the_way=True))
     assert status["collision_events"] == []
@@ -226,12 +234,17 @@ async def _come_down_onto_a_grounded_drone() -> tuple[dict, Flight, list[dict]]:
         autopilot = Autopilot(f"udpin://127.0.0.1:{gcs_port(config.sim, 1)}", config.mission.origin)
         settings = config.agent.model_copy(update={"id": 1, "altitude_m": ALTITUDE, "hover_s": 0.0})
 
-
         def log(event: str, **fields) -> None:
             events.append({"event": event, **fields})
 
-        flight = Flight(autopilot, settings, log, separation_m=1.2, is_clear=clear_in(world),
-                        neighbours=lambda: [Neighbour(2, grounded, (0.0, 0.0, 0.0))])
+        flight = Flight(
+            autopilot,
+            settings,
+            log,
+            separation_m=1.2,
+            is_clear=clear_in(world),
+            neighbours=lambda: [Neighbour(2, grounded, (0.0, 0.0, 0.0))],
+        )
 
         async def mission(f: Flight, stop: asyncio.Event) -> None:
             assert await f.fly_path([(grounded[0], grounded[1], ALTITUDE)], stop)
@@ -244,8 +257,6 @@ async def _come_down_onto_a_grounded_drone() -> tuple[dict, Flight, list[dict]]:
 
 
 @pytest.mark.sim
-
-
 def test_a_drone_coming_down_onto_one_on_the_ground_lands_beside_it() -> None:
     status, flight, events = asyncio.run(_come_down_onto_a_grounded_drone())
     [beside] = [e for e in events if e["event"] == "land_beside"]
@@ -280,16 +291,19 @@ def test_a_refuge_in_a_third_drones_way_is_not_taken() -> None:
 
 
 @pytest.mark.sim
-
-
 def test_the_drone_with_the_right_of_way_holds_for_one_about_to_cross_its_way() -> None:
     # drone 1 flies west along a corridor; drone 3 comes out of a doorway 0.8 m ahead, still 0.7 m off its line
     settings = sim_config(free_port_block()).agent.model_copy(update={"id": 1})
     here, target = np.array([22.0, 9.6, 1.5]), np.array([15.0, 9.6, 1.5])
     leaving_the_door = Neighbour(3, (21.4, 8.9, 1.5), (0.0, 1.0, 0.0), heading_to=(21.4, 11.0, 1.5))
     standing_in_it = leaving_the_door._replace(velocity=(0.0, 0.0, 0.0), heading_to=None)
-    flight = Flight(Autopilot("udpin://127.0.0.1:9", sim_config(free_port_block()).mission.origin), settings,
-                    lambda *a, **kw: None, separation_m=1.2, neighbours=lambda: [standing_in_it])
+    flight = Flight(
+        Autopilot("udpin://127.0.0.1:9", sim_config(free_port_block()).mission.origin),
+        settings,
+        lambda *a, **kw: None,
+        separation_m=1.2,
+        neighbours=lambda: [standing_in_it],
+    )
     assert flight._rival(here, target) is None  # 0.7 m off our line and staying there: carry on
     flight.neighbours = lambda: [leaving_the_door]
     assert flight._rival(here, target) == leaving_the_door  # it will be on our line in half a second: hold
@@ -333,8 +347,14 @@ async def _step_up_and_rejoin() -> tuple[Vec3, list[Vec3], list[Vec3]]:
                 gone.append(True)
             return [] if gone else [peer]
 
-        flight = Flight(autopilot, settings, log, separation_m=1.2, neighbours=neighbours,
-                        is_clear=lambda a, b: a[2] < ALTITUDE + 0.1 and b[2] < ALTITUDE + STEP_ASIDE_M + 0.1)
+        flight = Flight(
+            autopilot,
+            settings,
+            log,
+            separation_m=1.2,
+            neighbours=neighbours,
+            is_clear=lambda a, b: a[2] < ALTITUDE + 0.1 and b[2] < ALTITUDE + STEP_ASIDE_M + 0.1,
+        )
 
         async def mission(f: Flight, stop: asyncio.Event) -> None:
             async def record() -> None:
@@ -358,8 +378,6 @@ async def _step_up_and_rejoin() -> tuple[Vec3, list[Vec3], list[Vec3]]:
 
 
 @pytest.mark.sim
-
-
 def test_a_drone_that_stepped_up_flies_back_down_before_going_on_along_its_segment() -> None:
     left_at, refuges, track = asyncio.run(_step_up_and_rejoin())
     assert refuges[0][2] > left_at[2] + STEP_ASIDE_M / 2  # it stepped up

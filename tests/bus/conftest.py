@@ -47,8 +47,17 @@ class PeerProcess:
         self.events: list[dict[str, Any]] = []
         self.stderr: list[str] = []
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "tests.bus.peer_process", "--mission", mission, "--id", str(agent_id),
-             "--connect", endpoint],
+            [
+                sys.executable,
+                "-m",
+                "tests.bus.peer_process",
+                "--mission",
+                mission,
+                "--id",
+                str(agent_id),
+                "--connect",
+                endpoint,
+            ],
             cwd=REPO_ROOT,
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,

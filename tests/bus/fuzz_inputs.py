@@ -24,8 +24,25 @@ MIN_INT, MAX_INT = -(2**63), 2**64 - 1  # what msgpack can carry
 LATTICES = (Lattice(0.2, 4, 4.0), Lattice(0.2, 4, 4.0, weight_law="inverse_square"))
 
 BOUNDARY_INTS = (
-    0, 1, -1, 2, MAX_AGENT_ID, MAX_AGENT_ID + 1, 4095, 4096, 4097, 16384, 16385, 1 << 30, (1 << 30) + 1,
-    2**32 - 1, 2**32, MAX_COUNTER, MAX_COUNTER + 1, MAX_INT, MIN_INT,
+    0,
+    1,
+    -1,
+    2,
+    MAX_AGENT_ID,
+    MAX_AGENT_ID + 1,
+    4095,
+    4096,
+    4097,
+    16384,
+    16385,
+    1 << 30,
+    (1 << 30) + 1,
+    2**32 - 1,
+    2**32,
+    MAX_COUNTER,
+    MAX_COUNTER + 1,
+    MAX_INT,
+    MIN_INT,
 )
 SPECIAL_FLOATS = (math.nan, math.inf, -math.inf, -0.0, 1e308, -1e308, 5e-324, 4000.0, 360.0, -360.0)
 HOSTILE_HEADERS = (
@@ -70,9 +87,20 @@ digest_wires: st.SearchStrategy[DigestWire] = st.lists(patch_ids, max_size=30).m
 
 agent_states = st.builds(
     AgentState,
-    id=agent_ids, epoch=counters, seq=counters, t=st.floats(0.0, 1e12), position=vec3, velocity=vec3,
-    heading_to=st.none() | vec3, yaw_deg=st.floats(-360.0, 360.0), flight_mode=short_text, phase=short_text,
-    role=st.sampled_from(["leader", "explorer"]), leader=agent_ids, finished=st.booleans(), holdings=digest_wires,
+    id=agent_ids,
+    epoch=counters,
+    seq=counters,
+    t=st.floats(0.0, 1e12),
+    position=vec3,
+    velocity=vec3,
+    heading_to=st.none() | vec3,
+    yaw_deg=st.floats(-360.0, 360.0),
+    flight_mode=short_text,
+    phase=short_text,
+    role=st.sampled_from(["leader", "explorer"]),
+    leader=agent_ids,
+    finished=st.booleans(),
+    holdings=digest_wires,
 )
 digest_messages = st.builds(DigestMessage, id=agent_ids, epoch=counters, digest=digest_wires)
 
@@ -82,9 +110,15 @@ def patch_chunks(draw: st.DrawFn, max_data: int = 512) -> PatchChunk:
     count = draw(st.integers(1, MAX_CHUNKS))
     data = draw(st.binary(min_size=1, max_size=max_data))
     return PatchChunk(
-        sender=draw(agent_ids), producer=draw(agent_ids), epoch=draw(counters), seq=draw(counters),
-        index=draw(st.integers(0, count - 1)), count=count, total_bytes=draw(st.integers(len(data), 1 << 30)),
-        crc32=draw(st.integers(0, 2**32 - 1)), data=data,
+        sender=draw(agent_ids),
+        producer=draw(agent_ids),
+        epoch=draw(counters),
+        seq=draw(counters),
+        index=draw(st.integers(0, count - 1)),
+        count=count,
+        total_bytes=draw(st.integers(len(data), 1 << 30)),
+        crc32=draw(st.integers(0, 2**32 - 1)),
+        data=data,
     )
 
 
@@ -96,10 +130,15 @@ def points(n: int) -> st.SearchStrategy[np.ndarray]:
 def frontier_reports(draw: st.DrawFn) -> FrontierReport:
     n = draw(st.integers(0, 12))
     return FrontierReport(
-        id=draw(agent_ids), epoch=draw(counters), seq=draw(counters), position=draw(vec3),
-        viewpoints=draw(points(n)), points=draw(points(n)),
+        id=draw(agent_ids),
+        epoch=draw(counters),
+        seq=draw(counters),
+        position=draw(vec3),
+        viewpoints=draw(points(n)),
+        points=draw(points(n)),
         gains=draw(arrays(np.float32, (n,), elements=st.floats(0.0, 1e6, width=32))),
-        visited=draw(points(draw(st.integers(0, 12)))), arrived=draw(st.booleans()),
+        visited=draw(points(draw(st.integers(0, 12)))),
+        arrived=draw(st.booleans()),
     )
 
 
@@ -108,8 +147,13 @@ def target_assignments(draw: st.DrawFn) -> TargetAssignment:
     members = draw(st.lists(agent_ids, min_size=1, max_size=MAX_MEMBERS))
     drones = draw(st.lists(st.sampled_from(members), unique=True, max_size=len(members)))
     return TargetAssignment(
-        leader=draw(st.sampled_from(members)), epoch=draw(counters), round=draw(counters), members=members,
-        done=draw(st.booleans()), drones=drones, viewpoints=draw(points(len(drones))),
+        leader=draw(st.sampled_from(members)),
+        epoch=draw(counters),
+        round=draw(counters),
+        members=members,
+        done=draw(st.booleans()),
+        drones=drones,
+        viewpoints=draw(points(len(drones))),
         points=draw(points(len(drones))),
     )
 

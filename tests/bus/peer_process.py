@@ -16,7 +16,7 @@ import sys
 
 from swarm.bus.bridge import AsyncBus
 from swarm.bus.messages import AgentState
-from tests.bus.helpers import open_connecting_bus, make_state
+from tests.bus.helpers import make_state, open_connecting_bus
 
 
 def emit(event: dict) -> None:
@@ -43,7 +43,7 @@ async def run(mission: str, agent_id: int, endpoint: str) -> None:
             seq += 1
             try:
                 await asyncio.wait_for(stop.wait(), 0.05)
-            except asyncio.TimeoutError:
+            except TimeoutError:
                 pass
     finally:
         await bus.close()

@@ -43,8 +43,6 @@ async def publish_until(bus: AsyncBus, agent_id: int, condition, what: str, time
 
 
 @pytest.mark.bus
-
-
 async def test_state_arrives_on_the_loop_with_equal_fields(bus_pair: tuple[AsyncBus, AsyncBus]) -> None:
     a, b = bus_pair
     received: Received = []
@@ -70,8 +68,6 @@ async def test_state_arrives_on_the_loop_with_equal_fields(bus_pair: tuple[Async
 
 
 @pytest.mark.bus
-
-
 async def test_malformed_payloads_are_counted_and_never_delivered(bus_pair: tuple[AsyncBus, AsyncBus]) -> None:
     a, b = bus_pair
     received: Received = []
@@ -98,8 +94,6 @@ async def test_malformed_payloads_are_counted_and_never_delivered(bus_pair: tupl
 
 
 @pytest.mark.bus
-
-
 async def test_reliable_messages_arrive_all_and_in_order(bus_pair: tuple[AsyncBus, AsyncBus]) -> None:
     a, b = bus_pair
     received: Received = []
@@ -116,8 +110,6 @@ async def test_reliable_messages_arrive_all_and_in_order(bus_pair: tuple[AsyncBu
 
 
 @pytest.mark.bus
-
-
 async def test_handler_exceptions_do_not_stop_delivery(bus_pair: tuple[AsyncBus, AsyncBus]) -> None:
     a, b = bus_pair
     delivered: list[int] = []
@@ -133,8 +125,6 @@ async def test_handler_exceptions_do_not_stop_delivery(bus_pair: tuple[AsyncBus,
 
 
 @pytest.mark.bus
-
-
 async def test_async_handlers_are_refused(bus_pair: tuple[AsyncBus, AsyncBus]) -> None:
     _, b = bus_pair
 
@@ -146,8 +136,6 @@ async def test_async_handlers_are_refused(bus_pair: tuple[AsyncBus, AsyncBus]) -
 
 
 @pytest.mark.bus
-
-
 async def test_liveliness_join_history_and_leave(bus_pair: tuple[AsyncBus, AsyncBus]) -> None:
     a, b = bus_pair
     a.declare_token(a.keys.alive(7))
@@ -165,8 +153,6 @@ async def test_liveliness_join_history_and_leave(bus_pair: tuple[AsyncBus, Async
 
 
 @pytest.mark.bus
-
-
 async def test_close_is_prompt_and_idempotent(mission: str) -> None:
     bus, _ = await open_listening_bus(mission)
     received: Received = []
@@ -192,8 +178,6 @@ async def test_close_is_prompt_and_idempotent(mission: str) -> None:
 
 
 @pytest.mark.bus
-
-
 async def test_context_manager_closes(mission: str) -> None:
     bus, _ = await open_listening_bus(mission)
     async with bus:
@@ -207,8 +191,6 @@ async def test_open_rejects_a_bad_mission_before_opening() -> None:
 
 
 @pytest.mark.bus
-
-
 async def test_router_mode_relays_along_a_chain(mission: str) -> None:
     """a - hub - c, with a and c not connected: in router mode the hub forwards (peers would not)."""
     hub, endpoint = await open_listening_bus(mission, mode="router")

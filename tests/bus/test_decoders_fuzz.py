@@ -11,6 +11,7 @@ decoder the same way, with structure-aware mutations that reach past the envelop
 
 from __future__ import annotations
 
+import functools
 import math
 import random
 import subprocess
@@ -27,8 +28,8 @@ import numpy as np
 import pytest
 import zstandard
 from hypothesis import HealthCheck, event, given, settings, target
-from hypothesis.control import currently_in_test_context
 from hypothesis import strategies as st
+from hypothesis.control import currently_in_test_context
 
 from swarm import fuzz
 from swarm.bus.codec import (
@@ -83,7 +84,15 @@ FUZZ = settings(max_examples=200, deadline=None, suppress_health_check=[HealthCh
 FEW = settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 REASONS = {"too_large", "not_msgpack", "bad_envelope", "version", "kind", "invalid"}
 PATCH_REASONS = {
-    "too_large", "not_msgpack", "version", "invalid", "lattice", "bounds", "checksum", "decompress", "shape",
+    "too_large",
+    "not_msgpack",
+    "version",
+    "invalid",
+    "lattice",
+    "bounds",
+    "checksum",
+    "decompress",
+    "shape",
     "id_mismatch",
 }
 PATCH_MAX_BYTES = fuzz.PATCH_MAX_BYTES
@@ -257,10 +266,9 @@ hostile_entries = st.fixed_dictionaries(
         "ranges": st.lists(ranges, max_size=8),
     }
 )
-hostile_holdings = (
-    st.fixed_dictionaries({"entries": st.lists(hostile_entries, max_size=6)})
-    | digest_wires.map(lambda d: PatchDigest.from_wire_model(d).to_wire()).flatmap(mutated)
-)
+hostile_holdings = st.fixed_dictionaries({"entries": st.lists(hostile_entries, max_size=6)}) | digest_wires.map(
+    lambda d: PatchDigest.from_wire_model(d).to_wire()
+).flatmap(mutated)
 
 
 @FUZZ
@@ -498,8 +506,15 @@ def colliding_chunks(draw: st.DrawFn) -> PatchChunk:
     total = draw(st.just(len(data)) | st.integers(len(data), 1000))
     crc = zlib.crc32(data) if draw(st.booleans()) else draw(st.sampled_from([0, 1, 0xFFFFFFFF]))
     return PatchChunk(
-        sender=draw(agent_ids), producer=1, epoch=0, seq=draw(st.integers(0, 2)),
-        index=draw(st.integers(0, count - 1)), count=count, total_bytes=total, crc32=crc, data=data,
+        sender=draw(agent_ids),
+        producer=1,
+        epoch=0,
+        seq=draw(st.integers(0, 2)),
+        index=draw(st.integers(0, count - 1)),
+        count=count,
+        total_bytes=total,
+        crc32=crc,
+        data=data,
     )
 
 
@@ -528,10 +543,19 @@ def chunk_sequences(draw: st.DrawFn) -> tuple[bytes, list[PatchChunk | float]]:
         else:
             seq, count, total, crc = draw(st.sampled_from(headers))
             size = draw(st.sampled_from([min(total, 400)]) | st.integers(1, min(total, 400)))  # big ones often
-            steps.append(PatchChunk(
-                sender=draw(agent_ids), producer=1, epoch=0, seq=seq, index=draw(st.integers(0, count - 1)),
-                count=count, total_bytes=total, crc32=crc, data=draw(st.binary(min_size=size, max_size=size)),
-            ))
+            steps.append(
+                PatchChunk(
+                    sender=draw(agent_ids),
+                    producer=1,
+                    epoch=0,
+                    seq=seq,
+                    index=draw(st.integers(0, count - 1)),
+                    count=count,
+                    total_bytes=total,
+                    crc32=crc,
+                    data=draw(st.binary(min_size=size, max_size=size)),
+                )
+            )
     return real, steps
 
 
@@ -601,7 +625,7 @@ FIELD_OF = {"state": "holdings", "digest": "digest", "chunk": "data", "frontiers
 def test_huge_claims_allocate_little(name: str, claim: bytes) -> None:
     case = CASES[name]
     for data in (claim + bytes(16), claim_in_field(case.model.KIND, FIELD_OF[name], claim)):
-        peak = peak_bytes(lambda: decoded_or_none(case, data))
+        peak = peak_bytes(functools.partial(decoded_or_none, case, data))
         assert decoded_or_none(case, data) is None
         assert peak < SMALL_PEAK, f"{peak} bytes for {data[:24].hex()}"
 
@@ -610,7 +634,7 @@ def test_huge_claims_allocate_little(name: str, claim: bytes) -> None:
 def test_huge_claims_in_patches_allocate_little(claim: bytes) -> None:
     lattice = LATTICES[0]
     for data in (claim + bytes(16), claim_in_field(wire.KIND, "payload", claim)):
-        peak = peak_bytes(lambda: patch_or_reason(data, lattice, max_bytes=4 << 20))
+        peak = peak_bytes(functools.partial(patch_or_reason, data, lattice, max_bytes=4 << 20))
         assert patch_or_reason(data, lattice) == "not_msgpack"
         assert peak < SMALL_PEAK
 
@@ -665,8 +689,9 @@ def test_nested_length_claims_stay_within_the_codecs_documented_bound() -> None:
 
 
 def test_a_chunk_claiming_a_huge_patch_is_not_stored() -> None:
-    chunk = PatchChunk(sender=1, producer=1, epoch=0, seq=0, index=0, count=MAX_CHUNKS, total_bytes=1 << 30,
-                       crc32=0, data=b"x")
+    chunk = PatchChunk(
+        sender=1, producer=1, epoch=0, seq=0, index=0, count=MAX_CHUNKS, total_bytes=1 << 30, crc32=0, data=b"x"
+    )
     reassembler = Reassembler(1 << 20, 5.0, 4 << 20)
     peak = peak_bytes(lambda: reassembler.add(chunk))
     assert reassembler.pending_bytes == 0 and reassembler.dropped == {"oversize": 1}
@@ -800,8 +825,10 @@ def test_chunk_of_the_full_chunk_size_fits_the_service_bound() -> None:
 @pytest.mark.parametrize(
     "at, past",
     [
-        ({"ids": ",".join(f"1.0.{s}" for s in range(MAX_IDS_PER_REQUEST))},
-         {"ids": ",".join(f"1.0.{s}" for s in range(MAX_IDS_PER_REQUEST + 1))}),
+        (
+            {"ids": ",".join(f"1.0.{s}" for s in range(MAX_IDS_PER_REQUEST))},
+            {"ids": ",".join(f"1.0.{s}" for s in range(MAX_IDS_PER_REQUEST + 1))},
+        ),
         ({"ids": f"{MAX_AGENT_ID}.0.0"}, {"ids": f"{MAX_AGENT_ID + 1}.0.0"}),
         ({"ids": f"1.{MAX_COUNTER}.{MAX_COUNTER}"}, {"ids": f"1.{MAX_COUNTER + 1}.0"}),
         ({"ids": "1.0.0", "from": str(MAX_AGENT_ID)}, {"ids": "1.0.0", "from": str(MAX_AGENT_ID + 1)}),
@@ -855,8 +882,17 @@ def test_an_assembly_never_holds_more_than_its_patch_size() -> None:
 
     hostile = Reassembler(1 << 20, 5.0, 1 << 20)
     for index in range(MAX_CHUNKS - 1):
-        chunk = PatchChunk(sender=1, producer=1, epoch=0, seq=0, index=index, count=MAX_CHUNKS, total_bytes=8192,
-                           crc32=0, data=bytes(8192))
+        chunk = PatchChunk(
+            sender=1,
+            producer=1,
+            epoch=0,
+            seq=0,
+            index=index,
+            count=MAX_CHUNKS,
+            total_bytes=8192,
+            crc32=0,
+            data=bytes(8192),
+        )
         hostile.add(chunk)
         assert hostile.pending_bytes <= 8192
 
@@ -865,12 +901,13 @@ def test_an_assembly_never_holds_more_than_its_patch_size() -> None:
 
 
 @pytest.mark.bus
-
-
 def test_fuzz_main_runs_2000_iterations() -> None:
     proc = subprocess.run(
         [sys.executable, "-m", "swarm.fuzz", "--iterations", "2000", "--seed", "7"],
-        cwd=REPO_ROOT, capture_output=True, text=True, timeout=120,
+        cwd=REPO_ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
     )
     assert proc.returncode == 0, proc.stderr
     lines = proc.stdout.splitlines()

@@ -42,8 +42,6 @@ async def wait_for_queryable(querier: AsyncBus, key: str, timeout_s: float = 5.0
 
 
 @pytest.mark.bus
-
-
 async def test_get_returns_the_handler_bytes_with_parameters(bus_pair: tuple[AsyncBus, AsyncBus]) -> None:
     a, b = bus_pair
     calls: Calls = []
@@ -73,8 +71,6 @@ async def test_get_returns_the_handler_bytes_with_parameters(bus_pair: tuple[Asy
 
 
 @pytest.mark.bus
-
-
 async def test_a_wildcard_get_reaches_the_store(bus_pair: tuple[AsyncBus, AsyncBus]) -> None:
     a, b = bus_pair
     calls: Calls = []
@@ -86,8 +82,6 @@ async def test_a_wildcard_get_reaches_the_store(bus_pair: tuple[AsyncBus, AsyncB
 
 
 @pytest.mark.bus
-
-
 async def test_none_is_not_held_and_counted(bus_pair: tuple[AsyncBus, AsyncBus]) -> None:
     a, b = bus_pair
     calls: Calls = []
@@ -104,8 +98,6 @@ async def test_none_is_not_held_and_counted(bus_pair: tuple[AsyncBus, AsyncBus])
 
 
 @pytest.mark.bus
-
-
 async def test_a_failing_handler_does_not_break_the_bus(bus_pair: tuple[AsyncBus, AsyncBus]) -> None:
     a, b = bus_pair
 
@@ -127,8 +119,6 @@ async def test_a_failing_handler_does_not_break_the_bus(bus_pair: tuple[AsyncBus
 
 
 @pytest.mark.bus
-
-
 async def test_get_without_a_queryable_returns_at_once(bus_pair: tuple[AsyncBus, AsyncBus]) -> None:
     a, b = bus_pair
     start = time.monotonic()
@@ -138,8 +128,6 @@ async def test_get_without_a_queryable_returns_at_once(bus_pair: tuple[AsyncBus,
 
 
 @pytest.mark.bus
-
-
 async def test_a_query_never_answered_times_out(bus_pair: tuple[AsyncBus, AsyncBus]) -> None:
     a, b = bus_pair
     held: list[zenoh.Query] = []
@@ -178,8 +166,6 @@ async def test_a_query_never_answered_times_out(bus_pair: tuple[AsyncBus, AsyncB
 
 
 @pytest.mark.bus
-
-
 async def test_a_session_does_not_answer_its_own_get(bus_pair: tuple[AsyncBus, AsyncBus]) -> None:
     a, b = bus_pair
     calls: Calls = []
@@ -194,8 +180,6 @@ async def test_a_session_does_not_answer_its_own_get(bus_pair: tuple[AsyncBus, A
 
 
 @pytest.mark.bus
-
-
 async def test_many_queries_each_get_their_answer(bus_pair: tuple[AsyncBus, AsyncBus]) -> None:
     a, b = bus_pair
     a.declare_queryable(a.keys.store(1), KIND, lambda key, params: params.get("i", "").encode())
@@ -205,8 +189,6 @@ async def test_many_queries_each_get_their_answer(bus_pair: tuple[AsyncBus, Asyn
 
 
 @pytest.mark.bus
-
-
 async def test_queryable_and_get_on_a_closed_bus(bus_pair: tuple[AsyncBus, AsyncBus]) -> None:
     a, b = bus_pair
 

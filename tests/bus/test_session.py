@@ -63,8 +63,6 @@ def test_invalid_endpoint_is_one_line() -> None:
 
 
 @pytest.mark.bus
-
-
 def test_listen_port_in_use_is_one_clear_line() -> None:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as taken:
         taken.bind(("127.0.0.1", 0))
@@ -76,8 +74,6 @@ def test_listen_port_in_use_is_one_clear_line() -> None:
 
 
 @pytest.mark.bus
-
-
 def test_unusable_endpoint_is_one_line() -> None:
     with pytest.raises(BusError) as info:
         open_session(BusSettings(listen=["tcp/notanaddress"]))
@@ -85,8 +81,6 @@ def test_unusable_endpoint_is_one_line() -> None:
 
 
 @pytest.mark.bus
-
-
 def test_open_and_close() -> None:
     session = open_session(BusSettings(listen=["tcp/127.0.0.1:0"]))
     try:

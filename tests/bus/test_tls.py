@@ -58,6 +58,7 @@ async def _listening(certs: Path, name: str) -> tuple[AsyncBus, str]:
 def _recorder(into: list[tuple[str, int]]):
     def handler(key: str, msg: AgentState) -> None:
         into.append((key, msg.id))
+
     return handler
 
 
@@ -73,8 +74,6 @@ async def _publish_until(sender: AsyncBus, keys_ids: list[tuple[int, int]], done
 
 
 @pytest.mark.bus
-
-
 async def test_drones_with_swarm_certificates_talk_and_a_forged_id_heartbeat_is_rejected(certs: Path) -> None:
     drone1, endpoint = await _listening(certs, "drone-1")
     received: list[tuple[str, int]] = []
@@ -82,8 +81,12 @@ async def test_drones_with_swarm_certificates_talk_and_a_forged_id_heartbeat_is_
     drone2 = await AsyncBus.open(_settings(certs, "drone-2", listen=[], connect=[endpoint]), MISSION)
     try:
         # drone 2 sends its own heartbeat and one that claims to be drone 3 (key and payload both say 3)
-        await _publish_until(drone2, [(3, 3), (2, 2)], lambda: sum(k.endswith("/2/state") for k, _ in received)
-                             >= ROUNDS, "drone 2's own heartbeats")
+        await _publish_until(
+            drone2,
+            [(3, 3), (2, 2)],
+            lambda: sum(k.endswith("/2/state") for k, _ in received) >= ROUNDS,
+            "drone 2's own heartbeats",
+        )
         assert {k for k, _ in received} == {drone1.keys.state(2)}, "a heartbeat under another drone's id arrived"
         assert {i for _, i in received} == {2}
     finally:
@@ -92,8 +95,6 @@ async def test_drones_with_swarm_certificates_talk_and_a_forged_id_heartbeat_is_
 
 
 @pytest.mark.bus
-
-
 async def test_a_session_without_a_certificate_or_with_another_cas_receives_nothing(
     certs: Path, rogue_certs: Path
 ) -> None:

@@ -29,7 +29,11 @@ def compose_config(compose_file: Path, *extra: str) -> subprocess.CompletedProce
     """`docker-compose -f FILE config ...` run in the file's directory (as a person would)."""
     return subprocess.run(
         [docker_compose(), "-f", str(compose_file), *("config", *extra)],
-        cwd=compose_file.parent, check=False, capture_output=True, text=True, timeout=60,
+        cwd=compose_file.parent,
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=60,
     )
 
 

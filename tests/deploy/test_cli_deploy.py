@@ -34,14 +34,29 @@ def test_compose_writes_a_valid_deployment(tmp_path: Path) -> None:
     out = tmp_path / "d"
     assert "docker-compose.yml" in done.stdout
     assert sorted(p.name for p in (out / "config").iterdir()) == [
-        "agent-1.toml", "agent-2.toml", "cameras.toml", "observer.toml", "sim.toml",
+        "agent-1.toml",
+        "agent-2.toml",
+        "cameras.toml",
+        "observer.toml",
+        "sim.toml",
     ]
     assert compose_config(out / "docker-compose.yml", "-q").returncode == 0
 
 
 def test_compose_takes_config_flags(tmp_path: Path) -> None:
-    done = swarm(tmp_path, "deploy", "compose", "--world", "box", "--out", "d", "--set", "mission.drones=4",
-                 "--set", "mission.name=lab")
+    done = swarm(
+        tmp_path,
+        "deploy",
+        "compose",
+        "--world",
+        "box",
+        "--out",
+        "d",
+        "--set",
+        "mission.drones=4",
+        "--set",
+        "mission.name=lab",
+    )
     assert done.returncode == 0, done.stderr
     assert (tmp_path / "d" / "config" / "agent-4.toml").exists()
     assert 'name = "lab"' in (tmp_path / "d" / "config" / "agent-1.toml").read_text()

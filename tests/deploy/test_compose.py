@@ -62,21 +62,18 @@ def in_subnet(address: str, subnet: ipaddress.IPv4Network) -> bool:
 
 
 @pytest.mark.sim
-
-
 def test_docker_compose_parser_accepts_the_file(generated: tuple[Path, Deployment]) -> None:
     out, _ = generated
     done = compose_config(out / "docker-compose.yml", "-q")
     assert done.returncode == 0, done.stderr
     services = compose_config(out / "docker-compose.yml", "--services")
     assert services.returncode == 0, services.stderr
-    assert sorted(services.stdout.split()) == sorted(["sim", "cameras", "observer",
-                                                      *(f"agent-{k}" for k in range(1, DRONES + 1))])
+    assert sorted(services.stdout.split()) == sorted(
+        ["sim", "cameras", "observer", *(f"agent-{k}" for k in range(1, DRONES + 1))]
+    )
 
 
 @pytest.mark.sim
-
-
 def test_parser_sees_what_we_mean(generated: tuple[Path, Deployment]) -> None:
     """The parser's normalised view: capabilities, addresses, and the config mount resolved next to the file."""
     out, _ = generated
@@ -92,8 +89,6 @@ def test_parser_sees_what_we_mean(generated: tuple[Path, Deployment]) -> None:
 
 
 @pytest.mark.sim
-
-
 def test_parser_rejects_a_broken_file(tmp_path: Path, generated: tuple[Path, Deployment]) -> None:
     """The parser really validates (so the passing test above means something)."""
     out, _ = generated
@@ -196,8 +191,6 @@ def test_results_directory_is_ready(generated: tuple[Path, Deployment]) -> None:
 
 
 @pytest.mark.sim
-
-
 def test_loss_zero_still_runs_the_netem_step(tmp_path: Path) -> None:
     out = tmp_path / "clean"
     deploy_compose_command(load_config(None, {"mission.world": "box"}), 1, 0.0, out, DEFAULT_IMAGE)
@@ -227,8 +220,6 @@ def test_scripted_strategy_gets_its_routes(tmp_path: Path) -> None:
 
 
 @pytest.mark.sim
-
-
 def test_build_context_lets_compose_build_the_image(tmp_path: Path) -> None:
     out = tmp_path / "build"
     deploy_compose_command(load_config(None, {"mission.world": "box"}), 1, 0.1, out, "swarm-test:dev", REPO)

@@ -16,24 +16,38 @@ import pytest
 
 from swarm.config import ConfigError
 from swarm.deploy import radio
-from swarm.netem import commands
 from swarm.deploy.radio import apply_radio_netem, check_values, find_interface, netem_commands
+from swarm.netem import commands
 from swarm.netem.commands import NetemUnavailable, tool
 from swarm.netem.profile import kernel_has_netem
 
 # `ip -j addr` inside an agent container: Docker decides which of the two networks is eth0
 IP_ADDR = [
-    {"ifindex": 1, "ifname": "lo", "addr_info": [
-        {"family": "inet", "local": "127.0.0.1", "prefixlen": 8},
-        {"family": "inet6", "local": "::1", "prefixlen": 128},
-    ]},
-    {"ifindex": 40, "ifname": "eth0", "link_index": 41, "addr_info": [
-        {"family": "inet", "local": "10.77.2.12", "prefixlen": 24},
-    ]},
-    {"ifindex": 42, "ifname": "eth1", "link_index": 43, "addr_info": [
-        {"family": "inet", "local": "10.77.1.12", "prefixlen": 24},
-        {"family": "inet6", "local": "fd00:77::12", "prefixlen": 64},
-    ]},
+    {
+        "ifindex": 1,
+        "ifname": "lo",
+        "addr_info": [
+            {"family": "inet", "local": "127.0.0.1", "prefixlen": 8},
+            {"family": "inet6", "local": "::1", "prefixlen": 128},
+        ],
+    },
+    {
+        "ifindex": 40,
+        "ifname": "eth0",
+        "link_index": 41,
+        "addr_info": [
+            {"family": "inet", "local": "10.77.2.12", "prefixlen": 24},
+        ],
+    },
+    {
+        "ifindex": 42,
+        "ifname": "eth1",
+        "link_index": 43,
+        "addr_info": [
+            {"family": "inet", "local": "10.77.1.12", "prefixlen": 24},
+            {"family": "inet6", "local": "fd00:77::12", "prefixlen": 64},
+        ],
+    },
     {"ifindex": 44, "ifname": "tunl0", "addr_info": []},
 ]
 
@@ -60,16 +74,34 @@ def test_loss_commands() -> None:
         ["ip", "link", "set", "dev", "eth1", "gso_max_segs", "1", "gso_max_size", "1500"],
         ["tc", "qdisc", "replace", "dev", "eth1", "root", "handle", "1:", "prio", "bands", "4"],
         ["tc", "qdisc", "replace", "dev", "eth1", "parent", "1:4", "handle", "40:", "netem", "loss", "30%"],
-        ["tc", "filter", "add", "dev", "eth1", "parent", "1:", "protocol", "ip", "prio", "1",
-         "u32", "match", "ip", "dst", "0.0.0.0/0", "flowid", "1:4"],
+        [
+            "tc",
+            "filter",
+            "add",
+            "dev",
+            "eth1",
+            "parent",
+            "1:",
+            "protocol",
+            "ip",
+            "prio",
+            "1",
+            "u32",
+            "match",
+            "ip",
+            "dst",
+            "0.0.0.0/0",
+            "flowid",
+            "1:4",
+        ],
     ]
 
 
 def test_delay_jitter_and_small_losses() -> None:
     netem = netem_commands("eth0", 0.001, delay_ms=20, jitter_ms=5)[2]
-    assert netem[netem.index("netem"):] == ["netem", "loss", "0.1%", "delay", "20ms", "5ms"]
+    assert netem[netem.index("netem") :] == ["netem", "loss", "0.1%", "delay", "20ms", "5ms"]
     netem = netem_commands("eth0", 0.0, delay_ms=12.5)[2]
-    assert netem[netem.index("netem"):] == ["netem", "delay", "12.5ms"]
+    assert netem[netem.index("netem") :] == ["netem", "delay", "12.5ms"]
 
 
 @pytest.mark.parametrize(

@@ -29,8 +29,9 @@ def _cell(p: Vec3) -> tuple[int, int, int]:
     return i, j, k
 
 
-def _random_states(rng: np.random.Generator, size: tuple[int, int, int], p_unknown: float,
-                   p_occupied: float) -> np.ndarray:
+def _random_states(
+    rng: np.random.Generator, size: tuple[int, int, int], p_unknown: float, p_occupied: float
+) -> np.ndarray:
     """Independent random cell states, FREE for the rest of the probability."""
     p = [p_unknown, 1.0 - p_unknown - p_occupied, p_occupied]
     return rng.choice(np.array([UNKNOWN, FREE, OCCUPIED], dtype=np.uint8), size=size, p=p)
@@ -111,7 +112,6 @@ def test_frontier_cells_are_grouped_by_component_and_cluster_bins() -> None:
     # The cell nearest the mean: layer 7 of 2..12 in z, and one of the two middle columns of 2..27 in y.
     assert single.point[0] == pytest.approx(3.9) and single.point[2] == pytest.approx(1.5)
     assert single.point[1] == pytest.approx(2.9) or single.point[1] == pytest.approx(3.1)
-
 
 
 def test_frontier_components_are_separate_groups_even_in_one_bin() -> None:
@@ -267,7 +267,8 @@ def test_a_drone_needs_room_for_its_airframe_above_its_position() -> None:
     for settings, safe_layers in ((point, 8), (airframe, 7), (tall, 6)):
         grid = _grid(states, settings)
         assert [grid.planning_grid.is_free((2.0, 3.0, z)) for z in heights] == [True] * safe_layers + [False] * (
-            8 - safe_layers), settings.body_height_m
+            8 - safe_layers
+        ), settings.body_height_m
     # A lintel (a slab from 2.0 to 2.2 m) over part of the room: a point may pass right under it, a drone not.
     set_states(states, (3.0, 0.0, 2.0), (4.99, 5.99, 2.19), OCCUPIED)
     point_grid, airframe_grid = _grid(states, point), _grid(states, airframe)
@@ -360,9 +361,12 @@ def test_free_points_make_the_drones_unknown_cell_plannable() -> None:
     # the position and the column above it that must have been seen: up to clearance_m over a point drone
     column = [np.add(position, (0.0, 0.0, j * RES)) for j in range(math.ceil(SETTINGS.clearance_m / RES))]
     ball = (np.min([np.linalg.norm(centres - p, axis=1) for p in column], axis=0) <= SETTINGS.clearance_m).reshape(
-        states.shape)
+        states.shape
+    )
     freed = int(ball.sum())
-    assert blind.gain_at(np.array([position]))[0] - grid.gain_at(np.array([position]))[0] == pytest.approx(freed * RES**3)
+    assert blind.gain_at(np.array([position]))[0] - grid.gain_at(np.array([position]))[0] == pytest.approx(
+        freed * RES**3
+    )
 
     # An occupied cell next to the drone's stays occupied, and the drone's cell is not safe. Its 26 neighbours are
     # crevices, unknown but not open, freed or not: the gain falls by the freed cells outside them only.
@@ -568,8 +572,7 @@ def test_a_doorway_keeps_more_safe_cells_when_clearance_is_measured_from_the_vox
     fine, states = _door_states(*door)
     settings = SETTINGS.model_copy(update={"ceiling_margin_m": 0.01})
     coarse = ExplorationGrid.from_states((0, 0, 0), RES, states, settings, floor_z=0.0, top_z=3.0)
-    voxels = ExplorationGrid.from_states((0, 0, 0), RES, states, settings, floor_z=0.0, top_z=3.0,
-                                         occupied_fine=fine)
+    voxels = ExplorationGrid.from_states((0, 0, 0), RES, states, settings, floor_z=0.0, top_z=3.0, occupied_fine=fine)
     in_door = np.array([(x, 2.1, 1.5) for x in np.arange(1.1, 3.0, 0.2)])
     assert coarse.planning_grid.points_are_free(in_door).sum() == from_cells
     passable = voxels.planning_grid.points_are_free(in_door)
@@ -589,16 +592,16 @@ def test_a_doorway_keeps_more_safe_cells_when_clearance_is_measured_from_the_vox
 def test_fine_occupancy_must_refine_the_grid_exactly() -> None:
     fine, states = _door_states(15, 25)
     with pytest.raises(ValueError, match="integer refinement"):
-        ExplorationGrid.from_states((0, 0, 0), RES, states, SETTINGS, floor_z=0.0, top_z=3.0,
-                                    occupied_fine=fine[:, :-1])
+        ExplorationGrid.from_states(
+            (0, 0, 0), RES, states, SETTINGS, floor_z=0.0, top_z=3.0, occupied_fine=fine[:, :-1]
+        )
 
 
 def test_cells_marked_occupied_by_hand_stay_obstacles_with_fine_occupancy() -> None:
     # a dead drone's last position is marked on the coarse states only: it must still be kept clear of
     fine, states = _door_states(15, 25)
     states[5, 5, 7] = OCCUPIED
-    grid = ExplorationGrid.from_states((0, 0, 0), RES, states, SETTINGS, floor_z=0.0, top_z=3.0,
-                                       occupied_fine=fine)
+    grid = ExplorationGrid.from_states((0, 0, 0), RES, states, SETTINGS, floor_z=0.0, top_z=3.0, occupied_fine=fine)
     assert not grid.planning_grid.is_free((1.1, 1.1, 1.5))
     assert not grid.planning_grid.is_free((1.3, 1.1, 1.5))  # within 0.25 m of the marked cell
     assert grid.planning_grid.is_free((1.1, 0.5, 1.5))

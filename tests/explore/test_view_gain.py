@@ -16,8 +16,9 @@ CAMERA = ViewModel.from_camera(CameraSettings())  # 90 x 73.7 degrees, 0.3 to 8 
 
 
 def _grid(states: np.ndarray, settings: ExploreSettings = SETTINGS, view: ViewModel | None = CAMERA) -> ExplorationGrid:
-    return ExplorationGrid.from_states((0.0, 0.0, 0.0), RES, states, settings, floor_z=0.0, top_z=states.shape[2] * RES,
-                                       view=view)
+    return ExplorationGrid.from_states(
+        (0.0, 0.0, 0.0), RES, states, settings, floor_z=0.0, top_z=states.shape[2] * RES, view=view
+    )
 
 
 def _frustum_m3(view: ViewModel, far: float) -> float:
@@ -48,10 +49,12 @@ def test_in_open_unknown_space_the_view_gain_is_the_volume_of_the_field_of_view(
     # a camera looking down sees as much in open space, a shorter range far less
     down = ViewModel(CAMERA.hfov_deg, CAMERA.vfov_deg, 30.0, CAMERA.min_range_m, CAMERA.max_range_m)
     assert _grid(states, view=down).view_gain(np.array([eye]), np.array([(eye[0] + 1, eye[1], eye[2])]))[0] == (
-        pytest.approx(gain, rel=0.02))
+        pytest.approx(gain, rel=0.02)
+    )
     short = ViewModel(CAMERA.hfov_deg, CAMERA.vfov_deg, 0.0, CAMERA.min_range_m, 4.0)
     assert _grid(states, view=short).view_gain(np.array([eye]), np.array([(eye[0] + 1, eye[1], eye[2])]))[0] == (
-        pytest.approx(_frustum_m3(short, 4.0), rel=0.1))
+        pytest.approx(_frustum_m3(short, 4.0), rel=0.1)
+    )
 
 
 def test_an_obstacle_ends_the_view_and_the_camera_looks_where_the_point_is() -> None:
@@ -71,7 +74,9 @@ def test_without_a_camera_or_with_the_box_model_frontiers_carry_the_box_gain() -
     here = (1.0, 3.0, 1.5)
     box = _grid(states, settings=SETTINGS.model_copy(update={"gain_model": "box"})).frontiers(here)
     assert box == _grid(states, view=None).frontiers(here)
-    assert [f.gain for f in box] == pytest.approx(list(_grid(states, view=None).gain_at(np.array([f.point for f in box]))))
+    assert [f.gain for f in box] == pytest.approx(
+        list(_grid(states, view=None).gain_at(np.array([f.point for f in box])))
+    )
     assert _grid(states, view=None).view_gain(np.array([here]), np.array([(2.0, 3.0, 1.5)])).tolist() == [0.0]
 
 
@@ -88,8 +93,10 @@ def test_frontiers_are_ranked_by_what_their_viewpoints_see() -> None:
     assert door and cube
     assert min(f.gain for f in door) > 3 * max(f.gain for f in cube)
     assert [f.gain for f in frontiers] == sorted((f.gain for f in frontiers), reverse=True)
-    np.testing.assert_allclose([f.gain for f in frontiers], grid.view_gain(np.array([f.viewpoint for f in frontiers]),
-                                                                          np.array([f.point for f in frontiers])))
+    np.testing.assert_allclose(
+        [f.gain for f in frontiers],
+        grid.view_gain(np.array([f.viewpoint for f in frontiers]), np.array([f.point for f in frontiers])),
+    )
 
 
 def test_a_frontier_seen_from_its_own_cell_is_looked_at_on_its_unknown_side() -> None:

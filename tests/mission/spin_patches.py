@@ -10,7 +10,9 @@ from swarm.sim.camera import DepthCamera
 from swarm.sim.worlds import load_world
 
 
-def spin_patches(config: SwarmConfig, producer: int = 1, epoch: int = 1, yaws: Iterable[int] = range(0, 360, 30)) -> list[bytes]:
+def spin_patches(
+    config: SwarmConfig, producer: int = 1, epoch: int = 1, yaws: Iterable[int] = range(0, 360, 30)
+) -> list[bytes]:
     """The wire bytes of every patch `producer` seals looking around at 1.2 m, one frame per yaw (degrees)."""
     world = load_world("box")
     camera = DepthCamera(world, config.camera)

@@ -18,7 +18,9 @@ def run_bad(tmp_path: Path, ports: SwarmPorts, *args: str) -> tuple[int, str]:
     out = tmp_path / "run"
     result = subprocess.run(
         swarm_cmd("run", "--no-live", "--out", str(out), *ports.overrides(), *args),
-        capture_output=True, text=True, timeout=120,
+        capture_output=True,
+        text=True,
+        timeout=120,
     )
     assert not processes_mentioning(str(out)), "processes left behind"
     assert "Traceback" not in result.stderr, result.stderr
@@ -42,8 +44,10 @@ def test_unreadable_mesh(tmp_path: Path, swarm_ports: SwarmPorts) -> None:
 
 def test_empty_mesh(tmp_path: Path, swarm_ports: SwarmPorts) -> None:
     empty = tmp_path / "empty.ply"
-    empty.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
-                     "element face 0\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n")
+    empty.write_text(
+        "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+        "element face 0\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n"
+    )
     code, line = run_bad(tmp_path, swarm_ports, "--world", str(empty))
     assert code != 0 and "empty.ply" in line
 
@@ -69,7 +73,11 @@ def test_start_inside_a_wall(tmp_path: Path, swarm_ports: SwarmPorts) -> None:
 
 @pytest.mark.parametrize("which", ["gcs", "bus"])
 def test_port_in_use(tmp_path: Path, swarm_ports: SwarmPorts, which: str) -> None:
-    kind, port = (socket.SOCK_DGRAM, swarm_ports.gcs_base + 1) if which == "gcs" else (socket.SOCK_STREAM, swarm_ports.bus_base + 2)
+    kind, port = (
+        (socket.SOCK_DGRAM, swarm_ports.gcs_base + 1)
+        if which == "gcs"
+        else (socket.SOCK_STREAM, swarm_ports.bus_base + 2)
+    )
     with socket.socket(socket.AF_INET, kind) as squatter:
         squatter.bind(("127.0.0.1", port))
         if kind == socket.SOCK_STREAM:

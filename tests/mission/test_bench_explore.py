@@ -24,16 +24,28 @@ from tests.helpers import swarm_cmd
 
 def _run(strategy: str, drones: int, t95: float | None, duration: float = 300.0, **extra: object) -> dict:
     return {
-        "strategy": strategy, "drones": drones, "status": "complete", "duration_s": duration,
-        "explored_fraction": 0.97, "time_to_95_s": t95, "distance_per_drone_m": 100.0 / drones,
-        "overlap_fraction": 0.5, "bytes_per_agent_s": 40_000.0, "collisions": 0, **extra,
+        "strategy": strategy,
+        "drones": drones,
+        "status": "complete",
+        "duration_s": duration,
+        "explored_fraction": 0.97,
+        "time_to_95_s": t95,
+        "distance_per_drone_m": 100.0 / drones,
+        "overlap_fraction": 0.5,
+        "bytes_per_agent_s": 40_000.0,
+        "collisions": 0,
+        **extra,
     }
 
 
 def test_cells_take_medians_and_ranges_and_ratios_use_the_one_drone_median() -> None:
     rows = [
-        _run("coordinated", 1, 100.0), _run("coordinated", 1, 180.0), _run("coordinated", 1, 140.0),
-        _run("coordinated", 3, 50.0), _run("coordinated", 3, 70.0), _run("coordinated", 3, 60.0, collisions=1),
+        _run("coordinated", 1, 100.0),
+        _run("coordinated", 1, 180.0),
+        _run("coordinated", 1, 140.0),
+        _run("coordinated", 3, 50.0),
+        _run("coordinated", 3, 70.0),
+        _run("coordinated", 3, 60.0, collisions=1),
     ]
     one, three = summarise(rows)
     assert (one["drones"], one["missions"]) == (1, 3)
@@ -45,25 +57,40 @@ def test_cells_take_medians_and_ranges_and_ratios_use_the_one_drone_median() -> 
 
 
 def test_the_closest_approach_is_the_smallest_measured_in_any_mission() -> None:
-    rows = [_run("coordinated", 3, 50.0, closest_world_m=None), _run("coordinated", 3, 60.0, closest_world_m=0.12),
-            _run("coordinated", 3, 70.0, closest_world_m=0.04), _run("coordinated", 1, 100.0, closest_world_m=None)]
+    rows = [
+        _run("coordinated", 3, 50.0, closest_world_m=None),
+        _run("coordinated", 3, 60.0, closest_world_m=0.12),
+        _run("coordinated", 3, 70.0, closest_world_m=0.04),
+        _run("coordinated", 1, 100.0, closest_world_m=None),
+    ]
     three, one = summarise(rows)
     assert three["closest_world_m"] == 0.04
     assert one["closest_world_m"] is None  # never under the simulator's NEAR_GAP_M
 
 
 def test_a_mission_that_never_reached_95_percent_counts_as_its_whole_duration_and_is_counted() -> None:
-    rows = [_run("uncoordinated", 2, 80.0), _run("uncoordinated", 2, None, duration=420.0, status="timeout"),
-            _run("uncoordinated", 2, 90.0)]
+    rows = [
+        _run("uncoordinated", 2, 80.0),
+        _run("uncoordinated", 2, None, duration=420.0, status="timeout"),
+        _run("uncoordinated", 2, 90.0),
+    ]
     (cell,) = summarise(rows)
     assert cell["reached_95"] == 2 and cell["complete"] == 2
-    assert (cell["time_to_95_s"]["median"], cell["time_to_95_s"]["min"], cell["time_to_95_s"]["max"]) == (90.0, 80.0, 420.0)
+    assert (cell["time_to_95_s"]["median"], cell["time_to_95_s"]["min"], cell["time_to_95_s"]["max"]) == (
+        90.0,
+        80.0,
+        420.0,
+    )
     assert cell["vs_1_drone"] is None  # no one-drone cell for this strategy
 
 
 def test_each_strategy_is_compared_with_its_own_single_drone_cell() -> None:
-    rows = [_run("coordinated", 1, 100.0), _run("coordinated", 3, 45.0),
-            _run("uncoordinated", 1, 200.0, same_as="coordinated"), _run("uncoordinated", 3, 60.0)]
+    rows = [
+        _run("coordinated", 1, 100.0),
+        _run("coordinated", 3, 45.0),
+        _run("uncoordinated", 1, 200.0, same_as="coordinated"),
+        _run("uncoordinated", 3, 60.0),
+    ]
     by_key = {(c["strategy"], c["drones"]): c for c in summarise(rows)}
     assert by_key["coordinated", 3]["vs_1_drone"] == 0.45
     assert by_key["uncoordinated", 3]["vs_1_drone"] == 0.3
@@ -72,17 +99,24 @@ def test_each_strategy_is_compared_with_its_own_single_drone_cell() -> None:
 
 def _report(cfg: SwarmConfig, reason: str = "") -> dict:
     return {
-        "status": "failed" if reason else "complete", "reason": reason, "duration_s": 100.0,
-        "explored_fraction": 0.97, "time_to": {"0.95": 80.0},
+        "status": "failed" if reason else "complete",
+        "reason": reason,
+        "duration_s": 100.0,
+        "explored_fraction": 0.97,
+        "time_to": {"0.95": 80.0},
         "agents": [{"distance_m": 50.0, "closest_world_m": 0.1}, {"distance_m": 40.0, "closest_world_m": None}],
-        "overlap_fraction": 0.5, "bandwidth": {"bytes_per_agent_s": 40_000.0}, "collisions": 0,
+        "overlap_fraction": 0.5,
+        "bandwidth": {"bytes_per_agent_s": 40_000.0},
+        "collisions": 0,
         "run_dir": str(cfg.mission.out),
     }
 
 
 def _no_oracle(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr("swarm.mission.bench_explore.oracle_times",
-                        lambda cfg, sizes, cache: {str(n): {"time_to_95_s": 50.0 / n, "views": 9} for n in sizes})
+    monkeypatch.setattr(
+        "swarm.mission.bench_explore.oracle_times",
+        lambda cfg, sizes, cache: {str(n): {"time_to_95_s": 50.0 / n, "views": 9} for n in sizes},
+    )
 
 
 def test_the_single_drone_missions_are_flown_once_and_an_interrupted_mission_ends_the_bench(
@@ -102,7 +136,11 @@ def test_the_single_drone_missions_are_flown_once_and_an_interrupted_mission_end
     assert code == 1
     runs = json.loads((tmp_path / "bench-explore.json").read_text())["runs"]
     assert [(r["strategy"], r["drones"], r["repeat"]) for r in runs] == [
-        ("coordinated", 1, 1), ("coordinated", 1, 2), ("coordinated", 3, 1), ("coordinated", 3, 2)]
+        ("coordinated", 1, 1),
+        ("coordinated", 1, 2),
+        ("coordinated", 3, 1),
+        ("coordinated", 3, 2),
+    ]
 
 
 def test_every_mission_is_flown_in_order_and_one_drone_only_for_the_first_strategy(
@@ -122,18 +160,27 @@ def test_every_mission_is_flown_in_order_and_one_drone_only_for_the_first_strate
     runs = json.loads((tmp_path / "bench-explore.json").read_text())["runs"]
     copies = [r for r in runs if r.get("same_as")]
     assert [(r["strategy"], r["drones"], r["repeat"], r["same_as"]) for r in copies] == [
-        ("uncoordinated", 1, 1, "coordinated"), ("uncoordinated", 1, 2, "coordinated")]
+        ("uncoordinated", 1, 1, "coordinated"),
+        ("uncoordinated", 1, 2, "coordinated"),
+    ]
 
 
 def test_a_seed_range_expands_to_each_seed_and_keeps_its_options() -> None:
     assert expand_worlds("gen:1..3") == ["gen:1", "gen:2", "gen:3"]
     assert expand_worlds("office, gen:7..8:size=30x20,hall.ply,gen:4") == [
-        "office", "gen:7:size=30x20", "gen:8:size=30x20", "hall.ply", "gen:4"]
+        "office",
+        "gen:7:size=30x20",
+        "gen:8:size=30x20",
+        "hall.ply",
+        "gen:4",
+    ]
     assert expand_worlds("gen:5..5") == ["gen:5"]
 
 
-@pytest.mark.parametrize("bad, says", [("gen:5..2", "backwards"), ("gen:x..y", "whole numbers"),
-                                       ("gen:1..", "whole numbers"), ("office,,box", "empty")])
+@pytest.mark.parametrize(
+    "bad, says",
+    [("gen:5..2", "backwards"), ("gen:x..y", "whole numbers"), ("gen:1..", "whole numbers"), ("office,,box", "empty")],
+)
 def test_a_malformed_world_list_is_one_clear_error(bad: str, says: str) -> None:
     with pytest.raises(WorldError, match=says) as info:
         expand_worlds(bad)
@@ -151,15 +198,20 @@ def test_an_unknown_world_stops_the_bench_before_any_mission(tmp_path: Path, mon
 
 def test_over_several_worlds_ratios_are_per_world_then_the_median_and_early_completions_are_named() -> None:
     rows = [
-        _run("coordinated", 1, 100.0, world="a"), _run("coordinated", 3, 40.0, world="a"),
-        _run("coordinated", 1, 200.0, world="b"), _run("coordinated", 3, 100.0, world="b"),
-        _run("coordinated", 1, 50.0, world="c"), _run("coordinated", 3, 30.0, world="c", collisions=1),
+        _run("coordinated", 1, 100.0, world="a"),
+        _run("coordinated", 3, 40.0, world="a"),
+        _run("coordinated", 1, 200.0, world="b"),
+        _run("coordinated", 3, 100.0, world="b"),
+        _run("coordinated", 1, 50.0, world="c"),
+        _run("coordinated", 3, 30.0, world="c", collisions=1),
         _run("coordinated", 1, None, world="d", explored_fraction=0.3, duration=15.0, repeat=2),
     ]
-    oracle = {"a": {"1": {"time_to_95_s": 50.0}, "3": {"time_to_95_s": 20.0}},
-              "b": {"1": {"time_to_95_s": 100.0}, "3": {"time_to_95_s": 40.0}},
-              "c": {"1": {"time_to_95_s": 50.0}, "3": {"time_to_95_s": None}},
-              "d": {"1": {"time_to_95_s": 30.0}}}
+    oracle = {
+        "a": {"1": {"time_to_95_s": 50.0}, "3": {"time_to_95_s": 20.0}},
+        "b": {"1": {"time_to_95_s": 100.0}, "3": {"time_to_95_s": 40.0}},
+        "c": {"1": {"time_to_95_s": 50.0}, "3": {"time_to_95_s": None}},
+        "d": {"1": {"time_to_95_s": 30.0}},
+    }
     one, three = summarise(rows, oracle)
     assert (one["worlds"], one["missions"], one["success"]) == (4, 4, 3)
     assert one["success_rate"] == 0.75
@@ -189,15 +241,21 @@ def test_the_oracle_is_computed_once_per_world_and_size_and_then_read_from_the_c
         oracle_times(slower, [1], tmp_path)  # another setting the oracle depends on: not the cached plan
 
 
-@pytest.mark.parametrize("worlds, says", [("gen:5..2", "backwards"), ("gen:x..y", "gen:A..B"),
-                                          ("box,atlantis", "atlantis")])
+@pytest.mark.parametrize(
+    "worlds, says", [("gen:5..2", "backwards"), ("gen:x..y", "gen:A..B"), ("box,atlantis", "atlantis")]
+)
 @pytest.mark.sim
 def test_bad_worlds_on_the_command_line_are_one_line_and_a_non_zero_exit_before_any_mission(
     tmp_path: Path, worlds: str, says: str
 ) -> None:
     out = tmp_path / "bench"
-    result = subprocess.run(swarm_cmd("bench", "explore", "--worlds", worlds, "--drones", "1", "--out", str(out)),
-                            capture_output=True, text=True, timeout=120, check=False)
+    result = subprocess.run(
+        swarm_cmd("bench", "explore", "--worlds", worlds, "--drones", "1", "--out", str(out)),
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
     lines = result.stderr.strip().splitlines()
     assert result.returncode != 0 and len(lines) == 1 and says in lines[0], result.stderr
     assert not (out / "bench-explore.json").exists()
@@ -213,8 +271,11 @@ def test_resume_keeps_the_missions_flown_to_their_end_and_flies_the_rest(
 
     def fake_run(cfg: SwarmConfig, live: bool | None = None) -> dict:  # writes report.json as a mission does
         flown.append((cfg.explore.strategy, cfg.mission.drones, cfg.mission.world))
-        report = {**_report(cfg, INTERRUPTED if len(flown) == stop_at[0] else ""), "drones": cfg.mission.drones,
-                  "mission": {"world": cfg.mission.world, "strategy": cfg.explore.strategy, "seed": cfg.mission.seed}}
+        report = {
+            **_report(cfg, INTERRUPTED if len(flown) == stop_at[0] else ""),
+            "drones": cfg.mission.drones,
+            "mission": {"world": cfg.mission.world, "strategy": cfg.explore.strategy, "seed": cfg.mission.seed},
+        }
         assert cfg.mission.out is not None
         cfg.mission.out.mkdir(parents=True, exist_ok=True)
         (cfg.mission.out / "report.json").write_text(json.dumps(report))
@@ -230,5 +291,9 @@ def test_resume_keeps_the_missions_flown_to_their_end_and_flies_the_rest(
     # the interrupted mission is flown again, the two finished ones are not
     assert flown[3:] == [("coordinated", 1, "warehouse"), ("coordinated", 3, "warehouse")]
     runs = json.loads((tmp_path / "bench-explore.json").read_text())["runs"]
-    assert [(r["world"], r["drones"]) for r in runs] == [("office", 1), ("office", 3), ("warehouse", 1),
-                                                         ("warehouse", 3)]
+    assert [(r["world"], r["drones"]) for r in runs] == [
+        ("office", 1),
+        ("office", 3),
+        ("warehouse", 1),
+        ("warehouse", 3),
+    ]

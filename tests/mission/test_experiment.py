@@ -26,16 +26,29 @@ def config(drones: int = 3, **mission: Any) -> SwarmConfig:
 
 
 def report(
-    status: str = "complete", duration: float = 100.0, explored: float = 0.97, t95: float | None = 80.0,
-    converged: bool = True, bps: float = 4000.0, leader_changes: int = 1, heals: list[float | None] | None = None,
+    status: str = "complete",
+    duration: float = 100.0,
+    explored: float = 0.97,
+    t95: float | None = 80.0,
+    converged: bool = True,
+    bps: float = 4000.0,
+    leader_changes: int = 1,
+    heals: list[float | None] | None = None,
 ) -> dict[str, Any]:
     return {
-        "status": status, "reason": "" if status == "complete" else f"it went {status}", "duration_s": duration,
-        "explored_fraction": explored, "converged": converged, "time_to": {"0.5": 10.0, "0.95": t95},
-        "bandwidth": {"bytes_per_agent_s": bps}, "collisions": 0,
-        "agents": [{"id": k, "bytes_received": 1000 * k} for k in (1, 2, 3)], "leader_changes": leader_changes,
+        "status": status,
+        "reason": "" if status == "complete" else f"it went {status}",
+        "duration_s": duration,
+        "explored_fraction": explored,
+        "converged": converged,
+        "time_to": {"0.5": 10.0, "0.95": t95},
+        "bandwidth": {"bytes_per_agent_s": bps},
+        "collisions": 0,
+        "agents": [{"id": k, "bytes_received": 1000 * k} for k in (1, 2, 3)],
+        "leader_changes": leader_changes,
         "convergence_after_heal_s": [{"heal_t": 50.0, "members": [1, 2, 3], "s": s} for s in heals or []],
-        "impairments": [{"t": 0.0}], "partitions": [],
+        "impairments": [{"t": 0.0}],
+        "partitions": [],
     }
 
 
@@ -104,16 +117,24 @@ def rows_for(reports: dict[str, dict[str, Any] | None], cut: bool = True) -> lis
 
 
 def test_rows_compare_each_condition_with_the_unimpaired_run() -> None:
-    rows = rows_for({
-        "loss-0": report(duration=100.0, explored=0.97, t95=80.0, bps=4000.0, leader_changes=1),
-        "loss-10": report(duration=135.0, explored=0.955, t95=None, bps=3000.0, leader_changes=4),
-        "loss-50": report(status="timeout", duration=420.0, explored=0.4, t95=None, converged=False, leader_changes=9),
-        "cut-heal": report(duration=120.0, t95=88.0, heals=[3.5, 7.25], leader_changes=3),
-    })
+    rows = rows_for(
+        {
+            "loss-0": report(duration=100.0, explored=0.97, t95=80.0, bps=4000.0, leader_changes=1),
+            "loss-10": report(duration=135.0, explored=0.955, t95=None, bps=3000.0, leader_changes=4),
+            "loss-50": report(
+                status="timeout", duration=420.0, explored=0.4, t95=None, converged=False, leader_changes=9
+            ),
+            "cut-heal": report(duration=120.0, t95=88.0, heals=[3.5, 7.25], leader_changes=3),
+        }
+    )
     base, l10, l50, cut = rows
     assert base["vs_baseline"] is None and base["baseline"]
     assert l10["vs_baseline"] == {
-        "duration": 1.35, "time_to_95": None, "bytes_per_agent_s": 0.75, "explored_points": -1.5, "leader_changes": 3,
+        "duration": 1.35,
+        "time_to_95": None,
+        "bytes_per_agent_s": 0.75,
+        "explored_points": -1.5,
+        "leader_changes": 3,
     }
     assert l10["bytes_received"] == 6000 and l10["impairments_applied"] == 1 and l10["scenario"] == "loss-10.toml"
     assert cut["convergence_after_heal_s"] == 7.25 and cut["heals"] == 2 and cut["heals_unconverged"] == 0
@@ -122,7 +143,15 @@ def test_rows_compare_each_condition_with_the_unimpaired_run() -> None:
 
     assert ex.cells(base) == ["0 % loss (baseline)", "complete", "100.0", "97.0 %", "80.0", "yes", "-", "4.0", "1"]
     assert ex.cells(l10) == [
-        "10 % loss", "complete", "135.0 (×1.35)", "95.5 % (-1.5 pt)", "never", "yes", "-", "3.0 (×0.75)", "4 (+3)",
+        "10 % loss",
+        "complete",
+        "135.0 (×1.35)",
+        "95.5 % (-1.5 pt)",
+        "never",
+        "yes",
+        "-",
+        "3.0 (×0.75)",
+        "4 (+3)",
     ]
     assert ex.cells(l50)[1:3] == ["timeout", "420.0 (×4.20)"] and ex.cells(l50)[5] == "NO"
     assert ex.cells(cut)[4] == "88.0 (×1.10)" and ex.cells(cut)[6] == "7.2"  # the slowest heal
@@ -164,10 +193,14 @@ def test_the_table_has_one_row_per_condition() -> None:
 
 
 def test_the_figure_is_a_png_even_with_missing_points(tmp_path: Path) -> None:
-    rows = rows_for({
-        "loss-0": report(), "loss-10": report(status="timeout", t95=None), "loss-50": None,
-        "cut-heal": report(heals=[4.0]),
-    })
+    rows = rows_for(
+        {
+            "loss-0": report(),
+            "loss-10": report(status="timeout", t95=None),
+            "loss-50": None,
+            "cut-heal": report(heals=[4.0]),
+        }
+    )
     path = plot_dropout(rows, tmp_path / "dropout.png", "test")
     data = path.read_bytes()
     assert data[:8] == PNG_MAGIC and len(data) > 20_000

@@ -21,17 +21,31 @@ pytestmark = [pytest.mark.timeout(300), pytest.mark.mission]
 
 
 def _config(out: Path, ports: SwarmPorts, **overrides: Any):
-    return load_config(overrides={
-        "mission.world": "box", "mission.out": str(out), "sim.vehicle_base_port": ports.vehicle_base,
-        "sim.gcs_base_port": ports.gcs_base, "bus.base_port": ports.bus_base, **overrides,
-    })
+    return load_config(
+        overrides={
+            "mission.world": "box",
+            "mission.out": str(out),
+            "sim.vehicle_base_port": ports.vehicle_base,
+            "sim.gcs_base_port": ports.gcs_base,
+            "bus.base_port": ports.bus_base,
+            **overrides,
+        }
+    )
 
 
-def test_killing_the_leader_hands_over_within_3_s_and_the_others_finish(tmp_path: Path, swarm_ports: SwarmPorts) -> None:
+def test_killing_the_leader_hands_over_within_3_s_and_the_others_finish(
+    tmp_path: Path, swarm_ports: SwarmPorts
+) -> None:
     out = tmp_path / "run"
-    config = _config(out, swarm_ports, **{
-        "mission.drones": 3, "mission.max_time_s": 240.0, "mission.faults": ["kill:agent=1@6"],
-    })
+    config = _config(
+        out,
+        swarm_ports,
+        **{
+            "mission.drones": 3,
+            "mission.max_time_s": 240.0,
+            "mission.faults": ["kill:agent=1@6"],
+        },
+    )
     report = run_mission(config, live=False)
     assert report["status"] == "complete", report["reason"]
     [kill] = report["faults"][0]["actions"]
@@ -40,9 +54,13 @@ def test_killing_the_leader_hands_over_within_3_s_and_the_others_finish(tmp_path
     explored_at_kill = [f for t, f in report["explored_timeline"] if t <= kill["t"]]
     assert explored_at_kill and explored_at_kill[-1] < 0.9, "the leader was not killed mid-mission"
     for k in (2, 3):
-        took_over = [e for e in log_events(out / "logs" / f"agent-{k}.log") if e["event"] == "leader" and e["t"] > killed["t"]]
+        took_over = [
+            e for e in log_events(out / "logs" / f"agent-{k}.log") if e["event"] == "leader" and e["t"] > killed["t"]
+        ]
         assert took_over and took_over[0]["leader"] == 2, took_over
-        assert took_over[0]["t"] - killed["t"] < 3.0, f"agent {k} followed 2 after {took_over[0]['t'] - killed['t']:.2f} s"
+        assert took_over[0]["t"] - killed["t"] < 3.0, (
+            f"agent {k} followed 2 after {took_over[0]['t'] - killed['t']:.2f} s"
+        )
     survivors = {a["id"]: a for a in report["agents"] if a["id"] != 1}
     for k, agent in survivors.items():
         summary = json.loads((out / "agents" / f"agent-{k}.json").read_text())
@@ -63,9 +81,18 @@ def test_killing_the_leader_hands_over_within_3_s_and_the_others_finish(tmp_path
 @pytest.mark.parametrize("strategy", ["uncoordinated", "frontier-only"])
 def test_other_strategies_explore_the_box(tmp_path: Path, swarm_ports: SwarmPorts, strategy: str) -> None:
     out = tmp_path / "run"
-    report = run_mission(_config(out, swarm_ports, **{
-        "mission.drones": 2, "mission.max_time_s": 200.0, "explore.strategy": strategy,
-    }), live=False)
+    report = run_mission(
+        _config(
+            out,
+            swarm_ports,
+            **{
+                "mission.drones": 2,
+                "mission.max_time_s": 200.0,
+                "explore.strategy": strategy,
+            },
+        ),
+        live=False,
+    )
     assert report["status"] == "complete", report["reason"]
     assert report["mission"]["strategy"] == strategy
     assert report["collisions"] == 0

@@ -19,27 +19,33 @@ AIRBORNE = {"vehicles": [{"id": 1, "landed_state": "in_air"}]}
 ON_GROUND = {"vehicles": [{"id": 1, "landed_state": "on_ground"}]}
 
 
-@pytest.mark.parametrize(("text", "expected"), [
-    ("kill:agent=1@60", FaultSpec(kind="kill", agent=1, at=60.0)),
-    ("restart:agent=2@80", FaultSpec(kind="restart", agent=2, at=80.0)),
-    ("restart:agent=2@80+5", FaultSpec(kind="restart", agent=2, at=80.0, duration=5.0)),
-    ("freeze:agent=3@40+10", FaultSpec(kind="freeze", agent=3, at=40.0, duration=10.0)),
-    ("telemetry-loss:agent=2@50.5+5", FaultSpec(kind="telemetry-loss", agent=2, at=50.5, duration=5.0)),
-])
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("kill:agent=1@60", FaultSpec(kind="kill", agent=1, at=60.0)),
+        ("restart:agent=2@80", FaultSpec(kind="restart", agent=2, at=80.0)),
+        ("restart:agent=2@80+5", FaultSpec(kind="restart", agent=2, at=80.0, duration=5.0)),
+        ("freeze:agent=3@40+10", FaultSpec(kind="freeze", agent=3, at=40.0, duration=10.0)),
+        ("telemetry-loss:agent=2@50.5+5", FaultSpec(kind="telemetry-loss", agent=2, at=50.5, duration=5.0)),
+    ],
+)
 def test_fault_specs_parse_and_print_back(text: str, expected: FaultSpec) -> None:
     spec = FaultSpec.model_validate(text)
     assert spec == expected
     assert FaultSpec.model_validate(str(spec)) == spec
 
 
-@pytest.mark.parametrize(("text", "message"), [
-    ("kill:agent=1@60+3", "has no duration"),
-    ("freeze:agent=1@3", "needs a duration"),
-    ("telemetry-loss:agent=1@3", "needs a duration"),
-    ("explode:agent=1@3", "kind"),
-    ("kill agent 1 at 3", "is not KIND:agent=K@T"),
-    ("kill:agent=4@3", "names agent 4 but the mission has 3 drones"),
-])
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("kill:agent=1@60+3", "has no duration"),
+        ("freeze:agent=1@3", "needs a duration"),
+        ("telemetry-loss:agent=1@3", "needs a duration"),
+        ("explode:agent=1@3", "kind"),
+        ("kill agent 1 at 3", "is not KIND:agent=K@T"),
+        ("kill:agent=4@3", "names agent 4 but the mission has 3 drones"),
+    ],
+)
 def test_bad_fault_specs_are_one_clear_config_error(text: str, message: str) -> None:
     with pytest.raises(ConfigError, match=message):
         load_config(overrides={"mission.drones": 3, "mission.faults": [text]})
@@ -67,8 +73,6 @@ def _wait_for_status(child: Child, wanted: str) -> str:
 
 
 @pytest.mark.sim
-
-
 def test_faults_wait_for_take_off_then_kill_freeze_and_restart_real_processes(tmp_path: Path) -> None:
     agents = {k: _sleeper(tmp_path, f"agent-{k}") for k in (1, 2, 3)}
     started: list[tuple[int, int]] = []
@@ -98,7 +102,9 @@ def test_faults_wait_for_take_off_then_kill_freeze_and_restart_real_processes(tm
         assert _wait_for_status(agents[3], psutil.STATUS_SLEEPING) == psutil.STATUS_SLEEPING
         report = faults.report()
         assert [[a["result"].split(" as ")[0] for a in f["actions"]] for f in report] == [
-            ["killed (exit -9)"], ["killed (exit -9)", "started again"], ["stopped (SIGSTOP)", "continued (SIGCONT)"],
+            ["killed (exit -9)"],
+            ["killed (exit -9)", "started again"],
+            ["stopped (SIGSTOP)", "continued (SIGCONT)"],
         ]
         assert all(f["takeoff_t"] == 10.0 for f in report)
     finally:
@@ -107,8 +113,6 @@ def test_faults_wait_for_take_off_then_kill_freeze_and_restart_real_processes(tm
 
 
 @pytest.mark.sim
-
-
 def test_telemetry_loss_writes_the_control_file_and_finish_restores_everything(tmp_path: Path) -> None:
     agents = {1: _sleeper(tmp_path, "agent-1"), 2: _sleeper(tmp_path, "agent-2")}
     control = tmp_path / "control.json"

@@ -18,11 +18,19 @@ pytestmark = [pytest.mark.timeout(300), pytest.mark.mission]
 
 
 def _config(out: Path, ports: SwarmPorts, faults: list[str], **overrides: Any):
-    return load_config(overrides={
-        "mission.world": "box", "mission.out": str(out), "mission.drones": 3, "mission.max_time_s": 240.0,
-        "mission.faults": faults, "sim.vehicle_base_port": ports.vehicle_base, "sim.gcs_base_port": ports.gcs_base,
-        "bus.base_port": ports.bus_base, **overrides,
-    })
+    return load_config(
+        overrides={
+            "mission.world": "box",
+            "mission.out": str(out),
+            "mission.drones": 3,
+            "mission.max_time_s": 240.0,
+            "mission.faults": faults,
+            "sim.vehicle_base_port": ports.vehicle_base,
+            "sim.gcs_base_port": ports.gcs_base,
+            "bus.base_port": ports.bus_base,
+            **overrides,
+        }
+    )
 
 
 def _actions(report: dict[str, Any], fault: str) -> list[dict[str, Any]]:

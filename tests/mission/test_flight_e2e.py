@@ -13,7 +13,7 @@ from typing import Any
 
 import pytest
 
-from tests.helpers import SwarmPorts, log_events, kill_all, processes_mentioning, swarm_cmd
+from tests.helpers import SwarmPorts, kill_all, log_events, processes_mentioning, swarm_cmd
 
 pytestmark = [pytest.mark.timeout(240), pytest.mark.mission]
 
@@ -114,33 +114,65 @@ def test_killed_agent_is_seen_leaving_within_3_s_and_sigterm_lands(tmp_path: Pat
     each maps from its simulated camera's stream (the agents are given the mission volume, never the world)."""
     p = swarm_ports
     sensors = f"tcp/127.0.0.1:{p.bus_base + 10}"
-    ports = ["--set", f"sim.vehicle_base_port={p.vehicle_base}", "--set", f"sim.gcs_base_port={p.gcs_base}",
-             "--set", f'camera.stream.connect=["{sensors}"]']
+    ports = [
+        "--set",
+        f"sim.vehicle_base_port={p.vehicle_base}",
+        "--set",
+        f"sim.gcs_base_port={p.gcs_base}",
+        "--set",
+        f'camera.stream.connect=["{sensors}"]',
+    ]
     procs: list[subprocess.Popen] = []
     logs = {name: tmp_path / f"{name}.log" for name in ("sim", "cameras", "agent-1", "agent-2")}
     try:
-        procs.append(subprocess.Popen(
-            swarm_cmd("sim", "--world", "box", "--vehicles", "2", *ports),
-            stdout=logs["sim"].open("w"), stderr=subprocess.STDOUT,
-        ))
+        procs.append(
+            subprocess.Popen(
+                swarm_cmd("sim", "--world", "box", "--vehicles", "2", *ports),
+                stdout=logs["sim"].open("w"),
+                stderr=subprocess.STDOUT,
+            )
+        )
         volume = _wait_for_line(logs["sim"], "(agent: swarm agent --id 1 ", 30).split("--set '")[1].rstrip("')")
         assert volume.startswith("mission.volume={min=[0, 0, "), volume
-        procs.append(subprocess.Popen(
-            swarm_cmd("cameras", "--world", "box", "--vehicles", "2", *ports),
-            stdout=logs["cameras"].open("w"), stderr=subprocess.STDOUT,
-        ))
+        procs.append(
+            subprocess.Popen(
+                swarm_cmd("cameras", "--world", "box", "--vehicles", "2", *ports),
+                stdout=logs["cameras"].open("w"),
+                stderr=subprocess.STDOUT,
+            )
+        )
         for k in (1, 2):
             bus = [
-                "--set", f'bus.listen=["tcp/127.0.0.1:{p.bus_base + k}"]',
-                "--set", f'bus.connect=["tcp/127.0.0.1:{p.bus_base + 1}"]' if k == 2 else "bus.connect=[]",
+                "--set",
+                f'bus.listen=["tcp/127.0.0.1:{p.bus_base + k}"]',
+                "--set",
+                f'bus.connect=["tcp/127.0.0.1:{p.bus_base + 1}"]' if k == 2 else "bus.connect=[]",
             ]
-            procs.append(subprocess.Popen(
-                swarm_cmd("agent", "--id", str(k), "--autopilot", f"udpin://127.0.0.1:{p.gcs_base + k - 1}",
-                          "--set", "agent.hover_s=120", "--set", "explore.strategy=scripted", "--set", volume,
-                          "--set", "mission.world=/nonexistent/world.ply", "--set", f"agent.out_dir={tmp_path}",
-                          *ports, *bus),
-                stdout=logs[f"agent-{k}"].open("w"), stderr=subprocess.STDOUT,
-            ))
+            procs.append(
+                subprocess.Popen(
+                    swarm_cmd(
+                        "agent",
+                        "--id",
+                        str(k),
+                        "--autopilot",
+                        f"udpin://127.0.0.1:{p.gcs_base + k - 1}",
+                        "--set",
+                        "agent.hover_s=120",
+                        "--set",
+                        "explore.strategy=scripted",
+                        "--set",
+                        volume,
+                        "--set",
+                        "mission.world=/nonexistent/world.ply",
+                        "--set",
+                        f"agent.out_dir={tmp_path}",
+                        *ports,
+                        *bus,
+                    ),
+                    stdout=logs[f"agent-{k}"].open("w"),
+                    stderr=subprocess.STDOUT,
+                )
+            )
         sim, cameras, agent1, agent2 = procs
         _wait_for(logs["agent-1"], lambda e: e["event"] == "peer_joined" and e["peer"] == 2, 60)
         _wait_for(logs["agent-2"], lambda e: e["event"] == "peer_joined" and e["peer"] == 1, 60)
@@ -158,7 +190,9 @@ def test_killed_agent_is_seen_leaving_within_3_s_and_sigterm_lands(tmp_path: Pat
         except subprocess.TimeoutExpired:
             agent1.send_signal(signal.SIGUSR1)  # the agent dumps every thread's stack into its log
             time.sleep(1.0)
-            raise AssertionError(f"agent 1 did not exit after SIGTERM:\n{logs['agent-1'].read_text()[-6000:]}")
+            raise AssertionError(
+                f"agent 1 did not exit after SIGTERM:\n{logs['agent-1'].read_text()[-6000:]}"
+            ) from None
         assert code == 0
         events = log_events(logs["agent-1"])
         phases = [e["phase"] for e in events if e["event"] == "phase"]

@@ -37,9 +37,13 @@ def _random_message(rng: random.Random) -> bytes:
     if choice < 0.4:
         return rng.choice([b"\xdd\xff\xff\xff\xff", b"\xc6\x7f\xff\xff\xff", b"\x92\x01"])  # lying headers
     data: Any = {
-        "sender": rng.choice([1, 2, FAKE_ID]), "id": rng.choice([1, 2, FAKE_ID, -1, "x"]),
-        "leader": rng.choice([1, FAKE_ID]), "epoch": rng.randrange(0, 10**13), "seq": rng.randrange(-5, 100),
-        "data": rng.randbytes(rng.randrange(0, 2000)), "points": [[rng.random()] * 3] * rng.randrange(0, 5),
+        "sender": rng.choice([1, 2, FAKE_ID]),
+        "id": rng.choice([1, 2, FAKE_ID, -1, "x"]),
+        "leader": rng.choice([1, FAKE_ID]),
+        "epoch": rng.randrange(0, 10**13),
+        "seq": rng.randrange(-5, 100),
+        "data": rng.randbytes(rng.randrange(0, 2000)),
+        "points": [[rng.random()] * 3] * rng.randrange(0, 5),
     }
     for key in rng.sample(sorted(data), rng.randrange(0, len(data))):
         del data[key]
@@ -58,8 +62,11 @@ class Flood:
 
     def _targets(self) -> list[str]:
         k = self.keys
-        return [key for agent in (1, 2, FAKE_ID)
-                for key in (k.state(agent), k.patch(agent), k.frontiers(agent), k.targets(agent))]
+        return [
+            key
+            for agent in (1, 2, FAKE_ID)
+            for key in (k.state(agent), k.patch(agent), k.frontiers(agent), k.targets(agent))
+        ]
 
     def tick(self, state: RunState) -> None:
         if self.sent >= MESSAGES or not any_vehicle_airborne(read_json(self.run_dir / "sim.json")):
@@ -85,10 +92,15 @@ def test_agents_fed_10000_hostile_messages_keep_flying_and_their_maps_hold_only_
     tmp_path: Path, swarm_ports: SwarmPorts
 ) -> None:
     out = tmp_path / "run"
-    config = load_config(overrides={
-        "mission.world": "box", "mission.out": str(out), "mission.drones": 2, "mission.max_time_s": 200.0,
-        **swarm_ports.settings(),
-    })
+    config = load_config(
+        overrides={
+            "mission.world": "box",
+            "mission.out": str(out),
+            "mission.drones": 2,
+            "mission.max_time_s": 200.0,
+            **swarm_ports.settings(),
+        }
+    )
     flood = Flood(config.mission.name, [f"tcp/127.0.0.1:{bus_port(config.bus, k)}" for k in (1, 2)], out)
     try:
         report = run_mission(config, live=False, on_tick=flood.tick)

@@ -24,11 +24,13 @@ pytestmark = [pytest.mark.timeout(300), pytest.mark.mission]
 
 LOAD_S = 3.0
 LOAD_AFTER_TAKEOFF_S = 6.0  # every drone has been in the air this long when the load starts
-BUSY_LOOP = ("import sys, time\n"
-             "end = time.monotonic() + float(sys.argv[1])\n"
-             "while time.monotonic() < end:\n"
-             "    pass\n"
-             "print(time.process_time())\n")
+BUSY_LOOP = (
+    "import sys, time\n"
+    "end = time.monotonic() + float(sys.argv[1])\n"
+    "while time.monotonic() < end:\n"
+    "    pass\n"
+    "print(time.process_time())\n"
+)
 
 
 def _cpu_jiffies() -> tuple[int, int]:
@@ -60,8 +62,10 @@ class Load:
         elif not self.procs and now - self.all_airborne_at >= LOAD_AFTER_TAKEOFF_S:
             self.jiffies.append(_cpu_jiffies())
             self.started_wall = time.time()
-            self.procs = [subprocess.Popen([sys.executable, "-c", BUSY_LOOP, str(LOAD_S)], stdout=subprocess.PIPE,
-                                           text=True) for _ in range(self.per_core * (os.cpu_count() or 1))]
+            self.procs = [
+                subprocess.Popen([sys.executable, "-c", BUSY_LOOP, str(LOAD_S)], stdout=subprocess.PIPE, text=True)
+                for _ in range(self.per_core * (os.cpu_count() or 1))
+            ]
         elif self.procs and self.ended_wall is None and all(p.poll() is not None for p in self.procs):
             self.ended_wall = time.time()
             self.jiffies.append(_cpu_jiffies())
@@ -76,11 +80,18 @@ class Load:
 def mission_under_load(
     out: Path, ports: SwarmPorts, per_core: int = 2, **overrides: Any
 ) -> tuple[dict[str, Any], Load]:
-    config = load_config(overrides={
-        "mission.world": "box", "mission.out": str(out), "mission.drones": 3, "mission.max_time_s": 240.0,
-        "sim.vehicle_base_port": ports.vehicle_base, "sim.gcs_base_port": ports.gcs_base,
-        "bus.base_port": ports.bus_base, **overrides,
-    })
+    config = load_config(
+        overrides={
+            "mission.world": "box",
+            "mission.out": str(out),
+            "mission.drones": 3,
+            "mission.max_time_s": 240.0,
+            "sim.vehicle_base_port": ports.vehicle_base,
+            "sim.gcs_base_port": ports.gcs_base,
+            "bus.base_port": ports.bus_base,
+            **overrides,
+        }
+    )
     load = Load(out / "sim.json", per_core)
     try:
         report = run_mission(config, live=False, on_tick=load)
@@ -96,8 +107,10 @@ def test_a_3_s_load_of_both_cores_in_mid_flight_neither_stalls_the_swarm_nor_lan
     report, load = mission_under_load(out, swarm_ports)
 
     assert load.started_wall is not None and load.ended_wall is not None, "the load never ran"
-    print(f"load {load.ended_wall - load.started_wall:.2f} s, cores busy {load.busy_fraction:.1%}, load CPU "
-          f"{sum(load.cpu_s):.2f} s, sim stalls {report['sim_stalls']}, priority {report['priority']}")
+    print(
+        f"load {load.ended_wall - load.started_wall:.2f} s, cores busy {load.busy_fraction:.1%}, load CPU "
+        f"{sum(load.cpu_s):.2f} s, sim stalls {report['sim_stalls']}, priority {report['priority']}"
+    )
     assert load.ended_wall - load.started_wall >= LOAD_S
     # the window opens before the loops start and closes when a supervision tick (every 0.25 s) sees them gone
     assert load.busy_fraction > 0.9, f"the cores were not fully loaded: {load.busy_fraction:.1%} busy"

@@ -51,12 +51,20 @@ def nothing_left_behind() -> Iterator[list[str]]:
 
 
 def _config(out: Path, ports: SwarmPorts, scenario: Path, **overrides: Any):
-    return load_config(overrides={
-        "mission.world": "box", "mission.out": str(out), "mission.drones": 3, "mission.max_time_s": 150.0,
-        "mission.network": "netns", "mission.links": str(scenario),
-        "sim.vehicle_base_port": ports.vehicle_base, "sim.gcs_base_port": ports.gcs_base,
-        "bus.base_port": ports.bus_base, **overrides,
-    })
+    return load_config(
+        overrides={
+            "mission.world": "box",
+            "mission.out": str(out),
+            "mission.drones": 3,
+            "mission.max_time_s": 150.0,
+            "mission.network": "netns",
+            "mission.links": str(scenario),
+            "sim.vehicle_base_port": ports.vehicle_base,
+            "sim.gcs_base_port": ports.gcs_base,
+            "bus.base_port": ports.bus_base,
+            **overrides,
+        }
+    )
 
 
 def _record_namespaces(seen: list[str]):
@@ -64,6 +72,7 @@ def _record_namespaces(seen: list[str]):
         if not seen and state.net is not None:
             seen.extend(state.net.layout.all_namespaces())
             assert set(seen) <= set(namespaces())
+
     return on_tick
 
 
@@ -72,8 +81,9 @@ def test_a_mission_with_30_percent_loss_on_every_link_completes_and_converges(
 ) -> None:
     scenario = tmp_path / "loss30.toml"
     scenario.write_text('name = "loss-30"\n[[event]]\nat = 0\nlink = "all"\nloss = 0.3\n')
-    report = run_mission(_config(tmp_path / "run", swarm_ports, scenario), live=False,
-                         on_tick=_record_namespaces(nothing_left_behind))
+    report = run_mission(
+        _config(tmp_path / "run", swarm_ports, scenario), live=False, on_tick=_record_namespaces(nothing_left_behind)
+    )
 
     assert report["status"] == "complete", report["reason"]
     assert report["network"] == "netns"
@@ -96,8 +106,9 @@ def test_a_cut_splits_the_swarm_into_two_clusters_and_the_heal_merges_them_and_t
         f'[[event]]\nat = {cut_at}\nlink = "3"\ncut = true\n'
         f'[[event]]\nat = {heal_at}\nlink = "3"\nrestore = true\n'
     )
-    report = run_mission(_config(tmp_path / "run", swarm_ports, scenario), live=False,
-                         on_tick=_record_namespaces(nothing_left_behind))
+    report = run_mission(
+        _config(tmp_path / "run", swarm_ports, scenario), live=False, on_tick=_record_namespaces(nothing_left_behind)
+    )
 
     assert report["status"] == "complete", report["reason"]
     takeoff = report["scenario"]["takeoff_t"]
@@ -123,8 +134,12 @@ def test_a_cut_splits_the_swarm_into_two_clusters_and_the_heal_merges_them_and_t
     assert heal["s"] is not None and heal["s"] < 10.0, heal
     assert report["converged"]
     # Zenoh logs a routing error when it re-establishes a healed link inconsistently (see RADIO_PROTOCOLS).
-    zenoh_errors = [line for k in (1, 2, 3) for line in (tmp_path / "run" / "logs" / f"agent-{k}.log")
-                    .read_text(errors="replace").splitlines() if " ERROR " in _plain(line)]
+    zenoh_errors = [
+        line
+        for k in (1, 2, 3)
+        for line in (tmp_path / "run" / "logs" / f"agent-{k}.log").read_text(errors="replace").splitlines()
+        if " ERROR " in _plain(line)
+    ]
     assert not zenoh_errors, zenoh_errors[:3]
 
 

@@ -32,8 +32,13 @@ def test_the_chosen_views_rendered_and_fused_cover_95_percent_of_the_reachable_s
     camera = DepthCamera(world, config.camera)
     mapper = Mapper(config.mapping, producer=1, epoch=1, bounds=mission_volume(world, None))
     for t, view in enumerate(plan.views):
-        mapper.integrate(camera.render(camera.pose(view.position, view.yaw_deg)), camera.intrinsics,
-                         camera.pose(view.position, view.yaw_deg), float(t), config.camera.max_range_m)
+        mapper.integrate(
+            camera.render(camera.pose(view.position, view.yaw_deg)),
+            camera.intrinsics,
+            camera.pose(view.position, view.yaw_deg),
+            float(t),
+            config.camera.max_range_m,
+        )
     mapper.seal()
     space = mission_reachable_space(world, config)
     with mapper.current_map() as fused:

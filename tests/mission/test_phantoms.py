@@ -11,7 +11,6 @@ from swarm.mission.phantoms import flown_paths, phantom_check
 from swarm.sim.worlds import load_world
 
 
-
 def test_paths_are_filled_in_between_samples_and_lifted_to_the_body_centre() -> None:
     points = flown_paths({"1": [[0.0, 1.0, 1.0, 1.0], [0.5, 2.0, 1.0, 1.0]], "2": [[0.0, 3.0, 3.0, 1.0]]}, 0.2)
     assert len(points) == 1 + 20 + 1  # one sample alone, and 1 m filled every 5 cm with its end
@@ -25,8 +24,10 @@ def test_a_sphere_where_a_drone_flew_is_counted_and_the_wall_it_passed_is_not(tm
     wall_x = float(box.bounds[0][0])
     wall = o3d.geometry.TriangleMesh.create_box(0.01, 0.5, 0.5).translate((wall_x, 1.0, 1.0))
     o3d.io.write_triangle_mesh(str(mesh), drone + wall)
-    trajectories = {"1": [[0.0, 1.0, 3.0, 1.0], [2.0, 3.0, 3.0, 1.0]],  # through the sphere
-                    "2": [[0.0, wall_x + 0.2, 1.0, 1.0], [2.0, wall_x + 0.2, 1.5, 1.0]]}  # along the outer wall
+    trajectories = {
+        "1": [[0.0, 1.0, 3.0, 1.0], [2.0, 3.0, 3.0, 1.0]],  # through the sphere
+        "2": [[0.0, wall_x + 0.2, 1.0, 1.0], [2.0, wall_x + 0.2, 1.5, 1.0]],
+    }  # along the outer wall
     found = phantom_check(mesh, trajectories, box, lift_m=0.2)
     assert found is not None
     sphere_vertices = len(drone.vertices)

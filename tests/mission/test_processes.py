@@ -3,21 +3,23 @@ the kernel, threads included."""
 
 from __future__ import annotations
 
-import pytest
 import os
 import sys
 from pathlib import Path
+
+import pytest
 
 from swarm.mission.processes import start_child
 
 pytestmark = pytest.mark.sim
 
-THREAD_NICENESS = ("import os, threading\n"
-                   "threading.Thread(target=lambda: print(os.getpriority(os.PRIO_PROCESS, 0))).start()\n")
+THREAD_NICENESS = (
+    "import os, threading\nthreading.Thread(target=lambda: print(os.getpriority(os.PRIO_PROCESS, 0))).start()\n"
+)
 
 
 def test_a_child_and_the_threads_it_starts_run_at_the_niceness_asked_and_the_child_says_which_it_got(
-    tmp_path: Path
+    tmp_path: Path,
 ) -> None:
     # raising niceness is always permitted, so this holds with or without root
     asked = min(19, os.getpriority(os.PRIO_PROCESS, 0) + 3)

@@ -141,8 +141,16 @@ class FakeClock:
 
 def _heartbeat(agent: int, leader: int, seq: int, x: float, phase: str = "flying") -> AgentState:
     return AgentState(
-        id=agent, epoch=1, seq=seq, t=1000.0, position=(x, 2.0 * agent, 1.23456), velocity=(0.0, 0.0, 0.0),
-        yaw_deg=0.0, flight_mode="OFFBOARD", phase=phase, role="leader" if leader == agent else "explorer",
+        id=agent,
+        epoch=1,
+        seq=seq,
+        t=1000.0,
+        position=(x, 2.0 * agent, 1.23456),
+        velocity=(0.0, 0.0, 0.0),
+        yaw_deg=0.0,
+        flight_mode="OFFBOARD",
+        phase=phase,
+        role="leader" if leader == agent else "explorer",
         leader=leader,
     )
 
@@ -290,8 +298,16 @@ def _synthetic_run(tmp_path: Path) -> tuple[dict[str, Any], dict[str, Any], dict
         "converged": True,
         "bandwidth": {"bytes_per_agent_s": 4321.5, "baseline_ratio": 17.25},
         "agents": [
-            {"id": k, "distance_m": 12.5 * k, "patches_sealed": 7, "patches_held": 14, "targets_assigned": 3 * k,
-             "targets_self_selected": k - 1, "landed": True, "exit_code": 0}
+            {
+                "id": k,
+                "distance_m": 12.5 * k,
+                "patches_sealed": 7,
+                "patches_held": 14,
+                "targets_assigned": 3 * k,
+                "targets_self_selected": k - 1,
+                "landed": True,
+                "exit_code": 0,
+            }
             for k in (1, 2)
         ],
         "mission": {

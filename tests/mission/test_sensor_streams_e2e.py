@@ -5,9 +5,8 @@ config names a file that does not exist), map from those streams and explore the
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import signal
+from pathlib import Path
 
 import numpy as np
 import open3d as o3d
@@ -27,11 +26,16 @@ def test_agents_given_no_world_map_from_the_simulated_cameras_streams_and_comple
     tmp_path: Path, swarm_ports: SwarmPorts
 ) -> None:
     out = tmp_path / "run"
-    config = load_config(overrides={
-        "mission.world": "box", "mission.out": str(out), "mission.drones": 3, "mission.max_time_s": 240.0,
-        "mission.record": True,  # camera.source is "sim", the default: the simulated cameras, streamed
-        **swarm_ports.settings(),
-    })
+    config = load_config(
+        overrides={
+            "mission.world": "box",
+            "mission.out": str(out),
+            "mission.drones": 3,
+            "mission.max_time_s": 240.0,
+            "mission.record": True,  # camera.source is "sim", the default: the simulated cameras, streamed
+            **swarm_ports.settings(),
+        }
+    )
     report = run_mission(config, live=False)
     assert report["status"] == "complete", report["reason"]
     assert report["explored_fraction"] >= 0.95 and report["collisions"] == 0
@@ -49,8 +53,11 @@ def test_agents_given_no_world_map_from_the_simulated_cameras_streams_and_comple
         # 10 Hz stream; 3 on a fresh 2-core machine)
         starting = ("image before camera info", "pose early")
         assert all(stream.get(reason, 0) <= 10 for reason in starting), stream
-        others = {k: v for k, v in stream.items()
-                  if k not in ("frames", "not_taken", "pixels_masked_as_peers", "camera_silences", *starting)}
+        others = {
+            k: v
+            for k, v in stream.items()
+            if k not in ("frames", "not_taken", "pixels_masked_as_peers", "camera_silences", *starting)
+        }
         assert not others, stream
         assert stream["camera_silences"] == 0, stream
         assert agent["frame_rate_hz"] >= 8.0, agent
@@ -76,10 +83,15 @@ def test_agents_given_no_world_map_from_the_simulated_cameras_streams_and_comple
 
 def test_a_mission_whose_cameras_die_fails_at_once_saying_so_and_lands(tmp_path: Path, swarm_ports: SwarmPorts) -> None:
     out = tmp_path / "run"
-    config = load_config(overrides={
-        "mission.world": "box", "mission.out": str(out), "mission.drones": 1, "mission.max_time_s": 120.0,
-        **swarm_ports.settings(),
-    })
+    config = load_config(
+        overrides={
+            "mission.world": "box",
+            "mission.out": str(out),
+            "mission.drones": 1,
+            "mission.max_time_s": 120.0,
+            **swarm_ports.settings(),
+        }
+    )
     killed: list[float] = []
 
     def kill_cameras_once_flying(state: RunState) -> None:

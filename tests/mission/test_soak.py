@@ -24,19 +24,29 @@ def test_random_faults_are_valid_specs_of_every_kind() -> None:
 
 
 def _mission(status: str = "complete", lost: int = 0, growth: float | None = 0.05) -> dict:
-    agent = {"agent": "agent-1", "pid": 1, "warm_rss_mb": 100.0, "peak_rss_mb": 105.0, "rss_growth": growth,
-             "warm_fds": 30, "peak_fds": 32}
+    agent = {
+        "agent": "agent-1",
+        "pid": 1,
+        "warm_rss_mb": 100.0,
+        "peak_rss_mb": 105.0,
+        "rss_growth": growth,
+        "warm_fds": 30,
+        "peak_fds": 32,
+    }
     return {"status": status, "patches_sealed": 10, "patches_lost": lost, "agents": [agent]}
 
 
-@pytest.mark.parametrize(("missions", "passed"), [
-    ([_mission(), _mission(growth=MAX_GROWTH)], True),
-    ([_mission(), _mission(status="failed")], False),
-    ([_mission(lost=1)], False),
-    ([_mission(growth=MAX_GROWTH + 0.01)], False),
-    ([_mission(growth=None)], False),  # nothing measured is not a pass
-    ([], False),
-])
+@pytest.mark.parametrize(
+    ("missions", "passed"),
+    [
+        ([_mission(), _mission(growth=MAX_GROWTH)], True),
+        ([_mission(), _mission(status="failed")], False),
+        ([_mission(lost=1)], False),
+        ([_mission(growth=MAX_GROWTH + 0.01)], False),
+        ([_mission(growth=None)], False),  # nothing measured is not a pass
+        ([], False),
+    ],
+)
 def test_the_soak_passes_only_when_every_mission_completes_nothing_is_lost_and_memory_holds(
     missions: list[dict], passed: bool
 ) -> None:
@@ -44,15 +54,17 @@ def test_the_soak_passes_only_when_every_mission_completes_nothing_is_lost_and_m
 
 
 @pytest.mark.sim
-
-
 def test_a_one_mission_soak_flies_a_real_mission_and_measures_every_agent(
     tmp_path: Path, swarm_ports: SwarmPorts
 ) -> None:
-    config = load_config(overrides={
-        "mission.world": "box", "mission.drones": 3, "mission.max_time_s": 150.0,
-        **swarm_ports.settings(),
-    })
+    config = load_config(
+        overrides={
+            "mission.world": "box",
+            "mission.drones": 3,
+            "mission.max_time_s": 150.0,
+            **swarm_ports.settings(),
+        }
+    )
     result = soak(config, minutes=0.01, out=tmp_path / "soak", seed=4, console=Console(stderr=True))
 
     [mission] = result["missions"]
@@ -69,11 +81,16 @@ def test_a_one_mission_soak_flies_a_real_mission_and_measures_every_agent(
 
 
 @pytest.mark.sim
-
-
 def test_bad_minutes_is_one_line_and_exit_2(tmp_path: Path) -> None:
-    done = subprocess.run([sys.executable, "-m", "swarm", "soak", "--minutes", "0"], cwd=tmp_path,
-                          capture_output=True, text=True, timeout=120, check=False)
+    done = subprocess.run(
+        [sys.executable, "-m", "swarm", "soak", "--minutes", "0"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
     assert done.returncode == 2
-    assert done.stderr.strip().splitlines() == ["swarm soak: config error: --minutes must be more than 0 and at most "
-                                                "1440, got 0.0"]
+    assert done.stderr.strip().splitlines() == [
+        "swarm soak: config error: --minutes must be more than 0 and at most 1440, got 0.0"
+    ]

@@ -21,13 +21,19 @@ WORLD = "gen:3:size=16x12,storeys=2"
 
 def test_three_drones_explore_both_storeys_of_a_generated_building(tmp_path: Path, swarm_ports: SwarmPorts) -> None:
     out = tmp_path / "run"
-    config = load_config(overrides={
-        "mission.world": WORLD, "mission.out": str(out), "mission.drones": 3,
-        **swarm_ports.settings(),
-    })
+    config = load_config(
+        overrides={
+            "mission.world": WORLD,
+            "mission.out": str(out),
+            "mission.drones": 3,
+            **swarm_ports.settings(),
+        }
+    )
     report = run_mission(config, live=False)
-    print(f"{report['status']}, {report['explored_fraction']:.3f} explored, 95 % at {report['time_to'].get('0.95')} s,"
-          f" done at {report['duration_s']} s")
+    print(
+        f"{report['status']}, {report['explored_fraction']:.3f} explored, 95 % at {report['time_to'].get('0.95')} s,"
+        f" done at {report['duration_s']} s"
+    )
     assert report["status"] == "complete", report["reason"]
     assert report["explored_fraction"] >= 0.95 and report["collisions"] == 0
     floors = floor_levels(load_world(WORLD))
@@ -35,8 +41,11 @@ def test_three_drones_explore_both_storeys_of_a_generated_building(tmp_path: Pat
     upper_floor = floors[1]
     upstairs = []
     for k in (1, 2, 3):
-        upstairs += [e for e in log_events(out / "logs" / f"agent-{k}.log")
-                     if e["event"] == "target" and e["viewpoint"][2] > upper_floor]
+        upstairs += [
+            e
+            for e in log_events(out / "logs" / f"agent-{k}.log")
+            if e["event"] == "target" and e["viewpoint"][2] > upper_floor
+        ]
     assert len(upstairs) >= 3, "no drone explored the upper storey"
     trajectories = json.loads((out / "observer.json").read_text())["trajectories"]
     assert any(z > upper_floor + 0.5 for samples in trajectories.values() for _, _, _, z in samples)

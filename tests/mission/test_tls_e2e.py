@@ -19,10 +19,16 @@ pytestmark = [pytest.mark.timeout(300), pytest.mark.mission]
 
 def test_a_mission_over_mutual_tls_completes_and_converges(tmp_path: Path, swarm_ports: SwarmPorts) -> None:
     out = tmp_path / "run"
-    config = load_config(overrides={
-        "mission.world": "box", "mission.out": str(out), "mission.drones": 2, "mission.max_time_s": 150.0,
-        "mission.tls": True, **swarm_ports.settings(),
-    })
+    config = load_config(
+        overrides={
+            "mission.world": "box",
+            "mission.out": str(out),
+            "mission.drones": 2,
+            "mission.max_time_s": 150.0,
+            "mission.tls": True,
+            **swarm_ports.settings(),
+        }
+    )
     report = run_mission(config, live=False)
 
     assert report["status"] == "complete", report["reason"]

@@ -31,7 +31,9 @@ def netem_problem() -> str | None:
 def _start_receiver(net: SwarmNetwork, node: int, mode: str, port: int) -> subprocess.Popen[str]:
     proc = subprocess.Popen(
         net.exec_argv(node, [sys.executable, TRAFFIC, mode, str(port)]),
-        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
     )
     assert proc.stdout is not None
     ready, _, _ = select.select([proc.stdout], [], [], 10.0)

@@ -122,8 +122,13 @@ def test_impairment_table_round_trips_through_json() -> None:
 
 def test_every_command_refuses_non_root_in_one_line(monkeypatch: pytest.MonkeyPatch, state_dir: Path) -> None:
     monkeypatch.setattr(os, "geteuid", lambda: 1000)
-    calls = [lambda: netem_up(2, "x"), lambda: netem_show("x"), lambda: netem_apply("x", "1-2", loss="30%"),
-             lambda: netem_down("x"), lambda: netem_down(all_networks=True)]
+    calls = [
+        lambda: netem_up(2, "x"),
+        lambda: netem_show("x"),
+        lambda: netem_apply("x", "1-2", loss="30%"),
+        lambda: netem_down("x"),
+        lambda: netem_down(all_networks=True),
+    ]
     for call in calls:
         with pytest.raises(NetemUnavailable) as info:
             call()
@@ -154,15 +159,17 @@ except SwarmError as exc:
 
 
 @pytest.mark.netns
-
-
 def test_a_real_non_root_user_gets_one_line(capsys: pytest.CaptureFixture[str]) -> None:
     setpriv = shutil.which("setpriv")
     if setpriv is None or os.geteuid() != 0:
         pytest.skip("needs root and setpriv to run as nobody")
     nobody = [setpriv, "--reuid=65534", "--regid=65534", "--clear-groups", sys.executable]
-    if subprocess.run([*nobody, "-c", "import swarm.netem.manual"], cwd="/", capture_output=True,
-                      timeout=60).returncode != 0:
+    if (
+        subprocess.run(
+            [*nobody, "-c", "import swarm.netem.manual"], cwd="/", capture_output=True, timeout=60
+        ).returncode
+        != 0
+    ):
         pytest.skip(f"{sys.executable} or the swarm package is not readable by nobody")
     wired = _cli_has_netem()
     capsys.readouterr()
@@ -220,10 +227,11 @@ def test_apply_changes_the_rules_that_show_prints(manual: Up, capsys: pytest.Cap
     assert "# node 2: tbf 1000 kbit/s" in out
     state = load_state("rules")
     assert state is not None and state.impairments == Impairments(
-        LinkProfile(rate_kbit=1000), {3: LinkProfile(cut=True)}, {(1, 2): LinkProfile(loss=0.3)})
+        LinkProfile(rate_kbit=1000), {3: LinkProfile(cut=True)}, {(1, 2): LinkProfile(loss=0.3)}
+    )
 
     assert netem_apply("rules", "3", restore=True) == 0  # only node 3's own profile goes
-    assert netem_apply("rules", "1-2", cut=True) == 0    # replaces the pair's loss
+    assert netem_apply("rules", "1-2", cut=True) == 0  # replaces the pair's loss
     capsys.readouterr()
     netem_show("rules")
     out = capsys.readouterr().out
@@ -269,8 +277,12 @@ def test_cut_stops_traffic_and_restore_brings_it_back(manual: Up) -> None:
     manual(3, "cut")
     netem_apply("cut", "2-1", cut=True)
     net = open_network("cut")  # what a script would do: attach to the running network
-    assert udp_one_way(net, [(1, 2), (2, 1), (1, 3), (3, 2)], SMALL) == {(1, 2): 0, (2, 1): 0, (1, 3): SMALL,
-                                                                         (3, 2): SMALL}
+    assert udp_one_way(net, [(1, 2), (2, 1), (1, 3), (3, 2)], SMALL) == {
+        (1, 2): 0,
+        (2, 1): 0,
+        (1, 3): SMALL,
+        (3, 2): SMALL,
+    }
     netem_apply("cut", "1-2", restore=True)
     assert udp_one_way(open_network("cut"), [(1, 2), (2, 1)], SMALL) == {(1, 2): SMALL, (2, 1): SMALL}
 
@@ -279,17 +291,20 @@ def test_cut_stops_traffic_and_restore_brings_it_back(manual: Up) -> None:
 @pytest.mark.netns
 def test_scenario_state_at_a_time(manual: Up, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     scenario = tmp_path / "links.toml"
-    scenario.write_text('name = "heal"\n'
-                        '[[event]]\nat = 10\nlink = "1-2"\nloss = 0.3\n'
-                        '[[event]]\nat = 20\nlink = "3"\ncut = true\n'
-                        '[[event]]\nat = 30\nlink = "3"\nrestore = true\n')
+    scenario.write_text(
+        'name = "heal"\n'
+        '[[event]]\nat = 10\nlink = "1-2"\nloss = 0.3\n'
+        '[[event]]\nat = 20\nlink = "3"\ncut = true\n'
+        '[[event]]\nat = 30\nlink = "3"\nrestore = true\n'
+    )
     manual(3, "scen")
     netem_apply("scen", "2", loss=0.5)  # replaced by the scenario's state
     expected = {
         5: Impairments(),
         15: Impairments(pairs={(1, 2): LinkProfile(loss=0.3)}),
-        25: Impairments(pairs={(1, 2): LinkProfile(loss=0.3), (1, 3): LinkProfile(cut=True),
-                               (2, 3): LinkProfile(cut=True)}),
+        25: Impairments(
+            pairs={(1, 2): LinkProfile(loss=0.3), (1, 3): LinkProfile(cut=True), (2, 3): LinkProfile(cut=True)}
+        ),
         30: Impairments(pairs={(1, 2): LinkProfile(loss=0.3)}),
     }
     for at, imp in expected.items():
@@ -335,8 +350,13 @@ def test_down_removes_namespaces_control_links_processes_and_state(
 def test_remove_leftovers_never_removes_a_manual_network(state_dir: Path, manual: Up) -> None:
     # Brought up by a process that has exited, as `swarm netem up` does: its creator is dead.
     script = "from swarm.netem.manual import netem_up; netem_up(2, 'kept')"
-    subprocess.run([sys.executable, "-c", script], check=True, capture_output=True, timeout=60,
-                   env={**os.environ, STATE_DIR_ENV: str(state_dir)})
+    subprocess.run(
+        [sys.executable, "-c", script],
+        check=True,
+        capture_output=True,
+        timeout=60,
+        env={**os.environ, STATE_DIR_ENV: str(state_dir)},
+    )
     state = load_state("kept")  # the `manual` fixture removes it too, should the test fail before `down`
     assert state is not None
     layout = state.layout

@@ -12,8 +12,10 @@ from swarm.netem.impair import Impairments, ruleset
 from swarm.netem.topology import Layout
 
 
-@pytest.mark.parametrize("fields", [{"loss": 1.5}, {"loss": -0.1}, {"rate_kbit": -1}, {"delay_ms": -5.0},
-                                    {"jitter_ms": -1.0}, {"loss_pct": 30}])
+@pytest.mark.parametrize(
+    "fields",
+    [{"loss": 1.5}, {"loss": -0.1}, {"rate_kbit": -1}, {"delay_ms": -5.0}, {"jitter_ms": -1.0}, {"loss_pct": 30}],
+)
 def test_invalid_profiles_are_rejected(fields: dict[str, float]) -> None:
     with pytest.raises(pydantic.ValidationError):
         LinkProfile(**fields)
@@ -32,8 +34,11 @@ def test_profile_is_frozen_and_describes_itself() -> None:
 @pytest.mark.parametrize("profile", [LinkProfile(delay_ms=20.0), LinkProfile(loss=0.1, jitter_ms=5.0)])
 def test_delay_and_jitter_are_refused_in_one_line(profile: LinkProfile) -> None:
     net = SwarmNetwork(nodes=2)  # never brought up: the refusal comes before any command
-    for impair in (lambda: net.impair_pair(1, 2, profile), lambda: net.impair_node(1, profile),
-                   lambda: net.impair_all(profile)):
+    for impair in (
+        lambda: net.impair_pair(1, 2, profile),
+        lambda: net.impair_node(1, profile),
+        lambda: net.impair_all(profile),
+    ):
         with pytest.raises(NetemUnavailable) as info:
             impair()
         message = str(info.value)
@@ -59,8 +64,9 @@ def test_bad_node_ids() -> None:
 
 def test_ruleset_text() -> None:
     layout = Layout(tag="5b03", pid=42, nodes=3)
-    imp = Impairments(all=LinkProfile(loss=0.05), nodes={3: LinkProfile(cut=True)},
-                      pairs={(1, 2): LinkProfile(loss=0.3)})
+    imp = Impairments(
+        all=LinkProfile(loss=0.05), nodes={3: LinkProfile(cut=True)}, pairs={(1, 2): LinkProfile(loss=0.3)}
+    )
     text = ruleset(layout, imp)
     assert text.startswith("table bridge swimp\ndelete table bridge swimp\ntable bridge swimp {\n")
     assert "chain links {" in text  # not "fwd": a reserved word in nft
@@ -74,8 +80,6 @@ def test_ruleset_text() -> None:
 
 
 @pytest.mark.netns
-
-
 def test_missing_tool_and_failing_command_are_one_line() -> None:
     with pytest.raises(NetemUnavailable, match="'no-such-tool-x' command is missing"):
         tool("no-such-tool-x")

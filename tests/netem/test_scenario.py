@@ -23,6 +23,7 @@ from swarm.netem.scenario import (
     timeline,
 )
 
+
 def _docstring_example() -> str:
     """The example at the top of swarm.netem.scenario's docstring (so the documented file is the tested one)."""
     block = scenario_module.__doc__.split("\n\n")[1]
@@ -148,8 +149,11 @@ def test_missing_file_and_bad_toml_are_one_line(tmp_path: Path) -> None:
 
 
 def test_check_drones_refuses_ids_beyond_the_swarm() -> None:
-    loaded = scenario({"at": 1, "link": "1-4", "loss": 0.2}, {"at": 2, "link": "3", "cut": True},
-                      {"at": 3, "link": "all", "restore": True})
+    loaded = scenario(
+        {"at": 1, "link": "1-4", "loss": 0.2},
+        {"at": 2, "link": "3", "cut": True},
+        {"at": 3, "link": "all", "restore": True},
+    )
     loaded.check_drones(4)
     with pytest.raises(ConfigError) as info:
         loaded.check_drones(3)
@@ -200,18 +204,30 @@ def test_cut_and_heal_timeline(tmp_path: Path) -> None:
 
 
 def test_an_event_replaces_the_profile_rather_than_merging() -> None:
-    steps = timeline(scenario({"at": 1, "link": "1-2", "loss": 0.3, "rate_kbit": 100},
-                              {"at": 2, "link": "1-2", "cut": True},
-                              {"at": 3, "link": "2-1", "delay_ms": 20.0}), drones=2)
+    steps = timeline(
+        scenario(
+            {"at": 1, "link": "1-2", "loss": 0.3, "rate_kbit": 100},
+            {"at": 2, "link": "1-2", "cut": True},
+            {"at": 3, "link": "2-1", "delay_ms": 20.0},
+        ),
+        drones=2,
+    )
     assert [profiles[(1, 2)] for _, profiles in steps] == [
-        LinkProfile(loss=0.3, rate_kbit=100), CUT, LinkProfile(delay_ms=20.0)
+        LinkProfile(loss=0.3, rate_kbit=100),
+        CUT,
+        LinkProfile(delay_ms=20.0),
     ]
 
 
 def test_node_and_all_events_override_pairs_and_restore_cleans() -> None:
-    steps = timeline(scenario({"at": 1, "link": "all", "loss": 0.1},
-                              {"at": 2, "link": "1-2", "cut": True},
-                              {"at": 3, "link": "2", "restore": True}), drones=3)
+    steps = timeline(
+        scenario(
+            {"at": 1, "link": "all", "loss": 0.1},
+            {"at": 2, "link": "1-2", "cut": True},
+            {"at": 3, "link": "2", "restore": True},
+        ),
+        drones=3,
+    )
     light = LinkProfile(loss=0.1)
     assert steps[0][1] == expected(3, p12=light, p13=light, p23=light)
     assert steps[1][1] == expected(3, p12=CUT, p13=light, p23=light)

@@ -104,10 +104,13 @@ def test_down_ends_processes_left_inside() -> None:
 
 def test_remove_leftovers_only_removes_dead_instances() -> None:
     # A process that brings a network up and dies without down() (os._exit skips atexit, like SIGKILL).
-    script = ("import os; from swarm.netem import SwarmNetwork; net = SwarmNetwork(nodes=2); net.up(); "
-              "print(net.prefix, flush=True); os._exit(0)")
-    dead_prefix = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True,
-                                 timeout=30).stdout.strip()
+    script = (
+        "import os; from swarm.netem import SwarmNetwork; net = SwarmNetwork(nodes=2); net.up(); "
+        "print(net.prefix, flush=True); os._exit(0)"
+    )
+    dead_prefix = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, check=True, timeout=30
+    ).stdout.strip()
     foreign = "swn-1234-999999999-other"  # dead pid, but not a name swarm.netem creates
     run(["ip", "netns", "add", foreign])
     try:

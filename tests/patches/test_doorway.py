@@ -55,8 +55,10 @@ def test_oblique_guesses_behind_a_jamb_do_not_close_a_doorway_seen_free() -> Non
     seen_free = air[_map(camera, [head_on], "constant").state_at(air) == FREE]
     assert len(seen_free) > 1000
 
-    closed = {law: int(np.count_nonzero(_map(camera, oblique + [head_on], law).state_at(seen_free) == OCCUPIED))
-              for law in ("constant", "dropoff")}
+    closed = {
+        law: int(np.count_nonzero(_map(camera, oblique + [head_on], law).state_at(seen_free) == OCCUPIED))
+        for law in ("constant", "dropoff")
+    }
     # Constant weights: five guesses out-vote the one view. The drop-off keeps only the guesses within one voxel
     # of the surface whole (measured: 51 voxels and 17).
     assert closed["constant"] >= 30

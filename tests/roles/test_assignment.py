@@ -26,9 +26,18 @@ def ring(radius: float = 4.0, n: int = 72, z: float = 1.0) -> np.ndarray:
 
 # --- utility (Eq. 3.2 / 3.3), reference vectors of research notes 2.5 ---------------------------------------------
 
-@pytest.mark.parametrize(("d_i", "d_tot", "expected"), [
-    (1, 8, 19.47), (1, 2, 16.76), (1, 0.5, 9.20), (2, 8, 15.94), (4, 8, 10.69), (4, 2, 9.20),
-])
+
+@pytest.mark.parametrize(
+    ("d_i", "d_tot", "expected"),
+    [
+        (1, 8, 19.47),
+        (1, 2, 16.76),
+        (1, 0.5, 9.20),
+        (2, 8, 15.94),
+        (4, 8, 10.69),
+        (4, 2, 9.20),
+    ],
+)
 def test_utility_matches_reference_vectors_for_three_uavs(d_i: float, d_tot: float, expected: float) -> None:
     assert abs(utility(25.0, d_i, [d_tot / 2, d_tot / 2], 0.2) - expected) < 0.005
     # only the sum of the others' distances matters
@@ -48,6 +57,7 @@ def test_utility_is_zero_on_a_target_the_others_sit_on() -> None:
 
 # --- scheduling (Eq. 3.5) -----------------------------------------------------------------------------------------
 
+
 def test_scheduling_multipliers_for_sigma_3_are_isotropic_in_3d() -> None:
     distances = np.array([0.5, 1.0, 2.0, 3.0, 6.0])
     centre = np.array([1.0, -2.0, 0.5])
@@ -66,6 +76,7 @@ def test_scheduling_refuses_non_positive_sigma() -> None:
 
 
 # --- assignment (Alg. 3.5) ----------------------------------------------------------------------------------------
+
 
 def two_clusters() -> list[Candidate]:
     east = [cand(6.0, dy, gain=30.0, owner=1) for dy in (-0.4, 0.0, 0.4)]
@@ -132,12 +143,14 @@ def test_current_bonus_keeps_a_drone_on_its_current_target_when_a_slightly_bette
     current, better = cand(3.0, 0.0, gain=10.0), cand(-3.0, 0.0, gain=11.0)
     here = {1: (0.0, 0.0, 1.0)}
     assert assign_targets([current, better], here, lam=0.2, sigma=3.0)[1] == better
-    kept = assign_targets([current, better], here, lam=0.2, sigma=3.0, current={1: (3.2, 0.0, 1.0)},
-                          current_bonus=1.5, keep_radius=0.5)
+    kept = assign_targets(
+        [current, better], here, lam=0.2, sigma=3.0, current={1: (3.2, 0.0, 1.0)}, current_bonus=1.5, keep_radius=0.5
+    )
     assert kept[1] == current
     # the bonus applies only within keep_radius of the current target
-    moved = assign_targets([current, better], here, lam=0.2, sigma=3.0, current={1: (3.8, 0.0, 1.0)},
-                           current_bonus=1.5, keep_radius=0.5)
+    moved = assign_targets(
+        [current, better], here, lam=0.2, sigma=3.0, current={1: (3.8, 0.0, 1.0)}, current_bonus=1.5, keep_radius=0.5
+    )
     assert moved[1] == better
 
 
@@ -173,6 +186,7 @@ def test_candidate_refuses_a_negative_or_nan_gain() -> None:
 
 # --- frontier processing with shared maps -------------------------------------------------------------------------
 
+
 def test_merge_drops_known_exhausted_and_duplicate_candidates() -> None:
     known = cand(11.0, 0.0, gain=5.0, owner=1)  # its point lies where the leader's map is known
     exhausted = cand(0.0, 5.0, gain=5.0, owner=2)  # 0.3 m from a viewpoint already visited
@@ -184,11 +198,13 @@ def test_merge_drops_known_exhausted_and_duplicate_candidates() -> None:
         return np.where(points[:, 0] > 10.0, 0.0, 5.0)
 
     kwargs = dict(min_gain=0.15, exhausted=[(0.3, 5.0, 1.0)], exhausted_radius=0.8, merge_radius=0.5)
-    got = merge_candidates([known, plain], {2: [exhausted, weaker_dup], 3: [stronger_dup, beyond_exhausted]},
-                           gain_now=gain_now, **kwargs)
+    got = merge_candidates(
+        [known, plain], {2: [exhausted, weaker_dup], 3: [stronger_dup, beyond_exhausted]}, gain_now=gain_now, **kwargs
+    )
     assert got == [stronger_dup, beyond_exhausted, plain]
-    shuffled = merge_candidates([plain, known], {3: [beyond_exhausted, stronger_dup], 2: [weaker_dup, exhausted]},
-                                gain_now=gain_now, **kwargs)
+    shuffled = merge_candidates(
+        [plain, known], {3: [beyond_exhausted, stronger_dup], 2: [weaker_dup, exhausted]}, gain_now=gain_now, **kwargs
+    )
     assert shuffled == got
     without_map = merge_candidates([known, plain], {2: [exhausted, weaker_dup]}, gain_now=None, **kwargs)
     assert without_map == [known, weaker_dup, plain]  # no map to ask: the known one stays
@@ -196,12 +212,14 @@ def test_merge_drops_known_exhausted_and_duplicate_candidates() -> None:
 
 def test_merge_keeps_the_far_end_of_a_chain_of_near_duplicates() -> None:
     a, b, c = cand(0.0, 0.0, gain=9.0), cand(0.4, 0.0, gain=8.0), cand(0.8, 0.0, gain=7.0)
-    got = merge_candidates([a, b, c], {}, gain_now=None, min_gain=0.0, exhausted=[], exhausted_radius=1.0,
-                           merge_radius=0.5)
+    got = merge_candidates(
+        [a, b, c], {}, gain_now=None, min_gain=0.0, exhausted=[], exhausted_radius=1.0, merge_radius=0.5
+    )
     assert got == [a, c]  # b is a's duplicate; c is only b's, and b was dropped
 
 
 # --- frontier processing without maps (Alg. 3.2 / 3.4) ------------------------------------------------------------
+
 
 def test_overlapped_marks_points_inside_or_on_a_ring_outline_and_not_outside_it() -> None:
     inside = [(0.0, 0.0, 1.0), (2.0, 1.5, 1.0), (-3.0, -1.0, 1.0)]
@@ -256,7 +274,9 @@ def test_a_drone_does_not_take_another_drones_current_target() -> None:
     positions = {1: (0.0, 0.0, 1.0), 2: (4.0, 0.0, 1.0)}
     plain = assign_targets([near_1, far], positions, lam=0.2, sigma=3.0)
     assert plain[1] == near_1
-    kept = assign_targets([near_1, far], positions, lam=0.2, sigma=3.0, current={2: near_1.viewpoint}, current_bonus=3.0)
+    kept = assign_targets(
+        [near_1, far], positions, lam=0.2, sigma=3.0, current={2: near_1.viewpoint}, current_bonus=3.0
+    )
     assert kept[2] == near_1 and kept[1] == far
 
 
@@ -264,9 +284,11 @@ def test_a_member_is_not_given_a_viewpoint_it_could_not_reach_and_another_member
     near_1, far = cand(2.0, 0.0, gain=20.0), cand(-6.0, 0.0, gain=10.0)
     positions = {1: (0.0, 0.0, 1.0), 2: (8.0, 0.0, 1.0)}
     assert assign_targets([near_1, far], positions, lam=0.2, sigma=1e-6) == {1: near_1, 2: far}
-    got = assign_targets([near_1, far], positions, lam=0.2, sigma=1e-6, unreachable={1: [(2.3, 0.0, 1.0)]},
-                         unreachable_radius=0.5)
+    got = assign_targets(
+        [near_1, far], positions, lam=0.2, sigma=1e-6, unreachable={1: [(2.3, 0.0, 1.0)]}, unreachable_radius=0.5
+    )
     assert got == {1: far, 2: near_1}
-    stuck = assign_targets([near_1], {1: positions[1]}, lam=0.2, sigma=3.0, unreachable={1: [(2.0, 0.4, 1.0)]},
-                           unreachable_radius=0.5)
+    stuck = assign_targets(
+        [near_1], {1: positions[1]}, lam=0.2, sigma=3.0, unreachable={1: [(2.0, 0.4, 1.0)]}, unreachable_radius=0.5
+    )
     assert stuck == {1: None}  # nothing it can reach: no target rather than the one it cannot

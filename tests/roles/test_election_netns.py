@@ -15,7 +15,10 @@ import pytest
 from swarm.netem import SwarmNetwork
 from tests.sync.nodes import NodeSpec, NodeSwarm
 
-pytestmark = [pytest.mark.skipif(os.geteuid() != 0, reason="network namespaces and nftables need root"), pytest.mark.netns]
+pytestmark = [
+    pytest.mark.skipif(os.geteuid() != 0, reason="network namespaces and nftables need root"),
+    pytest.mark.netns,
+]
 
 NODES = (1, 2, 3, 4)
 

@@ -11,11 +11,15 @@ from swarm.roles.messages import MAX_CANDIDATES, FrontierReport, TargetAssignmen
 
 def _report(**fields: object) -> FrontierReport:
     base: dict[str, object] = dict(
-        id=2, epoch=7, seq=1, position=(1.0, 2.0, 1.5),
+        id=2,
+        epoch=7,
+        seq=1,
+        position=(1.0, 2.0, 1.5),
         viewpoints=as_points([(1.0, 1.0, 1.0), (2.0, 2.0, 1.0)]),
         points=as_points([(1.5, 1.0, 1.0), (2.5, 2.0, 1.0)]),
         gains=np.array([3.0, 0.5], dtype=np.float32),
-        visited=as_points([(0.0, 0.0, 1.0)]), arrived=True,
+        visited=as_points([(0.0, 0.0, 1.0)]),
+        arrived=True,
     )
     base.update(fields)
     return FrontierReport(**base)
@@ -49,8 +53,12 @@ def test_oversized_report_fails_to_decode() -> None:
     payload = encode(honest).replace(b"", b"")  # start from a valid envelope, then forge the arrays
     assert decode(payload, FrontierReport) == honest
     forged = FrontierReport.model_construct(
-        **{**dict(honest), "viewpoints": np.zeros((n, 3), np.float32), "points": np.zeros((n, 3), np.float32),
-           "gains": np.zeros(n, np.float32)}
+        **{
+            **dict(honest),
+            "viewpoints": np.zeros((n, 3), np.float32),
+            "points": np.zeros((n, 3), np.float32),
+            "gains": np.zeros(n, np.float32),
+        }
     )
     with pytest.raises(DecodeError) as err:
         decode(encode(forged), FrontierReport)
@@ -59,17 +67,36 @@ def test_oversized_report_fails_to_decode() -> None:
 
 def test_assignment_names_each_member_once() -> None:
     good = TargetAssignment(
-        leader=1, epoch=3, round=4, members=[1, 2, 3], drones=[1, 3],
-        viewpoints=as_points([(1.0, 1.0, 1.0), (5.0, 5.0, 1.0)]), points=as_points([(2.0, 1.0, 1.0), (6.0, 5.0, 1.0)]),
+        leader=1,
+        epoch=3,
+        round=4,
+        members=[1, 2, 3],
+        drones=[1, 3],
+        viewpoints=as_points([(1.0, 1.0, 1.0), (5.0, 5.0, 1.0)]),
+        points=as_points([(2.0, 1.0, 1.0), (6.0, 5.0, 1.0)]),
     )
     back = decode(encode(good), TargetAssignment)
     assert back.target_of(3) == ((5.0, 5.0, 1.0), (6.0, 5.0, 1.0))
     assert back.target_of(2) is None
     with pytest.raises(ValueError, match="at most once"):
-        TargetAssignment(leader=1, epoch=3, round=4, members=[1, 2], drones=[2, 2],
-                         viewpoints=as_points([(0, 0, 1)] * 2), points=as_points([(0, 0, 1)] * 2))
+        TargetAssignment(
+            leader=1,
+            epoch=3,
+            round=4,
+            members=[1, 2],
+            drones=[2, 2],
+            viewpoints=as_points([(0, 0, 1)] * 2),
+            points=as_points([(0, 0, 1)] * 2),
+        )
     with pytest.raises(ValueError, match="at most once"):
-        TargetAssignment(leader=1, epoch=3, round=4, members=[1, 2], drones=[9],
-                         viewpoints=as_points([(0, 0, 1)]), points=as_points([(0, 0, 1)]))
+        TargetAssignment(
+            leader=1,
+            epoch=3,
+            round=4,
+            members=[1, 2],
+            drones=[9],
+            viewpoints=as_points([(0, 0, 1)]),
+            points=as_points([(0, 0, 1)]),
+        )
     with pytest.raises(ValueError, match="leader is a member"):
         TargetAssignment(leader=5, epoch=3, round=4, members=[1, 2], done=True)

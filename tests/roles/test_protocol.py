@@ -15,7 +15,13 @@ from swarm.config import ExploreSettings, Vec3
 from swarm.explore.frontiers import Frontier
 from swarm.roles.messages import FrontierReport, TargetAssignment, as_points
 from swarm.roles.protocol import (
-    MAP_CHANGE_M3, UNREACHABLE_GIVE_UP, UNREACHABLE_RETRY_S, Effects, ExplorationCore, Situation, Target,
+    MAP_CHANGE_M3,
+    UNREACHABLE_GIVE_UP,
+    UNREACHABLE_RETRY_S,
+    Effects,
+    ExplorationCore,
+    Situation,
+    Target,
 )
 
 LOOP = ExploreSettings().loop_s
@@ -39,11 +45,24 @@ def _core(drone: int = 1, **settings: Any) -> ExplorationCore:
     return ExplorationCore(ExploreSettings(**settings), drone, epoch=1, now=0.0)
 
 
-def _situation(frontiers: list[Frontier], here: Vec3 = (1.0, 1.0, 1.5), leader: int = 1,
-               cluster: list[int] | None = None, positions: dict[int, Vec3] | None = None,
-               grid: Map | None = None, in_pocket: bool = False) -> Situation:
-    return Situation(here=here, leader=leader, cluster=cluster or [leader], positions=positions or {},
-                     frontiers=frontiers, map=grid or Map(), in_pocket=in_pocket)
+def _situation(
+    frontiers: list[Frontier],
+    here: Vec3 = (1.0, 1.0, 1.5),
+    leader: int = 1,
+    cluster: list[int] | None = None,
+    positions: dict[int, Vec3] | None = None,
+    grid: Map | None = None,
+    in_pocket: bool = False,
+) -> Situation:
+    return Situation(
+        here=here,
+        leader=leader,
+        cluster=cluster or [leader],
+        positions=positions or {},
+        frontiers=frontiers,
+        map=grid or Map(),
+        in_pocket=in_pocket,
+    )
 
 
 def _f(viewpoint: Vec3, point: Vec3, gain: float = 10.0) -> Frontier:
@@ -52,9 +71,14 @@ def _f(viewpoint: Vec3, point: Vec3, gain: float = 10.0) -> Frontier:
 
 def _report(drone: int, seq: int, frontiers: list[Frontier] = (), **fields: Any) -> FrontierReport:
     return FrontierReport(
-        id=drone, epoch=1, seq=seq, position=fields.pop("position", (5.0, 1.0, 1.5)),
-        viewpoints=as_points([f.viewpoint for f in frontiers]), points=as_points([f.point for f in frontiers]),
-        gains=np.asarray([f.gain for f in frontiers], dtype=np.float32), **fields,
+        id=drone,
+        epoch=1,
+        seq=seq,
+        position=fields.pop("position", (5.0, 1.0, 1.5)),
+        viewpoints=as_points([f.viewpoint for f in frontiers]),
+        points=as_points([f.point for f in frontiers]),
+        gains=np.asarray([f.gain for f in frontiers], dtype=np.float32),
+        **fields,
     )
 
 
@@ -77,7 +101,8 @@ def test_a_spot_looked_from_one_way_is_still_a_target_the_other_way() -> None:
     assert core.target is not None and core.target.point != looked.point  # the other way, same spot
     assert not core.done
     assert core._candidates([EAST, WEST, ABOVE]) == [
-        c for c in core._candidates([EAST, WEST, ABOVE]) if c.point != looked.point]
+        c for c in core._candidates([EAST, WEST, ABOVE]) if c.point != looked.point
+    ]
 
 
 def test_a_point_straight_above_its_viewpoint_is_exhausted_by_any_look_from_there() -> None:
@@ -95,7 +120,7 @@ def test_a_lone_drone_is_done_only_when_its_map_stays_empty_for_a_loop() -> None
     effects = core.decide(LOOP + 0.1, _situation([]))
     assert core.done and "no reachable frontier" in core.done_reason
     assert any(isinstance(m, TargetAssignment) and m.done for m in effects.publish)
-    assert ("exploration_done" in [e for e, _ in effects.events])
+    assert "exploration_done" in [e for e, _ in effects.events]
 
 
 def test_a_drone_shut_in_by_its_map_is_never_done() -> None:
@@ -182,8 +207,15 @@ def test_an_explorer_reports_and_takes_its_leaders_assignment() -> None:
     effects = core.decide(0.0, _situation([EAST], leader=1, cluster=[1, 2]))
     report = effects.publish[0]
     assert isinstance(report, FrontierReport) and len(report.viewpoints) == 1 and core.target is None
-    assignment = TargetAssignment(leader=1, epoch=1, round=1, members=[1, 2], drones=[2],
-                                  viewpoints=as_points([WEST.viewpoint]), points=as_points([WEST.point]))
+    assignment = TargetAssignment(
+        leader=1,
+        epoch=1,
+        round=1,
+        members=[1, 2],
+        drones=[2],
+        viewpoints=as_points([WEST.viewpoint]),
+        points=as_points([WEST.point]),
+    )
     effects = core.on_assignment(0.5, 1, assignment, leader=1)
     assert core.target is not None and core.target.source == "leader" and effects.retarget
     core.looked_at(core.target)
@@ -205,8 +237,15 @@ def test_an_explorer_whose_leader_is_quiet_picks_its_own_after_tau() -> None:
 def test_a_leader_change_mid_assignment_follows_the_new_leader_only() -> None:
     core = _core(drone=3)
     core.decide(0.0, _situation([EAST], leader=1, cluster=[1, 3]))
-    old = TargetAssignment(leader=1, epoch=1, round=4, members=[1, 3], drones=[3],
-                           viewpoints=as_points([WEST.viewpoint]), points=as_points([WEST.point]))
+    old = TargetAssignment(
+        leader=1,
+        epoch=1,
+        round=4,
+        members=[1, 3],
+        drones=[3],
+        viewpoints=as_points([WEST.viewpoint]),
+        points=as_points([WEST.point]),
+    )
     core.decide(1.0, _situation([EAST], leader=2, cluster=[2, 3]))  # leader 1 is gone: 2 leads now
     core.on_assignment(1.5, 1, old, leader=2)
     assert core.target is None  # the old leader's word no longer counts

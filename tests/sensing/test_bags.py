@@ -40,8 +40,13 @@ def _record(path: Path, seconds: float = 5.0, with_depth: bool = True, extra_ima
         for i in range(int(seconds * 50)):
             t = 100.0 + i / 50
             s = i / (seconds * 50)
-            pose = body_pose(t, np.array([3.0 + 4.0 * s, 10.0, 1.5]), math.radians(8) * math.cos(2 * t),
-                             math.radians(12) * math.sin(3 * t), math.radians(90 + 180 * s))
+            pose = body_pose(
+                t,
+                np.array([3.0 + 4.0 * s, 10.0, 1.5]),
+                math.radians(8) * math.cos(2 * t),
+                math.radians(12) * math.sin(3 * t),
+                math.radians(90 + 180 * s),
+            )
             bag.write(POSE, m.ODOMETRY, int(t * 1e9), m.serialize(m.odometry_message(pose)))
             if i % 5 == 0 and with_depth:
                 depth = camera.render(camera_to_world(pose, camera_mount(config.camera)))
@@ -97,12 +102,15 @@ def test_a_ros1_bag_maps_as_the_ros2_recording_of_the_same_flight_does(tmp_path:
     assert ros1["fused_digest"] == ros2["fused_digest"], "the same messages must give the same map"
 
 
-@pytest.mark.parametrize(("kwargs", "topics", "says"), [
-    ({"with_depth": False}, {}, "has no depth image topic"),
-    ({"extra_image_topic": True}, {}, "several depth image topics .* --depth-topic"),
-    ({}, {"pose": "/nope"}, "has no topic /nope"),
-    ({}, {"depth": POSE}, "is nav_msgs/msg/Odometry, not sensor_msgs/msg/Image"),
-])
+@pytest.mark.parametrize(
+    ("kwargs", "topics", "says"),
+    [
+        ({"with_depth": False}, {}, "has no depth image topic"),
+        ({"extra_image_topic": True}, {}, "several depth image topics .* --depth-topic"),
+        ({}, {"pose": "/nope"}, "has no topic /nope"),
+        ({}, {"depth": POSE}, "is nav_msgs/msg/Odometry, not sensor_msgs/msg/Image"),
+    ],
+)
 def test_a_bag_that_cannot_be_mapped_is_one_clear_error(tmp_path: Path, kwargs: dict, topics: dict, says: str) -> None:
     bag = tmp_path / "bag"
     _record(bag, seconds=0.2, **kwargs)
@@ -111,11 +119,13 @@ def test_a_bag_that_cannot_be_mapped_is_one_clear_error(tmp_path: Path, kwargs: 
 
 
 @pytest.mark.sim
-
-
 def test_swarm_map_on_a_missing_bag_is_one_line_and_a_non_zero_exit(tmp_path: Path) -> None:
-    done = subprocess.run(swarm_cmd("map", str(tmp_path / "missing"), "--out", str(tmp_path / "o")),
-                          capture_output=True, text=True, timeout=60)
+    done = subprocess.run(
+        swarm_cmd("map", str(tmp_path / "missing"), "--out", str(tmp_path / "o")),
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert done.returncode != 0
     assert len(done.stderr.strip().splitlines()) == 1 and "does not exist" in done.stderr
 

@@ -51,13 +51,16 @@ def test_negative_and_infinite_float_depths_are_invalid() -> None:
     assert back[1, 1] == 0.0 and back[2, 2] == 0.0 and back[3, 3] == pytest.approx(depth[3, 3])
 
 
-@pytest.mark.parametrize(("change", "says"), [
-    ({"encoding": "rgb8"}, "depth encoding 'rgb8'"),
-    ({"step": 10}, "row step 10 B"),
-    ({"height": 0}, "0 pixels"),
-    ({"height": 13}, "B of data for 13 rows"),
-    ({"width": 100_000}, "100000x12"),
-])
+@pytest.mark.parametrize(
+    ("change", "says"),
+    [
+        ({"encoding": "rgb8"}, "depth encoding 'rgb8'"),
+        ({"step": 10}, "row step 10 B"),
+        ({"height": 0}, "0 pixels"),
+        ({"height": 13}, "B of data for 13 rows"),
+        ({"width": 100_000}, "100000x12"),
+    ],
+)
 def test_a_malformed_depth_image_is_one_clear_error(change: dict, says: str) -> None:
     msg = m.image_message(1.0, _depth())
     for key, value in change.items():

@@ -24,8 +24,6 @@ NODE = Path(__file__).with_name("ros2_camera_node.py")
 
 
 @pytest.mark.ros2
-
-
 def test_frames_from_a_ros2_node_map_onto_the_world(monkeypatch: pytest.MonkeyPatch) -> None:
     domain = str(random.randrange(1, 100))  # apart from any other test's ROS graph
     for name, value in (("ROS_DOMAIN_ID", domain), ("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")):
@@ -33,8 +31,14 @@ def test_frames_from_a_ros2_node_map_onto_the_world(monkeypatch: pytest.MonkeyPa
     config = load_config()
     source = Ros2SensorSource(config.camera.stream, camera_mount(config.camera))
     root = Path(__file__).resolve().parents[2]
-    node = subprocess.Popen([sys.executable, str(NODE), "8"], cwd=root, env={**os.environ, "PYTHONPATH": str(root)},
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    node = subprocess.Popen(
+        [sys.executable, str(NODE), "8"],
+        cwd=root,
+        env={**os.environ, "PYTHONPATH": str(root)},
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
     frames = []
     try:
         source.start()

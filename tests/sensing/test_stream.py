@@ -55,8 +55,15 @@ def test_unusable_input_is_counted_by_reason_and_never_becomes_a_frame() -> None
         frames.on_image(m.image_message(t, DEPTH))
     assert frames.take() == []
     assert dict(frames.dropped) == {
-        "image before camera info": 1, "bad camera info": 1, "image size differs from camera info": 1,
-        "bad image": 1, "bad pose": 1, "pose out of order": 1, "pose early": 1, "pose gap": 1, "no pose in time": 1,
+        "image before camera info": 1,
+        "bad camera info": 1,
+        "image size differs from camera info": 1,
+        "bad image": 1,
+        "bad pose": 1,
+        "pose out of order": 1,
+        "pose early": 1,
+        "pose gap": 1,
+        "no pose in time": 1,
     }
     frames.on_pose(_pose(4.05, 0.0))
     frames.on_pose(_pose(4.15, 0.0))

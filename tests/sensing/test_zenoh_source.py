@@ -24,7 +24,8 @@ K = np.array([[8.0, 0.0, 7.5], [0.0, 8.0, 5.5], [0.0, 0.0, 1.0]])
 def test_keys_follow_rmw_zenoh_and_the_bridge() -> None:
     rmw = SensorStreamSettings(domain_id=3)
     assert topic_key(rmw, "/camera/depth/image_rect_raw", m.IMAGE) == (
-        "3/camera/depth/image_rect_raw/sensor_msgs::msg::dds_::Image_/*")
+        "3/camera/depth/image_rect_raw/sensor_msgs::msg::dds_::Image_/*"
+    )
     bridge = SensorStreamSettings(layout="bridge", namespace="bot1")
     assert topic_key(bridge, "/odom", m.ODOMETRY) == "bot1/odom"
     assert topic_key(SensorStreamSettings(layout="bridge"), "/odom", m.ODOMETRY) == "odom"
@@ -51,6 +52,7 @@ def test_frames_arrive_with_the_pose_at_their_stamp_and_junk_is_counted(
     source = ZenohSensorSource(settings, mount_transform((0.0, 0.0, 0.0), (0.0, 0.0, 0.0)))
     source.start()
     try:
+
         def key(topic: str, msgtype: str) -> str:
             base = topic_key(settings, topic, msgtype)
             return base.replace("*", "RIHS01_" + "ab" * 32)  # the distribution's type hash
@@ -62,16 +64,24 @@ def test_frames_arrive_with_the_pose_at_their_stamp_and_junk_is_counted(
         yaw = Rotation.from_euler("z", 90, degrees=True).as_quat()
         # subscriptions take a moment to reach the publisher: send camera info until the source has it
         for seq in range(200):
-            put(settings.info_topic, m.CAMERA_INFO, m.serialize(m.camera_info_message(0.0, m.Intrinsics(16, 12, K))),
-                seq)
+            put(
+                settings.info_topic,
+                m.CAMERA_INFO,
+                m.serialize(m.camera_info_message(0.0, m.Intrinsics(16, 12, K))),
+                seq,
+            )
             if source.wait_frame(0.01) is None and source.frames.intrinsics is not None:
                 break
         assert source.frames.intrinsics is not None
         put(settings.pose_topic, m.ODOMETRY, m.serialize(m.odometry_message(m.Pose(10.0, np.zeros(3), yaw))), 1)
         put(settings.depth_topic, m.IMAGE, b"\x00\x01\x00\x00 not an image", 2)
         put(settings.depth_topic, m.IMAGE, m.serialize(m.image_message(10.1, depth)), 3)
-        put(settings.pose_topic, m.ODOMETRY,
-            m.serialize(m.odometry_message(m.Pose(10.2, np.array([2.0, 0.0, 0.0]), yaw))), 4)
+        put(
+            settings.pose_topic,
+            m.ODOMETRY,
+            m.serialize(m.odometry_message(m.Pose(10.2, np.array([2.0, 0.0, 0.0]), yaw))),
+            4,
+        )
         frame = source.wait_frame(10.0)
         assert frame is not None and frame.t == pytest.approx(10.1)
         assert np.allclose(frame.T_world_cam[:3, 3], [1.0, 0.0, 0.0])  # half way between the poses

@@ -6,8 +6,9 @@ import math
 import random
 import threading
 import time
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import Any, Callable, Iterator
+from typing import Any
 
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
@@ -26,8 +27,12 @@ def free_port_block(size: int = PORT_BLOCK) -> int:
 
 
 def sim_config(base_port: int, **overrides: Any) -> SwarmConfig:
-    values = {"sim.vehicle_base_port": base_port, "sim.gcs_base_port": base_port + PORT_BLOCK // 2,
-              "mission.world": "box", "mission.drones": 1}
+    values = {
+        "sim.vehicle_base_port": base_port,
+        "sim.gcs_base_port": base_port + PORT_BLOCK // 2,
+        "mission.world": "box",
+        "mission.drones": 1,
+    }
     values.update(overrides)
     return load_config(overrides=values)
 
@@ -71,15 +76,17 @@ class Gcs:
     """A pymavlink ground station (sysid 245, compid 190 as MAVSDK) listening on a vehicle's GCS port."""
 
     def __init__(self, port: int) -> None:
-        self.conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=245, source_component=190,
-                                               dialect="common")
+        self.conn = mavutil.mavlink_connection(
+            f"udpin:127.0.0.1:{port}", source_system=245, source_component=190, dialect="common"
+        )
         self.target = 1
 
     def close(self) -> None:
         self.conn.close()
 
-    def recv_until(self, predicate: Callable[[Any], bool], timeout: float, what: str,
-                   types: str | list[str] | None = None) -> Any:
+    def recv_until(
+        self, predicate: Callable[[Any], bool], timeout: float, what: str, types: str | list[str] | None = None
+    ) -> Any:
         """The first message (of `types`) that satisfies predicate, within timeout."""
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
@@ -99,8 +106,16 @@ class Gcs:
         self.conn.mav.command_long_send(self.target, 1, command, 0, *p)
         return self.recv_until(lambda m: m.command == command, timeout, f"ACK of command {command}", "COMMAND_ACK")
 
-    def command_int(self, command: int, frame: int, params: tuple[float, float, float, float],
-                    x: int, y: int, z: float, timeout: float = 3.0) -> Any:
+    def command_int(
+        self,
+        command: int,
+        frame: int,
+        params: tuple[float, float, float, float],
+        x: int,
+        y: int,
+        z: float,
+        timeout: float = 3.0,
+    ) -> Any:
         self.conn.mav.command_int_send(self.target, 1, frame, command, 0, 0, *params, x, y, z)
         return self.recv_until(lambda m: m.command == command, timeout, f"ACK of command {command}", "COMMAND_ACK")
 

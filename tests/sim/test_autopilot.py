@@ -1,7 +1,7 @@
 """Flight logic and kinematics of one simulated vehicle, stepped with a fake clock (no sockets)."""
 
 import math
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -187,7 +187,10 @@ def test_velocity_setpoint_and_yaw(ap: Autopilot) -> None:
     clock = Clock(ap)
     ap.arm(clock.now)
     velocity = np.array([0.0, 1.0, 0.5])  # north and up
-    sp = lambda: ap.set_setpoint(Setpoint(np.full(3, np.nan), velocity, yaw=math.radians(90)), clock.now)
+
+    def sp() -> None:
+        ap.set_setpoint(Setpoint(np.full(3, np.nan), velocity, yaw=math.radians(90)), clock.now)
+
     sp()
     ap.set_mode(FlightMode.OFFBOARD, clock.now)
     clock.run(3.0, each=sp)

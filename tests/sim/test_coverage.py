@@ -69,6 +69,7 @@ def test_explored_fraction_bounds_and_half_room(space: ReachableSpace) -> None:
 
     # a map knowing exactly the voxels (0.1 m) of the west half of the room, looked up like a TSDF's state_at
     voxel, mid = 0.1, 4.0
+
     def known_west(points: np.ndarray) -> np.ndarray:
         return (np.floor(points[:, 0] / voxel) + 0.5) * voxel < mid
 

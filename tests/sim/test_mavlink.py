@@ -51,8 +51,7 @@ def test_pymavlink_arm_and_takeoff(port_base: int, box_world: World) -> None:
         assert gs.latest("EXTENDED_SYS_STATE").landed_state == mavlink.MAV_LANDED_STATE_TAKEOFF
         target = config.sim.takeoff_alt_m
         gs.recv_until(lambda m: -m.z > target - 0.1, 8, "altitude", "LOCAL_POSITION_NED")
-        gs.recv_until(lambda m: m.landed_state == mavlink.MAV_LANDED_STATE_IN_AIR, 5, "in air",
-                      "EXTENDED_SYS_STATE")
+        gs.recv_until(lambda m: m.landed_state == mavlink.MAV_LANDED_STATE_IN_AIR, 5, "in air", "EXTENDED_SYS_STATE")
         glob = gs.recv_until(lambda m: True, 2, "GLOBAL_POSITION_INT", "GLOBAL_POSITION_INT")
         assert glob.relative_alt == pytest.approx(target * 1000, abs=120)
         assert glob.alt == pytest.approx((config.mission.origin.alt_amsl_m + target) * 1000, abs=120)
@@ -71,8 +70,9 @@ def test_params_ping_timesync_missions_and_unknown_commands(port_base: int, box_
         assert value.param_value == pytest.approx(config.sim.max_speed_xy_m_s)
         mav.param_request_list_send(1, 1)
         names = set()
-        first = gs.recv_until(lambda m: names.add(m.param_id) or len(names) == m.param_count, 3, "all params",
-                              "PARAM_VALUE")
+        first = gs.recv_until(
+            lambda m: names.add(m.param_id) or len(names) == m.param_count, 3, "all params", "PARAM_VALUE"
+        )
         assert {"MIS_TAKEOFF_ALT", "MPC_XY_VEL_MAX", "MAV_SYS_ID", "COM_OF_LOSS_T"} <= names
         assert first.param_count == len(names)
         mav.param_request_read_send(1, 1, b"MAV_SYS_ID", -1)
@@ -125,14 +125,20 @@ def test_offboard_setpoints_and_offboard_loss(port_base: int, box_world: World) 
         gs.heartbeat()
         set_mode = (mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 6)
         assert gs.command(*set_mode).result == mavlink.MAV_RESULT_TEMPORARILY_REJECTED  # no setpoint yet
-        mask = (mavlink.POSITION_TARGET_TYPEMASK_VX_IGNORE | mavlink.POSITION_TARGET_TYPEMASK_VY_IGNORE
-                | mavlink.POSITION_TARGET_TYPEMASK_VZ_IGNORE | mavlink.POSITION_TARGET_TYPEMASK_AX_IGNORE
-                | mavlink.POSITION_TARGET_TYPEMASK_AY_IGNORE | mavlink.POSITION_TARGET_TYPEMASK_AZ_IGNORE
-                | mavlink.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE)
+        mask = (
+            mavlink.POSITION_TARGET_TYPEMASK_VX_IGNORE
+            | mavlink.POSITION_TARGET_TYPEMASK_VY_IGNORE
+            | mavlink.POSITION_TARGET_TYPEMASK_VZ_IGNORE
+            | mavlink.POSITION_TARGET_TYPEMASK_AX_IGNORE
+            | mavlink.POSITION_TARGET_TYPEMASK_AY_IGNORE
+            | mavlink.POSITION_TARGET_TYPEMASK_AZ_IGNORE
+            | mavlink.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE
+        )
 
         def setpoint() -> None:  # 1 m north, 0.5 m east, 1.2 m up, facing east
-            gs.conn.mav.set_position_target_local_ned_send(0, 1, 1, mavlink.MAV_FRAME_LOCAL_NED, mask,
-                                                           1.0, 0.5, -1.2, 0, 0, 0, 0, 0, 0, math.pi / 2, 0)
+            gs.conn.mav.set_position_target_local_ned_send(
+                0, 1, 1, mavlink.MAV_FRAME_LOCAL_NED, mask, 1.0, 0.5, -1.2, 0, 0, 0, 0, 0, 0, math.pi / 2, 0
+            )
 
         setpoint()
         assert gs.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == ACCEPTED
@@ -155,8 +161,12 @@ def test_offboard_setpoints_and_offboard_loss(port_base: int, box_world: World) 
 
 
 def test_reposition_with_command_int(port_base: int, box_world: World) -> None:
-    fast = {"sim.takeoff_alt_m": 1.0, "sim.max_speed_down_m_s": 2.0, "sim.land_speed_m_s": 1.5,
-            "sim.position_gain": 3.0}
+    fast = {
+        "sim.takeoff_alt_m": 1.0,
+        "sim.max_speed_down_m_s": 2.0,
+        "sim.land_speed_m_s": 1.5,
+        "sim.position_gain": 3.0,
+    }
     config = sim_config(port_base, **fast)
     with running_sim(config, box_world) as server, gcs(gcs_port(config.sim, 1)) as gs:
         gs.heartbeat()
@@ -165,11 +175,18 @@ def test_reposition_with_command_int(port_base: int, box_world: World) -> None:
         gs.recv_until(lambda m: m.custom_mode == HOLD, 8, "takeoff done", "HEARTBEAT")
         home = gs.recv_until(lambda m: True, 3, "HOME_POSITION", "HOME_POSITION")
         lat = home.latitude + round(1.0 / 6378137.0 * 180 / math.pi * 1e7)  # 1 m north
-        ack = gs.command_int(mavlink.MAV_CMD_DO_REPOSITION, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
-                             (-1, 0, 0, NAN), lat, home.longitude, 1.0)
+        ack = gs.command_int(
+            mavlink.MAV_CMD_DO_REPOSITION,
+            mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+            (-1, 0, 0, NAN),
+            lat,
+            home.longitude,
+            1.0,
+        )
         assert ack.result == ACCEPTED
-        gs.recv_until(lambda m: abs(m.x - 1.0) < 0.05 and abs(m.z + 1.0) < 0.05, 8, "reposition target",
-                      "LOCAL_POSITION_NED")
+        gs.recv_until(
+            lambda m: abs(m.x - 1.0) < 0.05 and abs(m.z + 1.0) < 0.05, 8, "reposition target", "LOCAL_POSITION_NED"
+        )
         assert server.status()["vehicles"][0]["mode"] == "HOLD"
         assert gs.command(mavlink.MAV_CMD_NAV_LAND).result == ACCEPTED
         hb = gs.recv_until(lambda m: not _armed(m), 10, "auto-disarm after landing", "HEARTBEAT")
@@ -182,8 +199,9 @@ def test_silenced_telemetry_and_learned_peer(port_base: int, box_world: World) -
     with running_sim(config, box_world) as server:
         vport = vehicle_port(config.sim, 1)
         # a udpout-style client: the vehicle answers whoever talks to it, whatever port that is
-        client = mavutil.mavlink_connection(f"udpout:127.0.0.1:{vport}", source_system=245,
-                                            source_component=190, dialect="common")
+        client = mavutil.mavlink_connection(
+            f"udpout:127.0.0.1:{vport}", source_system=245, source_component=190, dialect="common"
+        )
         try:
             garbage = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
             garbage.sendto(b"\xfd\x09garbage that is no MAVLink" * 3, ("127.0.0.1", vport))
@@ -216,8 +234,9 @@ def test_status_file_and_endpoints(port_base: int, box_world: World, tmp_path) -
     stop = threading.Event()
     endpoints: list[list[dict]] = []
     result: dict = {}
-    thread = threading.Thread(target=lambda: result.update(
-        run_simulator(config, box_world, stop, on_ready=endpoints.append)))
+    thread = threading.Thread(
+        target=lambda: result.update(run_simulator(config, box_world, stop, on_ready=endpoints.append))
+    )
     thread.start()
     try:
         wait_until(path.exists, 5, "status file")
@@ -228,21 +247,43 @@ def test_status_file_and_endpoints(port_base: int, box_world: World, tmp_path) -
         assert vehicle["vehicle_port"] == port_base + 1 and vehicle["gcs_port"] == port_base + 21
         assert vehicle["mode"] == "HOLD" and vehicle["landed_state"] == "on_ground" and not vehicle["armed"]
         assert vehicle["gcs_seen"] is False and vehicle["last_gcs_message_age_s"] is None
-        assert set(vehicle) == {"id", "vehicle_port", "gcs_port", "home", "position", "velocity", "armed", "mode",
-                                "landed_state", "distance_m", "collisions", "closest_world_m", "closest_world_at",
-                                "closest_drone_m", "gcs_seen",
-                                    "last_gcs_message_age_s"}
+        assert set(vehicle) == {
+            "id",
+            "vehicle_port",
+            "gcs_port",
+            "home",
+            "position",
+            "velocity",
+            "armed",
+            "mode",
+            "landed_state",
+            "distance_m",
+            "collisions",
+            "closest_world_m",
+            "closest_world_at",
+            "closest_drone_m",
+            "gcs_seen",
+            "last_gcs_message_age_s",
+        }
     finally:
         stop.set()
         thread.join(timeout=10)
     assert not thread.is_alive()
     final = json.loads(path.read_text())
     assert final["done"] and result["done"]
-    assert endpoints == [[
-        {"id": k, "sysid": k, "vehicle_port": port_base + k - 1, "gcs_port": port_base + 19 + k,
-         "host": "127.0.0.1", "connect_url": f"udpin://0.0.0.0:{port_base + 19 + k}"}
-        for k in (1, 2)
-    ]]
+    assert endpoints == [
+        [
+            {
+                "id": k,
+                "sysid": k,
+                "vehicle_port": port_base + k - 1,
+                "gcs_port": port_base + 19 + k,
+                "host": "127.0.0.1",
+                "connect_url": f"udpin://0.0.0.0:{port_base + 19 + k}",
+            }
+            for k in (1, 2)
+        ]
+    ]
     assert not list(path.parent.glob(".*.tmp"))
 
 

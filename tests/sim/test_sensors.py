@@ -46,8 +46,6 @@ def router() -> Iterator[str]:
 
 
 @pytest.mark.bus
-
-
 def test_a_map_from_the_camera_driver_through_zenoh_lies_on_the_world_and_needs_the_attitude(router: str) -> None:
     config = load_config(overrides={"camera.stream.connect": [router]})
     world = load_world("office")

@@ -44,13 +44,10 @@ class LineReader:
 
 
 @pytest.mark.sim
-
-
 def test_sim_command_prints_endpoints_and_stops_on_sigint(port_base: int) -> None:
     gbase = port_base + 20
     script = SCRIPT.format(vbase=port_base, gbase=gbase, sbase=port_base + 40)
-    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     reader = LineReader(proc)
     try:
         lines = reader.take(3, timeout=30)
@@ -62,8 +59,10 @@ def test_sim_command_prints_endpoints_and_stops_on_sigint(port_base: int) -> Non
         )
         assert lines[1].startswith(f"vehicle 2: MAVLink udp 127.0.0.1:{port_base + 1} -> 127.0.0.1:{gbase + 1}")
         # alone, the simulator is the sensor router where the cameras and the agents dial (camera.stream.connect)
-        assert lines[2] == (f"sensor streams: odometry on tcp/127.0.0.1:{port_base + 40} (the depth cameras: "
-                            "swarm cameras --world box --vehicles 2)")
+        assert lines[2] == (
+            f"sensor streams: odometry on tcp/127.0.0.1:{port_base + 40} (the depth cameras: "
+            "swarm cameras --world box --vehicles 2)"
+        )
         proc.send_signal(signal.SIGINT)
         proc.wait(timeout=10)
         err = proc.stderr.read()
@@ -78,8 +77,6 @@ def test_sim_command_prints_endpoints_and_stops_on_sigint(port_base: int) -> Non
 
 
 @pytest.mark.sim
-
-
 def test_an_agent_listening_before_the_sim_starts_gets_a_warning_not_an_error(port_base: int) -> None:
     gbase = port_base + 20
     agent = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -87,8 +84,7 @@ def test_an_agent_listening_before_the_sim_starts_gets_a_warning_not_an_error(po
     agent.bind(("0.0.0.0", gbase))
     agent.settimeout(10)
     script = SCRIPT.format(vbase=port_base, gbase=gbase, sbase=port_base + 40)
-    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         data, addr = agent.recvfrom(2048)  # the vehicle's telemetry reaches the early listener
         assert addr[1] == port_base and data[0] == 0xFD  # MAVLink 2 from vehicle 1's port

@@ -90,8 +90,23 @@ def test_global_int_setpoint(bench: Bench) -> None:
     lat, lon, _ = geo.world_to_geo(bench.config.mission.origin, (3.0, 5.0, 0.0))
     mask = 0b0000_1111_1111_1000 & ~mavlink.POSITION_TARGET_TYPEMASK_YAW_IGNORE  # position + yaw
     msg = mavlink.MAVLink_set_position_target_global_int_message(
-        0, 1, 1, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, mask, round(lat * 1e7), round(lon * 1e7), 1.2,
-        0, 0, 0, 0, 0, 0, math.radians(45), 0)
+        0,
+        1,
+        1,
+        mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+        mask,
+        round(lat * 1e7),
+        round(lon * 1e7),
+        1.2,
+        0,
+        0,
+        0,
+        0,
+        0,
+        0,
+        math.radians(45),
+        0,
+    )
     bench.send(msg)
     sp = bench.ap._setpoint
     np.testing.assert_allclose(sp.position, [3.0, 5.0, 1.2], atol=0.02)
@@ -101,8 +116,11 @@ def test_global_int_setpoint(bench: Bench) -> None:
 def test_body_frame_velocity_follows_the_heading(bench: Bench) -> None:
     bench.ap.body.yaw = math.pi / 2  # facing east
     mask = 0b0000_1111_1100_0111  # velocity only, yaw and yaw rate ignored
-    bench.send(mavlink.MAVLink_set_position_target_local_ned_message(
-        0, 1, 1, mavlink.MAV_FRAME_BODY_NED, mask, 0, 0, 0, 1.0, 0.0, -0.5, 0, 0, 0, 0, 0))
+    bench.send(
+        mavlink.MAVLink_set_position_target_local_ned_message(
+            0, 1, 1, mavlink.MAV_FRAME_BODY_NED, mask, 0, 0, 0, 1.0, 0.0, -0.5, 0, 0, 0, 0, 0
+        )
+    )
     sp = bench.ap._setpoint
     assert np.isnan(sp.position).all()
     np.testing.assert_allclose(sp.velocity, [1.0, 0.0, 0.5], atol=1e-9)  # forward = east = +x, up = +z

@@ -14,8 +14,14 @@ from swarm.mission.mapnodes import NodeSwarm as _NodeSwarm
 __all__ = ["FAST", "NodeSpec", "NodeSwarm", "holds_all"]
 
 FAST = [
-    "mission.world=box", "mapping.voxel_size_m=0.2", "mapping.patch_frames=3", "camera.width=64",
-    "camera.height=48", "sync.chunk_bytes=2048", "sync.period_s=0.1", "sync.grace_s=0.5",
+    "mission.world=box",
+    "mapping.voxel_size_m=0.2",
+    "mapping.patch_frames=3",
+    "camera.width=64",
+    "camera.height=48",
+    "sync.chunk_bytes=2048",
+    "sync.period_s=0.1",
+    "sync.grace_s=0.5",
     "agent.heartbeat_hz=5",
 ]
 

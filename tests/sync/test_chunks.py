@@ -80,8 +80,12 @@ def test_assemblies_are_bounded_in_bytes_and_time() -> None:
     clock.now += 10
     r.expire()
     assert len(r) == 0 and r.dropped.get("expired") == 2
-    assert r.add(PatchChunk(sender=1, producer=1, epoch=1, seq=9, index=0, count=1, total_bytes=1 << 21,
-                            crc32=0, data=b"x")) is None
+    assert (
+        r.add(
+            PatchChunk(sender=1, producer=1, epoch=1, seq=9, index=0, count=1, total_bytes=1 << 21, crc32=0, data=b"x")
+        )
+        is None
+    )
     assert r.dropped.get("oversize") == 1 and len(r) == 0
 
 

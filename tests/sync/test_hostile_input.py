@@ -56,14 +56,25 @@ def _lying_chunks(keys: Keys) -> list[tuple[str, bytes]]:
     correct CRC (it completes and must fail to decode), a chunk claiming a patch of 1 GB."""
     junk = random.Random(3).randbytes(3000)
     chunks = [
-        PatchChunk(sender=FAKE_ID, producer=FAKE_ID, epoch=1, seq=i, index=j, count=2, total_bytes=3000,
-                   crc32=zlib.crc32(junk), data=junk[j * 1500:(j + 1) * 1500])
-        for i in range(3) for j in range(2)
+        PatchChunk(
+            sender=FAKE_ID,
+            producer=FAKE_ID,
+            epoch=1,
+            seq=i,
+            index=j,
+            count=2,
+            total_bytes=3000,
+            crc32=zlib.crc32(junk),
+            data=junk[j * 1500 : (j + 1) * 1500],
+        )
+        for i in range(3)
+        for j in range(2)
     ]
     out = [(keys.patch(FAKE_ID), encode(c)) for c in chunks]
     out.append((keys.patch(2), encode(chunks[0])))  # sender 9 on drone 2's key
-    huge = PatchChunk(sender=FAKE_ID, producer=FAKE_ID, epoch=1, seq=99, index=0, count=1, total_bytes=1 << 30,
-                      crc32=0, data=b"x")
+    huge = PatchChunk(
+        sender=FAKE_ID, producer=FAKE_ID, epoch=1, seq=99, index=0, count=1, total_bytes=1 << 30, crc32=0, data=b"x"
+    )
     out.append((keys.patch(FAKE_ID), encode(huge)))
     return out
 
@@ -71,8 +82,18 @@ def _lying_chunks(keys: Keys) -> list[tuple[str, bytes]]:
 def _fake_holder_state(seq: int) -> AgentState:
     holdings = DigestWire.model_validate({"entries": [{"producer": FAKE_ID, "epoch": 5, "ranges": [[0, 10**15]]}]})
     return AgentState(
-        id=FAKE_ID, epoch=5, seq=seq, t=time.time(), position=(0.0, 0.0, 1.0), velocity=(0.0, 0.0, 0.0),
-        yaw_deg=0.0, flight_mode="NONE", phase="mapping", role="explorer", leader=FAKE_ID, holdings=holdings,
+        id=FAKE_ID,
+        epoch=5,
+        seq=seq,
+        t=time.time(),
+        position=(0.0, 0.0, 1.0),
+        velocity=(0.0, 0.0, 0.0),
+        yaw_deg=0.0,
+        flight_mode="NONE",
+        phase="mapping",
+        role="explorer",
+        leader=FAKE_ID,
+        holdings=holdings,
     )
 
 
@@ -95,16 +116,24 @@ def test_hostile_input_is_counted_and_dropped_and_maps_do_not_change(swarm: Node
     session = zenoh.open(config)
     try:
         # a fake holder: advertises patches, then answers pulls with garbage and with a chunk of a bad CRC
-        bad_crc = PatchChunk(sender=FAKE_ID, producer=FAKE_ID, epoch=5, seq=0, index=0, count=1, total_bytes=4,
-                             crc32=0, data=b"abcd")
+        bad_crc = PatchChunk(
+            sender=FAKE_ID, producer=FAKE_ID, epoch=5, seq=0, index=0, count=1, total_bytes=4, crc32=0, data=b"abcd"
+        )
 
         def answer(query: zenoh.Query) -> None:
             for payload in [*_garbage(random.Random(1))[:4], encode(bad_crc)]:
                 query.reply(query.key_expr, payload)
 
         queryable = session.declare_queryable(keys.store(FAKE_ID), answer)
-        bad_keys = [keys.state(FAKE_ID), keys.state(1), keys.patch(FAKE_ID), keys.patch(1),
-                    f"{keys.root}/agent/0/state", f"{keys.root}/agent/01/patch", f"{keys.root}/agent/x/state"]
+        bad_keys = [
+            keys.state(FAKE_ID),
+            keys.state(1),
+            keys.patch(FAKE_ID),
+            keys.patch(1),
+            f"{keys.root}/agent/0/state",
+            f"{keys.root}/agent/01/patch",
+            f"{keys.root}/agent/x/state",
+        ]
         deadline = time.monotonic() + 4.0
         seq = 0
         while time.monotonic() < deadline:
@@ -117,8 +146,16 @@ def test_hostile_input_is_counted_and_dropped_and_maps_do_not_change(swarm: Node
             session.put(keys.state(FAKE_ID), encode(_fake_holder_state(seq)))
             session.put(keys.state(2), encode(_fake_holder_state(seq)))  # id 9's heartbeat on drone 2's key
             for k in (1, 2, 3):
-                for params in ("", "ids=", "ids=garbage", "ids=" + ",".join(["1.2.3"] * 1000), "ids=0.1.1",
-                               "ids=1.99999999999999999999.1", "ids=1.1.1;from=0", "from=1"):
+                for params in (
+                    "",
+                    "ids=",
+                    "ids=garbage",
+                    "ids=" + ",".join(["1.2.3"] * 1000),
+                    "ids=0.1.1",
+                    "ids=1.99999999999999999999.1",
+                    "ids=1.1.1;from=0",
+                    "from=1",
+                ):
                     for _ in session.get(f"{keys.store(k)}?{params}", timeout=0.5):
                         pass
             time.sleep(0.2)

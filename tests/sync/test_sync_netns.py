@@ -12,7 +12,10 @@ import pytest
 from swarm.netem import LinkProfile, SwarmNetwork
 from tests.sync.nodes import NodeSpec, NodeSwarm, holds_all
 
-pytestmark = [pytest.mark.skipif(os.geteuid() != 0, reason="network namespaces and nftables need root"), pytest.mark.netns]
+pytestmark = [
+    pytest.mark.skipif(os.geteuid() != 0, reason="network namespaces and nftables need root"),
+    pytest.mark.netns,
+]
 
 
 @pytest.fixture

@@ -33,8 +33,10 @@ def test_three_nodes_end_with_every_patch_and_identical_fused_maps(swarm: NodeSw
     assert len(expected) == 12
     swarm.wait_for(holds_all(expected), 30, "every node holds all 12 patches")
     swarm.wait_for(
-        lambda s: len({st.get("fused_digest") for st in s.values()}) == 1
-        and all(st.get("fused_patches") == 12 for st in s.values()),
+        lambda s: (
+            len({st.get("fused_digest") for st in s.values()}) == 1
+            and all(st.get("fused_patches") == 12 for st in s.values())
+        ),
         10,
         "equal fused-map hashes",
     )
