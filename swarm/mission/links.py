@@ -13,7 +13,8 @@ observer's snapshot (each agent's phase and patch holdings, from its heartbeats)
   connected component, with the components. This is the network's truth; the swarm's own view of its clusters
   is the observer's leader timeline.
 - `convergence_after_heal_s`: per heal (a cut pair joined again), the members of the joined component that are
-  still flying, and the seconds until every one of them holds every patch that any of them held at the heal.
+  still flying, and the seconds until every one of them that still syncs (flying, or landed and lingering: its
+  heartbeats still heard) holds every patch that any of them held at the heal.
   Holdings come from the heartbeats via the observer, sampled every half second, so the figure is +-0.5 s.
 """
 
@@ -21,6 +22,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -28,7 +30,7 @@ from typing import Any
 import numpy as np
 from scipy.sparse.csgraph import connected_components
 
-from swarm.mission.observer import INACTIVE_PHASES
+from swarm.mission.observer import FRESH_S, INACTIVE_PHASES
 from swarm.netem.network import SwarmNetwork
 from swarm.netem.profile import LinkProfile
 from swarm.netem.scenario import CLEAN, Pair, Profiles, Scenario, combine, radio_profile, timeline
@@ -62,6 +64,13 @@ def holdings_of(observer: Mapping[str, Any] | None) -> dict[int, set[str]]:
         except (ValueError, TypeError, KeyError):
             continue
     return held
+
+
+def syncing_agents(observer: Mapping[str, Any] | None, now_wall: float, fresh_s: float = FRESH_S) -> set[int]:
+    """Agents heard within fresh_s (observer wall-clock `last_heard`), in the air or landed and lingering: a
+    landed agent keeps serving and pulling patches until it leaves."""
+    agents = (observer or {}).get("agents") or {}
+    return {int(k) for k, e in agents.items() if now_wall - float(e.get("last_heard", -math.inf)) < fresh_s}
 
 
 def active_agents(observer: Mapping[str, Any] | None) -> set[int]:
@@ -203,9 +212,10 @@ class LinkController:
         if not self._pending:
             return
         held = holdings_of(observer)
-        active = active_agents(observer)
+        # one that landed meanwhile counts while it lingers (still syncing); one that left no longer does
+        syncing = active_agents(observer) | syncing_agents(observer, time.time())
         for watch in list(self._pending):
-            flying = [k for k in watch.members if k in active]  # one that landed meanwhile no longer counts
-            if flying and all(watch.target <= held.get(k, set()) for k in flying):
+            counted = [k for k in watch.members if k in syncing]
+            if counted and all(watch.target <= held.get(k, set()) for k in counted):
                 watch.s = max(0.0, t - watch.heal_t)
                 self._pending.remove(watch)
