@@ -406,12 +406,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         return cameras_command(_config_from(args, {"mission.world": args.world, "mission.drones": args.vehicles}))
     if args.command == "sim":
         config = _config_from(
-            args,
-            {
-                "mission.world": args.world,
-                "mission.drones": args.vehicles,
-                "mission.start": args.start,
-            },
+            args, {"mission.world": args.world, "mission.drones": args.vehicles, "mission.start": args.start}
         )
         from swarm.sim.server import sim_command
 

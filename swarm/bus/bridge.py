@@ -214,12 +214,7 @@ class AsyncBus:
     # --- receiving --------------------------------------------------------------------------------------
 
     def subscribe(
-        self,
-        key_expr: str,
-        model: type[T],
-        handler: Callable[[str, T], None],
-        *,
-        max_bytes: int = DEFAULT_MAX_BYTES,
+        self, key_expr: str, model: type[T], handler: Callable[[str, T], None], *, max_bytes: int = DEFAULT_MAX_BYTES
     ) -> None:
         """Call `handler(key, message)` on the loop for every valid `model` message on `key_expr`.
 
@@ -247,8 +242,7 @@ class AsyncBus:
 
         # REMOTE: a session would otherwise receive its own publications, which are not traffic.
         self._declare(
-            lambda: self.session.declare_subscriber(key_expr, on_sample, allowed_origin=zenoh.Locality.REMOTE),
-            key_expr,
+            lambda: self.session.declare_subscriber(key_expr, on_sample, allowed_origin=zenoh.Locality.REMOTE), key_expr
         )
 
     def _deliver(self, kind: str, nbytes: int, handler: Callable[[str, Any], None], key: str, msg: Any) -> None:

@@ -59,8 +59,7 @@ class ArraySpec:
 
     def __get_pydantic_core_schema__(self, source: Any, handler: Any) -> core_schema.CoreSchema:
         return core_schema.no_info_plain_validator_function(
-            self.validate,
-            serialization=core_schema.plain_serializer_function_ser_schema(to_wire_array),
+            self.validate, serialization=core_schema.plain_serializer_function_ser_schema(to_wire_array)
         )
 
     def __get_pydantic_json_schema__(self, schema: Any, handler: Any) -> dict[str, Any]:

@@ -308,10 +308,7 @@ def _compose(config: SwarmConfig, drones: int, loss: float, image: str, build_co
                 "observer": {"condition": "service_started"},
                 **({"cameras": {"condition": "service_started"}} if "cameras" in services else {}),
             },
-            "networks": {
-                "radio": {"ipv4_address": radio_address(k)},
-                "control": {"ipv4_address": control_address(k)},
-            },
+            "networks": {"radio": {"ipv4_address": radio_address(k)}, "control": {"ipv4_address": control_address(k)}},
             "stop_grace_period": f"{AGENT_STOP_GRACE_S}s",
         }
     networks = {

@@ -87,30 +87,12 @@ def netem_commands(ifname: str, loss: float, delay_ms: float = 0.0, jitter_ms: f
         netem += ["loss", _percent(loss)]
     if delay_ms > 0:
         netem += ["delay", _ms(delay_ms)] + ([_ms(jitter_ms)] if jitter_ms > 0 else [])
+    every_packet = "protocol ip prio 1 u32 match ip dst 0.0.0.0/0"
     return [
         ["ip", "link", "set", "dev", ifname, "gso_max_segs", "1", "gso_max_size", "1500"],
         ["tc", "qdisc", "replace", "dev", ifname, "root", "handle", "1:", "prio", "bands", "4"],
         ["tc", "qdisc", "replace", "dev", ifname, "parent", NETEM_BAND, "handle", "40:", *netem],
-        [
-            "tc",
-            "filter",
-            "add",
-            "dev",
-            ifname,
-            "parent",
-            "1:",
-            "protocol",
-            "ip",
-            "prio",
-            "1",
-            "u32",
-            "match",
-            "ip",
-            "dst",
-            "0.0.0.0/0",
-            "flowid",
-            NETEM_BAND,
-        ],
+        f"tc filter add dev {ifname} parent 1: {every_packet} flowid {NETEM_BAND}".split(),
     ]
 
 

@@ -125,9 +125,7 @@ def _one_mission(config: SwarmConfig, out: Path, fault: str, loss: float | None)
         scenario.write_text(f'name = "soak-loss"\n[[event]]\nat = 0\nlink = "all"\nloss = {loss}\n')
         overrides["links"] = scenario
     mission = config.model_copy(
-        update={
-            "mission": type(config.mission).model_validate({**config.mission.model_dump(), **overrides}),
-        }
+        update={"mission": type(config.mission).model_validate({**config.mission.model_dump(), **overrides})}
     )
     sampler = AgentSampler()
     started = time.monotonic()

@@ -133,14 +133,7 @@ def new_layout(nodes: int, keep: bool = False) -> Layout:
 
 def create_hub(layout: Layout) -> None:
     run(["ip", "netns", "add", layout.hub])
-    ip_batch(
-        layout.hub,
-        [
-            "link set lo up",
-            f"link add {BRIDGE} type bridge mcast_snooping 0",
-            f"link set {BRIDGE} up",
-        ],
-    )
+    ip_batch(layout.hub, ["link set lo up", f"link add {BRIDGE} type bridge mcast_snooping 0", f"link set {BRIDGE} up"])
 
 
 def add_node(layout: Layout, k: int) -> None:
@@ -148,11 +141,7 @@ def add_node(layout: Layout, k: int) -> None:
     ns, port = layout.namespace(k), layout.port(k)
     run(["ip", "netns", "add", ns])
     ip_batch(
-        layout.hub,
-        [
-            f"link add {port} type veth peer name eth0 netns {ns}",
-            f"link set {port} master {BRIDGE} up",
-        ],
+        layout.hub, [f"link add {port} type veth peer name eth0 netns {ns}", f"link set {port} master {BRIDGE} up"]
     )
     ip_batch(
         ns,
@@ -180,13 +169,7 @@ def add_control_link(layout: Layout, k: int) -> None:
     run(["ip", "link", "add", host_end, "type", "veth", "peer", "name", "ctl0", "netns", ns])
     run(["ip", "addr", "add", host, "peer", f"{node}/32", "dev", host_end])
     run(["ip", "link", "set", host_end, "up"])
-    ip_batch(
-        ns,
-        [
-            f"addr add {node} peer {host}/32 dev ctl0",
-            "link set ctl0 up",
-        ],
-    )
+    ip_batch(ns, [f"addr add {node} peer {host}/32 dev ctl0", "link set ctl0 up"])
 
 
 def remove_control_links(layout: Layout) -> None:

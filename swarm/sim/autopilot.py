@@ -248,12 +248,7 @@ class Autopilot:
             return self._takeoff_target, zero, None, None
         if self.mode == FlightMode.LAND or (self.mode == FlightMode.RTL and self._rtl_phase == RtlPhase.DESCEND):
             xy = self._land_xy if self.mode == FlightMode.LAND else self.home[:2]
-            return (
-                np.array([xy[0], xy[1], np.nan]),
-                np.array([0.0, 0.0, -self.params["MPC_LAND_SPEED"]]),
-                None,
-                None,
-            )
+            return (np.array([xy[0], xy[1], np.nan]), np.array([0.0, 0.0, -self.params["MPC_LAND_SPEED"]]), None, None)
         if self.mode == FlightMode.RTL:
             xy = self.position[:2] if self._rtl_phase == RtlPhase.CLIMB else self.home[:2]
             return np.array([xy[0], xy[1], self._rtl_z]), zero, None, None

@@ -49,8 +49,7 @@ class World:
         if self._scene is None:
             scene = o3d.t.geometry.RaycastingScene()
             scene.add_triangles(
-                o3d.core.Tensor(self.vertices.astype(np.float32)),
-                o3d.core.Tensor(self.triangles.astype(np.uint32)),
+                o3d.core.Tensor(self.vertices.astype(np.float32)), o3d.core.Tensor(self.triangles.astype(np.uint32))
             )
             self._scene = scene
         return self._scene

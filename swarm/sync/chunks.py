@@ -107,11 +107,7 @@ class Reassembler:
     """
 
     def __init__(
-        self,
-        max_bytes: int,
-        timeout_s: float,
-        max_patch_bytes: int,
-        clock: Callable[[], float] = time.monotonic,
+        self, max_bytes: int, timeout_s: float, max_patch_bytes: int, clock: Callable[[], float] = time.monotonic
     ) -> None:
         self.max_bytes = max_bytes
         self.timeout_s = timeout_s

@@ -35,9 +35,7 @@ IP_ADDR = [
         "ifindex": 40,
         "ifname": "eth0",
         "link_index": 41,
-        "addr_info": [
-            {"family": "inet", "local": "10.77.2.12", "prefixlen": 24},
-        ],
+        "addr_info": [{"family": "inet", "local": "10.77.2.12", "prefixlen": 24}],
     },
     {
         "ifindex": 42,
@@ -74,26 +72,7 @@ def test_loss_commands() -> None:
         ["ip", "link", "set", "dev", "eth1", "gso_max_segs", "1", "gso_max_size", "1500"],
         ["tc", "qdisc", "replace", "dev", "eth1", "root", "handle", "1:", "prio", "bands", "4"],
         ["tc", "qdisc", "replace", "dev", "eth1", "parent", "1:4", "handle", "40:", "netem", "loss", "30%"],
-        [
-            "tc",
-            "filter",
-            "add",
-            "dev",
-            "eth1",
-            "parent",
-            "1:",
-            "protocol",
-            "ip",
-            "prio",
-            "1",
-            "u32",
-            "match",
-            "ip",
-            "dst",
-            "0.0.0.0/0",
-            "flowid",
-            "1:4",
-        ],
+        "tc filter add dev eth1 parent 1: protocol ip prio 1 u32 match ip dst 0.0.0.0/0 flowid 1:4".split(),
     ]
 
 

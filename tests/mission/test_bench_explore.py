@@ -12,12 +12,7 @@ import pytest
 
 from swarm.config import SwarmConfig, load_config
 from swarm.errors import WorldError
-from swarm.mission.bench_explore import (
-    bench_explore,
-    expand_worlds,
-    oracle_times,
-    summarise,
-)
+from swarm.mission.bench_explore import bench_explore, expand_worlds, oracle_times, summarise
 from swarm.mission.run import INTERRUPTED
 from tests.helpers import swarm_cmd
 

@@ -21,16 +21,7 @@ pytestmark = [pytest.mark.timeout(300), pytest.mark.mission]
 
 
 def _config(out: Path, ports: SwarmPorts, **overrides: Any):
-    return load_config(
-        overrides={
-            "mission.world": "box",
-            "mission.out": str(out),
-            "sim.vehicle_base_port": ports.vehicle_base,
-            "sim.gcs_base_port": ports.gcs_base,
-            "bus.base_port": ports.bus_base,
-            **overrides,
-        }
-    )
+    return load_config(overrides={"mission.world": "box", "mission.out": str(out), **ports.settings(), **overrides})
 
 
 def test_killing_the_leader_hands_over_within_3_s_and_the_others_finish(
@@ -38,13 +29,7 @@ def test_killing_the_leader_hands_over_within_3_s_and_the_others_finish(
 ) -> None:
     out = tmp_path / "run"
     config = _config(
-        out,
-        swarm_ports,
-        **{
-            "mission.drones": 3,
-            "mission.max_time_s": 240.0,
-            "mission.faults": ["kill:agent=1@6"],
-        },
+        out, swarm_ports, **{"mission.drones": 3, "mission.max_time_s": 240.0, "mission.faults": ["kill:agent=1@6"]}
     )
     report = run_mission(config, live=False)
     assert report["status"] == "complete", report["reason"]
@@ -82,15 +67,7 @@ def test_killing_the_leader_hands_over_within_3_s_and_the_others_finish(
 def test_other_strategies_explore_the_box(tmp_path: Path, swarm_ports: SwarmPorts, strategy: str) -> None:
     out = tmp_path / "run"
     report = run_mission(
-        _config(
-            out,
-            swarm_ports,
-            **{
-                "mission.drones": 2,
-                "mission.max_time_s": 200.0,
-                "explore.strategy": strategy,
-            },
-        ),
+        _config(out, swarm_ports, **{"mission.drones": 2, "mission.max_time_s": 200.0, "explore.strategy": strategy}),
         live=False,
     )
     assert report["status"] == "complete", report["reason"]

@@ -25,9 +25,7 @@ def _config(out: Path, ports: SwarmPorts, faults: list[str], **overrides: Any):
             "mission.drones": 3,
             "mission.max_time_s": 240.0,
             "mission.faults": faults,
-            "sim.vehicle_base_port": ports.vehicle_base,
-            "sim.gcs_base_port": ports.gcs_base,
-            "bus.base_port": ports.bus_base,
+            **ports.settings(),
             **overrides,
         }
     )

@@ -86,9 +86,7 @@ def mission_under_load(
             "mission.out": str(out),
             "mission.drones": 3,
             "mission.max_time_s": 240.0,
-            "sim.vehicle_base_port": ports.vehicle_base,
-            "sim.gcs_base_port": ports.gcs_base,
-            "bus.base_port": ports.bus_base,
+            **ports.settings(),
             **overrides,
         }
     )

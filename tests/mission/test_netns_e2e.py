@@ -59,9 +59,7 @@ def _config(out: Path, ports: SwarmPorts, scenario: Path, **overrides: Any):
             "mission.max_time_s": 150.0,
             "mission.network": "netns",
             "mission.links": str(scenario),
-            "sim.vehicle_base_port": ports.vehicle_base,
-            "sim.gcs_base_port": ports.gcs_base,
-            "bus.base_port": ports.bus_base,
+            **ports.settings(),
             **overrides,
         }
     )

@@ -15,14 +15,7 @@ from swarm.config import load_config
 from swarm.mission import observer as observer_module
 from swarm.mission.coverage import SwarmCoverage, overlap_fraction
 from swarm.mission.observer import LeaderTimeline, Observer, Trajectories, clusters_of
-from swarm.mission.plots import (
-    PLOT_NAMES,
-    floor_plan,
-    leader_segments,
-    plot_explored,
-    received_rate,
-    write_plots,
-)
+from swarm.mission.plots import PLOT_NAMES, floor_plan, leader_segments, plot_explored, received_rate, write_plots
 from swarm.mission.report import finish_report, time_to, write_report
 from swarm.mission.report_md import write_report_page
 from swarm.sim.worlds import load_world
@@ -52,14 +45,7 @@ def test_time_to_takes_the_first_crossing_even_if_the_fraction_dips_later() -> N
 
 
 def test_overlap_is_the_share_of_known_cells_seen_by_two_or_more_producers() -> None:
-    known = np.array(
-        [
-            [1, 1, 1, 0, 0, 0, 0, 0],
-            [0, 1, 1, 1, 0, 0, 0, 0],
-            [0, 0, 1, 0, 1, 0, 0, 0],
-        ],
-        dtype=bool,
-    )
+    known = np.array([[1, 1, 1, 0, 0, 0, 0, 0], [0, 1, 1, 1, 0, 0, 0, 0], [0, 0, 1, 0, 1, 0, 0, 0]], dtype=bool)
     # known by >= 1: cells 0-4 (5); by >= 2: cells 1, 2 (2)
     assert overlap_fraction(known) == pytest.approx(2 / 5)
 

@@ -58,12 +58,7 @@ def test_a_one_mission_soak_flies_a_real_mission_and_measures_every_agent(
     tmp_path: Path, swarm_ports: SwarmPorts
 ) -> None:
     config = load_config(
-        overrides={
-            "mission.world": "box",
-            "mission.drones": 3,
-            "mission.max_time_s": 150.0,
-            **swarm_ports.settings(),
-        }
+        overrides={"mission.world": "box", "mission.drones": 3, "mission.max_time_s": 150.0, **swarm_ports.settings()}
     )
     result = soak(config, minutes=0.01, out=tmp_path / "soak", seed=4, console=Console(stderr=True))
 

@@ -22,12 +22,7 @@ WORLD = "gen:3:size=16x12,storeys=2"
 def test_three_drones_explore_both_storeys_of_a_generated_building(tmp_path: Path, swarm_ports: SwarmPorts) -> None:
     out = tmp_path / "run"
     config = load_config(
-        overrides={
-            "mission.world": WORLD,
-            "mission.out": str(out),
-            "mission.drones": 3,
-            **swarm_ports.settings(),
-        }
+        overrides={"mission.world": WORLD, "mission.out": str(out), "mission.drones": 3, **swarm_ports.settings()}
     )
     report = run_mission(config, live=False)
     print(

@@ -29,14 +29,7 @@ def ring(radius: float = 4.0, n: int = 72, z: float = 1.0) -> np.ndarray:
 
 @pytest.mark.parametrize(
     ("d_i", "d_tot", "expected"),
-    [
-        (1, 8, 19.47),
-        (1, 2, 16.76),
-        (1, 0.5, 9.20),
-        (2, 8, 15.94),
-        (4, 8, 10.69),
-        (4, 2, 9.20),
-    ],
+    [(1, 8, 19.47), (1, 2, 16.76), (1, 0.5, 9.20), (2, 8, 15.94), (4, 8, 10.69), (4, 2, 9.20)],
 )
 def test_utility_matches_reference_vectors_for_three_uavs(d_i: float, d_tot: float, expected: float) -> None:
     assert abs(utility(25.0, d_i, [d_tot / 2, d_tot / 2], 0.2) - expected) < 0.005

@@ -7,11 +7,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from swarm.sensing.frames import (
-    camera_to_world,
-    mount_transform,
-    pixel_centre_intrinsics,
-)
+from swarm.sensing.frames import camera_to_world, mount_transform, pixel_centre_intrinsics
 from swarm.sensing.messages import Intrinsics, Pose
 from swarm.sim.camera import camera_pose
 
