@@ -339,6 +339,7 @@ class Agent:
         self.peers.heard(state.id, state.position, state.phase, state.epoch, state.velocity, state.heading_to)
         self._last_seen[state.id] = (state.phase, state.position)
         self.sync.on_state(state)
+        self._log_leader_change()  # a leader that landed leaves the cluster with no membership event
 
     def _on_token_join(self, key: str) -> None:
         peer_id = self.keys.agent_id_of(key)
@@ -363,9 +364,14 @@ class Agent:
             self.lost_in_air.pop(peer_id, None)
         self.peer_events.append({"t": round(time.time(), 3), "event": event, "peer": peer_id, "cause": cause})
         self.log(f"peer_{event}", peer=peer_id, cause=cause, cluster=self.peers.cluster)
+        self._log_leader_change()
+
+    def _log_leader_change(self) -> None:
         if self.peers.leader != self._last_leader:
             self._last_leader = self.peers.leader
             self.log("leader", leader=self.peers.leader, role=self.peers.role, cluster=self.peers.cluster)
+            if self.exploration is not None:
+                self.exploration.wake.set()  # a new leader (maybe this agent) decides now, not at the next loop
 
     # -- lifecycle ---------------------------------------------------------------------------------------
 

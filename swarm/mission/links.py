@@ -30,11 +30,12 @@ from typing import Any
 import numpy as np
 from scipy.sparse.csgraph import connected_components
 
-from swarm.mission.observer import FRESH_S, INACTIVE_PHASES
+from swarm.mission.observer import FRESH_S
 from swarm.netem.network import SwarmNetwork
 from swarm.netem.profile import LinkProfile
 from swarm.netem.scenario import CLEAN, Pair, Profiles, Scenario, combine, radio_profile, timeline
 from swarm.patches.digest import PatchDigest
+from swarm.roles.membership import RETIRED_PHASES
 
 RADIO_PERIOD_S = 1.0
 BACKEND = "nftables (bridge table in the hub: random drop, cut = drop all)"
@@ -76,7 +77,7 @@ def syncing_agents(observer: Mapping[str, Any] | None, now_wall: float, fresh_s:
 def active_agents(observer: Mapping[str, Any] | None) -> set[int]:
     """Agents that have reported and are not on the ground for good."""
     agents = (observer or {}).get("agents") or {}
-    return {int(k) for k, e in agents.items() if "phase" in e and e.get("phase") not in INACTIVE_PHASES}
+    return {int(k) for k, e in agents.items() if "phase" in e and e.get("phase") not in RETIRED_PHASES}
 
 
 @dataclass

@@ -33,13 +33,13 @@ from swarm.bus.messages import AgentState
 from swarm.config import SwarmConfig
 from swarm.files import write_json_atomic
 from swarm.mission.coverage import SwarmCoverage
+from swarm.roles.membership import RETIRED_PHASES
 
 SNAPSHOT_PERIOD_S = 0.5
 COVERAGE_PERIOD_S = 2.0
 NO_POSITION_PHASE = "connecting"  # before its autopilot's telemetry, an agent's heartbeat says (0, 0, 0)
 TRAJECTORY_PERIOD_S = 0.5  # at most one trajectory sample per agent this often: enough for a plot, small JSON
 FRESH_S = 2.0  # a heartbeat older than this no longer says which cluster the agent is in
-INACTIVE_PHASES = frozenset({"landed", "failed"})  # on the ground for good: in no cluster
 
 Cluster = tuple[int, tuple[int, ...]]  # (leader, sorted member ids)
 
@@ -52,7 +52,7 @@ def clusters_of(agents: Mapping[int, Mapping[str, Any]], now: float, fresh_s: fl
     """
     groups: dict[int, list[int]] = {}
     for agent_id, entry in agents.items():
-        if "leader" not in entry or entry.get("phase") in INACTIVE_PHASES:
+        if "leader" not in entry or entry.get("phase") in RETIRED_PHASES:
             continue
         if now - float(entry.get("last_heard", -float("inf"))) >= fresh_s:
             continue

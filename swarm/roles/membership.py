@@ -2,8 +2,12 @@
 
 A peer is present while its liveliness token is alive and its heartbeats keep coming; it leaves when the token
 goes (Zenoh's lease, about a second after its link dies) or when it falls silent for `timeout_s`, whichever is
-first. The cluster is this agent plus every present peer; its leader is the lowest id (Mahdoui's rule). Every
-agent starts as the leader of a cluster of one.
+first. The cluster is this agent plus every present peer that still takes part in exploration; its leader is the
+lowest id (Mahdoui's rule). Every agent starts as the leader of a cluster of one.
+
+A peer whose heartbeat says it is down for good (`RETIRED_PHASES`: landed, failed, or handed to the autopilot's
+failsafe) stays present (it still serves and pulls patches while it lingers) but leaves the cluster: it no longer
+decides, so as the lowest id it would leave its explorers waiting for assignments that never come.
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ from typing import Literal
 
 Role = Literal["leader", "explorer"]
 MembershipEvent = Literal["joined", "left"]
+RETIRED_PHASES = frozenset({"landed", "failed", "failsafe"})  # out of exploration for good: in no cluster
 
 
 @dataclass
@@ -87,7 +92,9 @@ class PeerTable:
 
     @property
     def cluster(self) -> list[int]:
-        return sorted({self.own_id, *self.peers})
+        """This agent and the present peers still exploring (a peer heard only by its token counts: it is
+        starting)."""
+        return sorted({self.own_id, *(p.id for p in self.peers.values() if p.phase not in RETIRED_PHASES)})
 
     @property
     def leader(self) -> int:

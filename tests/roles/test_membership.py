@@ -51,3 +51,23 @@ def test_own_messages_are_ignored() -> None:
     table.heard(4, (0, 0, 0), "flying", 1)
     table.token_appeared(4)
     assert table.cluster == [4] and events == []
+
+
+def test_a_peer_down_for_good_leaves_the_cluster_but_stays_present() -> None:
+    table, events, _ = make(own=3)
+    table.heard(1, (0, 0, 1), "flying", 1)
+    table.heard(2, (0, 0, 1), "landing", 1)
+    assert table.cluster == [1, 2, 3] and table.leader == 1
+    table.heard(1, (0, 0, 0), "landed", 1)
+    assert table.cluster == [2, 3] and table.leader == 2 and table.role == "explorer"
+    for phase in ("failsafe", "failed"):
+        table.heard(2, (0, 0, 0), phase, 1)
+        assert table.cluster == [3] and table.role == "leader"
+    assert set(table.peers) == {1, 2}, "a landed peer still syncs: it stays present"
+    assert [e[0] for e in events] == ["joined", "joined"]
+
+
+def test_a_peer_heard_only_by_its_token_is_in_the_cluster() -> None:
+    table, _, _ = make(own=3)
+    table.token_appeared(1)
+    assert table.cluster == [1, 3] and table.leader == 1
