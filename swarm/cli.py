@@ -10,7 +10,7 @@ import argparse
 import signal
 import sys
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, NoReturn, get_args
 
@@ -18,6 +18,9 @@ from swarm.config import ConfigError, Strategy, SwarmConfig, load_config, parse_
 from swarm.errors import SwarmError
 
 EXIT_FAILED, EXIT_BAD_INPUT = 1, 2
+
+# what a subcommand runs: registered on its parser with set_defaults(handler=...), called by main
+Handler = Callable[[argparse.Namespace], int]
 
 
 class _Parser(argparse.ArgumentParser):
@@ -98,6 +101,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     run = sub.add_parser("run", help="fly a simulated swarm in a world and write a report")
+    run.set_defaults(handler=_run)
     run.add_argument("--drones", type=_positive_int, help="number of drones (default 3)")
     run.add_argument(
         "--world",
@@ -142,11 +146,13 @@ def build_parser() -> argparse.ArgumentParser:
     _add_config_flags(run)
 
     cameras = sub.add_parser("cameras", help="the simulated depth cameras as ROS 2 camera drivers over Zenoh")
+    cameras.set_defaults(handler=_cameras)
     cameras.add_argument("--world", help="built-in world or mesh path")
     cameras.add_argument("--vehicles", type=_positive_int, help="number of vehicles (cameras /drone1 ... /droneN)")
     _add_config_flags(cameras)
 
     bagmap = sub.add_parser("map", help="map recorded sensor bags offline (one drone per bag), fused into one map")
+    bagmap.set_defaults(handler=_map)
     bagmap.add_argument("bags", nargs="+", type=Path, help="ROS 2 bag directories (MCAP or sqlite3) or ROS 1 .bag")
     bagmap.add_argument("--out", type=Path, required=True, help="where patches, map.ply and report.json go")
     bagmap.add_argument("--depth-topic", help="the sensor_msgs/Image topic (default: the bag's only one)")
@@ -155,21 +161,25 @@ def build_parser() -> argparse.ArgumentParser:
     _add_config_flags(bagmap)
 
     sim = sub.add_parser("sim", help="run the simulated vehicles alone (MAVLink over UDP)")
+    sim.set_defaults(handler=_sim)
     sim.add_argument("--world", help="built-in world or mesh path")
     sim.add_argument("--vehicles", type=_positive_int, help="number of vehicles")
     sim.add_argument("--start", type=_vec3, help="take-off area x,y,z")
     _add_config_flags(sim)
 
     world = sub.add_parser("world", help="load or generate a world: size, storeys, start, triangles; write its mesh")
+    world.set_defaults(handler=_world)
     world.add_argument("spec", help="built-in world, gen:SEED[:size=WxD,storeys=N,rooms=N,furniture=0|1] or mesh")
     world.add_argument("--out", type=Path, help="write the mesh to this .ply/.obj/.stl file")
 
     agent = sub.add_parser("agent", help="run one drone's agent (next to a real or simulated autopilot)")
+    agent.set_defaults(handler=_agent)
     agent.add_argument("--id", type=_positive_int, help="drone id (also its MAVLink system id)")
     agent.add_argument("--autopilot", help="MAVSDK connection URL, e.g. udpin://0.0.0.0:14540")
     _add_config_flags(agent)
 
     observe = sub.add_parser("observe", help="follow a swarm on the bus and write its status")
+    observe.set_defaults(handler=_observe)
     observe.add_argument("--status", type=Path, required=True, help="status JSON to (re)write")
     observe.add_argument("--patches", type=Path, help="directory of sealed patches to fuse into the swarm's map")
     observe.add_argument("--map", type=Path, help="where to write the swarm's fused mesh (.ply) at the end")
@@ -177,6 +187,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_config_flags(observe)
 
     node = sub.add_parser("mapnode", help="a map-sharing node without a vehicle (sync experiments and tests)")
+    node.set_defaults(handler=_mapnode)
     node.add_argument("--id", type=_positive_int, help="node id (as a drone id)")
     node.add_argument("--status", type=Path, required=True, help="status JSON to (re)write")
     node.add_argument("--patches", type=_non_negative_int, default=3, help="patches to seal (default 3)")
@@ -188,22 +199,26 @@ def build_parser() -> argparse.ArgumentParser:
     bench = sub.add_parser("bench", help="benchmarks that print their figures")
     bench_sub = bench.add_subparsers(dest="bench", required=True, parser_class=_Parser)
     flight = bench_sub.add_parser("flight", help="CPU and memory per process for swarms of several sizes")
+    flight.set_defaults(handler=_bench_flight)
     flight.add_argument("--drones", type=_int_list, default=[1, 3, 5], help="swarm sizes, e.g. 1,3,5")
     flight.add_argument("--world", default="office")
     flight.add_argument("--out", type=Path, help="where to keep the runs (default a temp dir)")
     _add_config_flags(flight)
     mapping = bench_sub.add_parser("mapping", help="mapping costs on one core, and frame rates of N agents at once")
+    mapping.set_defaults(handler=_bench_mapping)
     mapping.add_argument("--drones", type=_positive_int, default=5, help="agents mapping at once (default 5)")
     mapping.add_argument("--world", default="office")
     mapping.add_argument("--out", type=Path, help="where to keep the figures (default a temp dir)")
     _add_config_flags(mapping)
     sync = bench_sub.add_parser("sync", help="patch sharing: seal-to-everyone latency, heal convergence, bandwidth")
+    sync.set_defaults(handler=_bench_sync)
     sync.add_argument("--drones", type=_int_list, default=[3, 5], help="swarm sizes, e.g. 3,5")
     sync.add_argument("--world", default="office")
     sync.add_argument("--no-mission", action="store_true", help="skip the bandwidth missions (swarm run)")
     sync.add_argument("--out", type=Path, help="where to keep the runs (default a temp dir)")
     _add_config_flags(sync)
     explore = bench_sub.add_parser("explore", help="time to 95 %% with 1..N drones, coordinated vs uncoordinated")
+    explore.set_defaults(handler=_bench_explore)
     explore.add_argument("--drones", type=_int_list, default=[1, 2, 3], help="swarm sizes, e.g. 1,2,3,5")
     explore.add_argument(
         "--strategies",
@@ -237,6 +252,7 @@ def build_parser() -> argparse.ArgumentParser:
     dropout = experiment_sub.add_parser(
         "dropout", help="the same netns mission at several link loss levels and with a cut-and-heal (root)"
     )
+    dropout.set_defaults(handler=_experiment_dropout)
     dropout.add_argument(
         "--levels",
         type=_percent_list,
@@ -259,6 +275,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_config_flags(dropout)
 
     soak = sub.add_parser("soak", help="missions back to back with random faults and loss: memory, fds, patches lost")
+    soak.set_defaults(handler=_soak)
     soak.add_argument("--minutes", type=float, required=True, help="wall time to keep starting missions")
     soak.add_argument("--drones", type=_positive_int, help="drones per mission (default 3)")
     soak.add_argument("--world", default="box", help="built-in world or mesh (default box)")
@@ -269,6 +286,7 @@ def build_parser() -> argparse.ArgumentParser:
     deploy = sub.add_parser("deploy", help="the simulated swarm as Docker containers (docs/deploy.md)")
     deploy_sub = deploy.add_subparsers(dest="deploy", required=True, parser_class=_Parser)
     compose = deploy_sub.add_parser("compose", help="write a docker-compose file: simulator, N agents, observer")
+    compose.set_defaults(handler=_deploy_compose)
     compose.add_argument("--drones", type=_positive_int, help="number of agents, 1 to 16 (default 3)")
     compose.add_argument(
         "--loss", type=float, default=0.0, help="radio loss on every link, each way, as a fraction 0..1 (default 0)"
@@ -289,6 +307,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add_config_flags(compose)
     certs = deploy_sub.add_parser("certs", help="a CA and per-drone certificates for mutual TLS (bus.tls_dir)")
+    certs.set_defaults(handler=_deploy_certs)
     certs.add_argument("--drones", type=_positive_int, required=True, help="certificates for drones 1..N")
     certs.add_argument(
         "--out",
@@ -298,6 +317,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     certs.add_argument("--days", type=_positive_int, default=365, help="validity in days (default 365)")
     radio = deploy_sub.add_parser("netem", help="impair this container's radio interface with tc netem")
+    radio.set_defaults(handler=_deploy_netem)
     radio.add_argument("--address", required=True, help="IP address of the radio interface")
     radio.add_argument("--loss", type=float, default=0.0, help="loss fraction 0..1 on egress (default 0)")
     radio.add_argument("--delay-ms", type=float, default=0.0, dest="delay_ms", help="added delay (default 0)")
@@ -306,11 +326,14 @@ def build_parser() -> argparse.ArgumentParser:
     netem = sub.add_parser("netem", help="a virtual swarm radio kept up by hand: namespaces + nftables (root)")
     netem_sub = netem.add_subparsers(dest="netem", required=True, parser_class=_Parser)
     n_up = netem_sub.add_parser("up", help="create a network that stays until `swarm netem down`")
+    n_up.set_defaults(handler=_netem_up)
     n_up.add_argument("--nodes", type=_positive_int, required=True, help="number of nodes (1 to 200)")
     n_up.add_argument("--name", default="default", help="network name (default: default)")
     n_show = netem_sub.add_parser("show", help="nodes, addresses, impairments in force and nft rules")
+    n_show.set_defaults(handler=_netem_show)
     n_show.add_argument("--name", default="default", help="network name (default: default)")
     n_apply = netem_sub.add_parser("apply", help="impair or restore links, or apply a scenario's state at a time")
+    n_apply.set_defaults(handler=_netem_apply)
     n_apply.add_argument("link", nargs="?", help='"a-b" (one pair), "k" (all links of node k) or "all"')
     n_apply.add_argument("--name", default="default", help="network name (default: default)")
     n_apply.add_argument("--loss", help="drop probability each way: a fraction (0.3) or a percentage (30%%)")
@@ -329,6 +352,7 @@ def build_parser() -> argparse.ArgumentParser:
     n_apply.add_argument("--scenario", type=Path, help="scenario TOML: make its state at --at T the whole table")
     n_apply.add_argument("--at", type=float, metavar="T", help="seconds after take-off (with --scenario)")
     n_down = netem_sub.add_parser("down", help="remove a network: processes inside, namespaces, links, state file")
+    n_down.set_defaults(handler=_netem_down)
     n_target = n_down.add_mutually_exclusive_group()
     n_target.add_argument("--name", default="default", help="network name (default: default)")
     n_target.add_argument("--all", action="store_true", help="every manual network, orphans included")
@@ -347,8 +371,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     # down (an agent installs its own handlers later)
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, signal.default_int_handler)
+    handler: Handler = args.handler
     try:
-        return _dispatch(args)
+        return handler(args)
     except ConfigError as exc:
         print(f"swarm {args.command}: config error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
@@ -359,153 +384,197 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
 
 
-def _dispatch(args: argparse.Namespace) -> int:
-    if args.command == "run":
-        config = _config_from(
-            args,
-            {
-                "mission.drones": args.drones,
-                "mission.world": args.world,
-                "mission.start": args.start,
-                "mission.out": str(args.out) if args.out else None,
-                "mission.max_time_s": args.max_time,
-                "mission.seed": args.seed,
-                "explore.strategy": args.strategy,
-                "mission.network": args.network,
-                "mission.links": str(args.links) if args.links else None,
-                "mission.faults": args.fault,
-                "mission.tls": args.tls,
-                "mission.record": args.record,
-            },
-        )
-        from swarm.mission.run import run_mission
+def _run(args: argparse.Namespace) -> int:
+    config = _config_from(
+        args,
+        {
+            "mission.drones": args.drones,
+            "mission.world": args.world,
+            "mission.start": args.start,
+            "mission.out": str(args.out) if args.out else None,
+            "mission.max_time_s": args.max_time,
+            "mission.seed": args.seed,
+            "explore.strategy": args.strategy,
+            "mission.network": args.network,
+            "mission.links": str(args.links) if args.links else None,
+            "mission.faults": args.fault,
+            "mission.tls": args.tls,
+            "mission.record": args.record,
+        },
+    )
+    from swarm.mission.run import run_mission
 
-        report = run_mission(config, live=False if args.no_live else None)
-        _print_summary(report)
-        return 0 if report["status"] == "complete" else EXIT_FAILED
-    if args.command == "map":
-        from swarm.agent.bagmap import map_bags
+    report = run_mission(config, live=False if args.no_live else None)
+    _print_summary(report)
+    return 0 if report["status"] == "complete" else EXIT_FAILED
 
-        report = map_bags(
-            _config_from(args, {}),
-            args.bags,
-            args.out,
-            {"depth": args.depth_topic, "info": args.info_topic, "pose": args.pose_topic},
-        )
-        for bag in report["bags"]:
-            dropped = ", ".join(f"{n} {why}" for why, n in bag["dropped"].items()) or "none dropped"
-            print(f"{bag['bag']}: {bag['frames']} frames, {bag['patches']} patches ({dropped})")
-        print(
-            f"map: {args.out / 'map.ply'} ({report['mesh']['vertices']} vertices, {report['known_voxels']} known "
-            f"voxels); report: {args.out / 'report.json'}"
-        )
-        return 0
-    if args.command == "cameras":
-        from swarm.sim.sensors import cameras_command
 
-        return cameras_command(_config_from(args, {"mission.world": args.world, "mission.drones": args.vehicles}))
-    if args.command == "sim":
-        config = _config_from(
-            args, {"mission.world": args.world, "mission.drones": args.vehicles, "mission.start": args.start}
-        )
-        from swarm.sim.server import sim_command
+def _map(args: argparse.Namespace) -> int:
+    from swarm.agent.bagmap import map_bags
 
-        return sim_command(config)
-    if args.command == "world":
-        from swarm.sim.worlds import world_command
+    report = map_bags(
+        _config_from(args, {}),
+        args.bags,
+        args.out,
+        {"depth": args.depth_topic, "info": args.info_topic, "pose": args.pose_topic},
+    )
+    for bag in report["bags"]:
+        dropped = ", ".join(f"{n} {why}" for why, n in bag["dropped"].items()) or "none dropped"
+        print(f"{bag['bag']}: {bag['frames']} frames, {bag['patches']} patches ({dropped})")
+    print(
+        f"map: {args.out / 'map.ply'} ({report['mesh']['vertices']} vertices, {report['known_voxels']} known "
+        f"voxels); report: {args.out / 'report.json'}"
+    )
+    return 0
 
-        return world_command(args.spec, args.out)
-    if args.command == "agent":
-        config = _config_from(args, {"agent.id": args.id, "agent.autopilot": args.autopilot})
-        from swarm.agent.main import agent_command
 
-        return agent_command(config)
-    if args.command == "observe":
-        from swarm.mission.observer import observe_command
+def _cameras(args: argparse.Namespace) -> int:
+    from swarm.sim.sensors import cameras_command
 
-        return observe_command(_config_from(args, {}), args.status, args.patches, args.map, args.since)
-    if args.command == "mapnode":
-        if args.period <= 0 or args.delay < 0:
-            raise ConfigError("--period must be positive and --delay not negative")
-        from swarm.mission.mapnode import NodePlan, mapnode_command
+    return cameras_command(_config_from(args, {"mission.world": args.world, "mission.drones": args.vehicles}))
 
-        config = _config_from(args, {"agent.id": args.id})
-        plan = NodePlan(args.patches, args.period, args.delay, args.position)
-        return mapnode_command(config, plan, args.status)
-    if args.command == "bench" and args.bench == "flight":
-        from swarm.mission.bench import bench_flight
 
-        return bench_flight(_config_from(args, {"mission.world": args.world}), args.drones, args.out)
-    if args.command == "bench" and args.bench == "mapping":
-        from swarm.mission.bench import bench_mapping_swarm
-        from swarm.mission.bench_mapping import bench_mapping
+def _sim(args: argparse.Namespace) -> int:
+    config = _config_from(
+        args, {"mission.world": args.world, "mission.drones": args.vehicles, "mission.start": args.start}
+    )
+    from swarm.sim.server import sim_command
 
-        config = _config_from(args, {"mission.world": args.world})
-        single = bench_mapping(config, args.out)
-        return bench_mapping_swarm(config, args.drones, args.out) or single
-    if args.command == "bench" and args.bench == "sync":
-        from swarm.mission.bench_sync import bench_sync
+    return sim_command(config)
 
-        config = _config_from(args, {"mission.world": args.world})
-        return bench_sync(config, args.drones, args.out, mission=not args.no_mission)
-    if args.command == "bench" and args.bench == "explore":
-        from swarm.mission.bench_explore import bench_explore, expand_worlds
 
-        if args.world and args.worlds:
-            raise ConfigError("give --world or --worlds, not both")
-        if args.resume and args.out is None:
-            raise ConfigError("--resume needs the --out of the bench to resume")
-        worlds = expand_worlds(args.worlds) if args.worlds else None
-        config = _config_from(args, {"mission.world": args.world or (worlds[0] if worlds else None)})
-        return bench_explore(
-            config, args.drones, args.strategies, args.out, repeats=args.repeat, worlds=worlds, resume=args.resume
-        )
-    if args.command == "experiment" and args.experiment == "dropout":
-        from swarm.mission.experiment import experiment_dropout
+def _world(args: argparse.Namespace) -> int:
+    from swarm.sim.worlds import world_command
 
-        config = _config_from(args, {"mission.world": args.world, "mission.drones": args.drones})
-        return experiment_dropout(config, args.levels, not args.no_cut, args.out, args.cut_at, args.heal_at)
-    if args.command == "soak":
-        from swarm.mission.soak import soak_command
+    return world_command(args.spec, args.out)
 
-        config = _config_from(args, {"mission.world": args.world, "mission.drones": args.drones})
-        return soak_command(config, args.minutes, args.out, args.seed)
-    if args.command == "deploy" and args.deploy == "compose":
-        from swarm.deploy.compose import deploy_compose_command
 
-        config = _config_from(args, {"mission.world": args.world})
-        drones = args.drones if args.drones is not None else config.mission.drones
-        return deploy_compose_command(config, drones, args.loss, args.out, args.image, args.build_context)
-    if args.command == "deploy" and args.deploy == "certs":
-        from swarm.deploy.certs import certs_command
+def _agent(args: argparse.Namespace) -> int:
+    config = _config_from(args, {"agent.id": args.id, "agent.autopilot": args.autopilot})
+    from swarm.agent.main import agent_command
 
-        return certs_command(args.out, args.drones, args.days)
-    if args.command == "deploy" and args.deploy == "netem":
-        from swarm.deploy.radio import deploy_netem_command
+    return agent_command(config)
 
-        return deploy_netem_command(args.address, args.loss, args.delay_ms, args.jitter_ms)
-    if args.command == "netem":
-        from swarm.netem.manual import netem_apply, netem_down, netem_show, netem_up
 
-        if args.netem == "up":
-            return netem_up(args.nodes, args.name)
-        if args.netem == "show":
-            return netem_show(args.name)
-        if args.netem == "apply":
-            return netem_apply(
-                args.name,
-                args.link,
-                loss=args.loss,
-                cut=args.cut,
-                rate_kbit=args.rate_kbit,
-                restore=args.restore,
-                delay_ms=args.delay_ms,
-                jitter_ms=args.jitter_ms,
-                scenario=args.scenario,
-                at=args.at,
-            )
-        return netem_down(args.name, args.all)
-    raise SwarmError(f"unknown command {args.command}")
+def _observe(args: argparse.Namespace) -> int:
+    from swarm.mission.observer import observe_command
+
+    return observe_command(_config_from(args, {}), args.status, args.patches, args.map, args.since)
+
+
+def _mapnode(args: argparse.Namespace) -> int:
+    if args.period <= 0 or args.delay < 0:
+        raise ConfigError("--period must be positive and --delay not negative")
+    from swarm.mission.mapnode import NodePlan, mapnode_command
+
+    config = _config_from(args, {"agent.id": args.id})
+    plan = NodePlan(args.patches, args.period, args.delay, args.position)
+    return mapnode_command(config, plan, args.status)
+
+
+def _bench_flight(args: argparse.Namespace) -> int:
+    from swarm.mission.bench import bench_flight
+
+    return bench_flight(_config_from(args, {"mission.world": args.world}), args.drones, args.out)
+
+
+def _bench_mapping(args: argparse.Namespace) -> int:
+    from swarm.mission.bench import bench_mapping_swarm
+    from swarm.mission.bench_mapping import bench_mapping
+
+    config = _config_from(args, {"mission.world": args.world})
+    single = bench_mapping(config, args.out)
+    return bench_mapping_swarm(config, args.drones, args.out) or single
+
+
+def _bench_sync(args: argparse.Namespace) -> int:
+    from swarm.mission.bench_sync import bench_sync
+
+    config = _config_from(args, {"mission.world": args.world})
+    return bench_sync(config, args.drones, args.out, mission=not args.no_mission)
+
+
+def _bench_explore(args: argparse.Namespace) -> int:
+    from swarm.mission.bench_explore import bench_explore, expand_worlds
+
+    if args.world and args.worlds:
+        raise ConfigError("give --world or --worlds, not both")
+    if args.resume and args.out is None:
+        raise ConfigError("--resume needs the --out of the bench to resume")
+    worlds = expand_worlds(args.worlds) if args.worlds else None
+    config = _config_from(args, {"mission.world": args.world or (worlds[0] if worlds else None)})
+    return bench_explore(
+        config, args.drones, args.strategies, args.out, repeats=args.repeat, worlds=worlds, resume=args.resume
+    )
+
+
+def _experiment_dropout(args: argparse.Namespace) -> int:
+    from swarm.mission.experiment import experiment_dropout
+
+    config = _config_from(args, {"mission.world": args.world, "mission.drones": args.drones})
+    return experiment_dropout(config, args.levels, not args.no_cut, args.out, args.cut_at, args.heal_at)
+
+
+def _soak(args: argparse.Namespace) -> int:
+    from swarm.mission.soak import soak_command
+
+    config = _config_from(args, {"mission.world": args.world, "mission.drones": args.drones})
+    return soak_command(config, args.minutes, args.out, args.seed)
+
+
+def _deploy_compose(args: argparse.Namespace) -> int:
+    from swarm.deploy.compose import deploy_compose_command
+
+    config = _config_from(args, {"mission.world": args.world})
+    drones = args.drones if args.drones is not None else config.mission.drones
+    return deploy_compose_command(config, drones, args.loss, args.out, args.image, args.build_context)
+
+
+def _deploy_certs(args: argparse.Namespace) -> int:
+    from swarm.deploy.certs import certs_command
+
+    return certs_command(args.out, args.drones, args.days)
+
+
+def _deploy_netem(args: argparse.Namespace) -> int:
+    from swarm.deploy.radio import deploy_netem_command
+
+    return deploy_netem_command(args.address, args.loss, args.delay_ms, args.jitter_ms)
+
+
+def _netem_up(args: argparse.Namespace) -> int:
+    from swarm.netem.manual import netem_up
+
+    return netem_up(args.nodes, args.name)
+
+
+def _netem_show(args: argparse.Namespace) -> int:
+    from swarm.netem.manual import netem_show
+
+    return netem_show(args.name)
+
+
+def _netem_apply(args: argparse.Namespace) -> int:
+    from swarm.netem.manual import netem_apply
+
+    return netem_apply(
+        args.name,
+        args.link,
+        loss=args.loss,
+        cut=args.cut,
+        rate_kbit=args.rate_kbit,
+        restore=args.restore,
+        delay_ms=args.delay_ms,
+        jitter_ms=args.jitter_ms,
+        scenario=args.scenario,
+        at=args.at,
+    )
+
+
+def _netem_down(args: argparse.Namespace) -> int:
+    from swarm.netem.manual import netem_down
+
+    return netem_down(args.name, args.all)
 
 
 def _print_summary(report: dict[str, Any]) -> None:

@@ -62,3 +62,17 @@ def test_every_command_has_a_help_page() -> None:
 
     pages = [p.format_help() for p in _parsers(build_parser())]  # a stray % in a help text raises here
     assert len(pages) > 10 and all("usage:" in page for page in pages)
+
+
+def test_every_command_has_a_handler() -> None:
+    import argparse
+
+    from swarm.cli import build_parser
+
+    def has_subcommands(parser: argparse.ArgumentParser) -> bool:
+        return any(isinstance(a, argparse._SubParsersAction) for a in parser._actions)
+
+    leaves = [p for p in _parsers(build_parser()) if not has_subcommands(p)]
+    assert len(leaves) > 10
+    for leaf in leaves:
+        assert callable(leaf.get_default("handler")), leaf.prog
