@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 
 from swarm.netem.commands import NetemUnavailable, run_in
 from swarm.netem.profile import LinkProfile
-from swarm.netem.topology import Layout
+from swarm.netem.topology import NetworkLayout
 
 TABLE = "swimp"
 CHAIN = "links"
@@ -62,7 +62,7 @@ def _drop(match: str, profile: LinkProfile, comment: str) -> str:
     return f'{match} {verdict} comment "{comment}: {profile.describe()}"'.strip()
 
 
-def drop_rules(layout: Layout, imp: Impairments) -> list[str]:
+def drop_rules(layout: NetworkLayout, imp: Impairments) -> list[str]:
     """The nft rules (one per line) for the loss and cut parts of the profiles."""
     rules = []
     if imp.all is not None and imp.all.drops:
@@ -79,7 +79,7 @@ def drop_rules(layout: Layout, imp: Impairments) -> list[str]:
     return rules
 
 
-def ruleset(layout: Layout, imp: Impairments) -> str:
+def ruleset(layout: NetworkLayout, imp: Impairments) -> str:
     """The atomic nft script that replaces the impairment table with the one for `imp`."""
     body = "".join(f"    {rule}\n" for rule in drop_rules(layout, imp))
     return (
@@ -94,15 +94,15 @@ def ruleset(layout: Layout, imp: Impairments) -> str:
     )
 
 
-def load_ruleset(layout: Layout, imp: Impairments) -> None:
+def load_ruleset(layout: NetworkLayout, imp: Impairments) -> None:
     run_in(layout.hub, ["nft", "-f", "-"], ruleset(layout, imp))
 
 
-def list_ruleset(layout: Layout) -> str:
+def list_ruleset(layout: NetworkLayout) -> str:
     return run_in(layout.hub, ["nft", "list", "table", "bridge", TABLE])
 
 
-def node_rates(layout: Layout, imp: Impairments) -> dict[int, int]:
+def node_rates(layout: NetworkLayout, imp: Impairments) -> dict[int, int]:
     """kbit/s limit of each rate-limited node: the lowest of its own profile's and the all-links profile's."""
     rates = {}
     for k in layout.node_ids:
@@ -117,7 +117,7 @@ def _tbf(rate_kbit: int) -> list[str]:
     return ["root", "tbf", "rate", f"{rate_kbit}kbit", "burst", str(burst), "latency", _TBF_LATENCY]
 
 
-def apply_rates(layout: Layout, in_force: dict[int, int], new: dict[int, int]) -> None:
+def apply_rates(layout: NetworkLayout, in_force: dict[int, int], new: dict[int, int]) -> None:
     """Change the tbf qdiscs of the nodes whose rate differs from `in_force`, updating `in_force` node by node
     (so that after a failure it still says what is applied)."""
     for k in layout.node_ids:

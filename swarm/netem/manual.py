@@ -55,7 +55,7 @@ from swarm.netem.impair import Impairments
 from swarm.netem.network import SwarmNetwork
 from swarm.netem.profile import LinkProfile, refuse_delay
 from swarm.netem.scenario import LinkState, load_scenario, resolve_links
-from swarm.netem.topology import Layout
+from swarm.netem.topology import NetworkLayout
 
 STATE_DIR_ENV = "SWARM_NETEM_STATE_DIR"
 DEFAULT_STATE_DIR = Path("/run/swarm-netem")
@@ -74,7 +74,7 @@ class ManualNetwork:
     """What a state file holds: the network's name, layout, impairment table in force and creation time."""
 
     name: str
-    layout: Layout
+    layout: NetworkLayout
     impairments: Impairments
     created: str
 
@@ -162,7 +162,7 @@ def load_state(name: str) -> ManualNetwork | None:
         if tree.get("format") != STATE_FORMAT:
             raise ValueError(f"format {tree.get('format')!r}, expected {STATE_FORMAT}")
         lay = tree["layout"]
-        layout = Layout(str(lay["tag"]), int(lay["pid"]), int(lay["nodes"]))
+        layout = NetworkLayout(str(lay["tag"]), int(lay["pid"]), int(lay["nodes"]))
         if not re.fullmatch(r"[0-9a-f]{4}", layout.tag) or not 1 <= layout.nodes <= topology.MAX_NODES:
             raise ValueError(f"bad layout {lay}")
         return ManualNetwork(name, layout, impairments_from_json(tree["impairments"]), str(tree.get("created", "")))
@@ -227,12 +227,12 @@ def _not_up(name: str) -> NetworkNotUp:
     )
 
 
-def _present(layout: Layout) -> list[str]:
+def _present(layout: NetworkLayout) -> list[str]:
     existing = set(namespaces())
     return [ns for ns in layout.all_namespaces() if ns in existing]
 
 
-def _node_table(layout: Layout) -> list[str]:
+def _node_table(layout: NetworkLayout) -> list[str]:
     rows = [("node", "namespace", "radio", "control", "host control end")]
     rows += [
         (str(k), layout.namespace(k), layout.address(k), layout.control_address(k), layout.control_host_address)
@@ -534,7 +534,7 @@ def _try_load(name: str) -> ManualNetwork | None:
         return None
 
 
-def _remove(name: str, layout: Layout) -> None:
+def _remove(name: str, layout: NetworkLayout) -> None:
     SwarmNetwork.attach(layout).down()  # ends processes inside, deletes namespaces (rules, qdiscs) and control links
     state_path(name).unlink(missing_ok=True)
     print(f"swarm network '{name}' removed ({layout.nodes} nodes, {layout.prefix}-*)")

@@ -20,7 +20,7 @@ from swarm.netem import impair, topology
 from swarm.netem.commands import NetemUnavailable, check_prerequisites, tool
 from swarm.netem.impair import Impairments
 from swarm.netem.profile import LinkProfile, refuse_delay
-from swarm.netem.topology import Layout
+from swarm.netem.topology import NetworkLayout
 
 CUT = LinkProfile(cut=True)
 
@@ -39,7 +39,7 @@ class SwarmNetwork:
             raise ValueError(f"a swarm network has 1 to {topology.MAX_NODES} nodes, not {nodes}")
         self.nodes = nodes
         self.keep = keep
-        self._layout: Layout | None = None
+        self._layout: NetworkLayout | None = None
         self._is_up = False
         self._imp = Impairments()
         self._rates: dict[int, int] = {}  # tbf limits in force, per node
@@ -47,14 +47,14 @@ class SwarmNetwork:
     # ----- topology -----
 
     @property
-    def layout(self) -> Layout:
+    def layout(self) -> NetworkLayout:
         """Names and addresses (chosen on first use: the tag must not clash with existing namespaces)."""
         if self._layout is None:
             self._layout = topology.new_layout(self.nodes, keep=self.keep)
         return self._layout
 
     @classmethod
-    def attach(cls, layout: Layout, impairments: Impairments | None = None) -> SwarmNetwork:
+    def attach(cls, layout: NetworkLayout, impairments: Impairments | None = None) -> SwarmNetwork:
         """An instance for a network that is already up (made by another process, e.g. `swarm netem up`), with
         `impairments` as the profiles in force (node rate limits are taken to be the ones they imply). Nothing is
         created, checked or registered: no exit hook, so the network outlives this instance unless `down()` is

@@ -59,7 +59,7 @@ _reserved_tags: set[str] = set()  # tags handed out by this process, even to ins
 
 
 @dataclass(frozen=True)
-class Layout:
+class NetworkLayout:
     """Names and addresses of one swarm network instance (pure data, nothing is created)."""
 
     tag: str
@@ -117,7 +117,7 @@ class Layout:
         return self.pid == KEPT_PID
 
 
-def new_layout(nodes: int, keep: bool = False) -> Layout:
+def new_layout(nodes: int, keep: bool = False) -> NetworkLayout:
     """A layout with a tag that no existing namespace and no other instance of this process uses (two instances
     of one process with the same tag would have the same names, and one's down() would delete the other).
     With `keep`, the pid field is `KEPT_PID` (0) instead of this process's pid: the network is meant to outlive
@@ -128,15 +128,15 @@ def new_layout(nodes: int, keep: bool = False) -> Layout:
     while (tag := f"{secrets.randbelow(64):02x}{secrets.token_hex(1)}") in taken:
         pass
     _reserved_tags.add(tag)
-    return Layout(tag, KEPT_PID if keep else os.getpid(), nodes)
+    return NetworkLayout(tag, KEPT_PID if keep else os.getpid(), nodes)
 
 
-def create_hub(layout: Layout) -> None:
+def create_hub(layout: NetworkLayout) -> None:
     run(["ip", "netns", "add", layout.hub])
     ip_batch(layout.hub, ["link set lo up", f"link add {BRIDGE} type bridge mcast_snooping 0", f"link set {BRIDGE} up"])
 
 
-def add_node(layout: Layout, k: int) -> None:
+def add_node(layout: NetworkLayout, k: int) -> None:
     """Node k's namespace, its veth to the bridge, address, GSO off, static neighbours; its control link."""
     ns, port = layout.namespace(k), layout.port(k)
     run(["ip", "netns", "add", ns])
@@ -162,7 +162,7 @@ def add_node(layout: Layout, k: int) -> None:
     add_control_link(layout, k)
 
 
-def add_control_link(layout: Layout, k: int) -> None:
+def add_control_link(layout: NetworkLayout, k: int) -> None:
     """The veth between node k and the host namespace, outside the bridge (see the module docstring)."""
     ns, host_end = layout.namespace(k), layout.control_port(k)
     host, node = layout.control_host_address, layout.control_address(k)
@@ -172,7 +172,7 @@ def add_control_link(layout: Layout, k: int) -> None:
     ip_batch(ns, [f"addr add {node} peer {host}/32 dev ctl0", "link set ctl0 up"])
 
 
-def remove_control_links(layout: Layout) -> None:
+def remove_control_links(layout: NetworkLayout) -> None:
     """Delete the host ends of the instance's control links now (deleting a namespace removes its veths only
     when the kernel gets round to it, so a test checking the host right after `down()` would still see them)."""
     prefix = f"sw{layout.tag}c"
@@ -251,10 +251,10 @@ def kept_namespaces() -> dict[str, list[str]]:
     return kept
 
 
-def layout_of(tag: str, names: list[str]) -> Layout:
+def layout_of(tag: str, names: list[str]) -> NetworkLayout:
     """A layout covering these namespaces of one instance (nodes = the highest node number among them), for
     removing an instance whose size is not recorded anywhere else."""
     pids = {int(m.group("pid")) for name in names if (m := _NAME_RE.match(name))}
     roles = [m.group("role") for name in names if (m := _NAME_RE.match(name))]
     nodes = max((int(role[1:]) for role in roles if role.startswith("n")), default=0)
-    return Layout(tag, pids.pop() if len(pids) == 1 else KEPT_PID, max(nodes, 1))
+    return NetworkLayout(tag, pids.pop() if len(pids) == 1 else KEPT_PID, max(nodes, 1))

@@ -48,7 +48,10 @@ class RtlPhase(Enum):
 GROUND_REFRESH_M = 0.05  # the floor under the vehicle is looked up again after it moved this far
 
 
-class Autopilot:
+class SimulatedPx4:
+    """PX4's flight logic for one simulated vehicle, as the simulator models it (the agent's side of the link is
+    `swarm.agent.autopilot.Autopilot`, a MAVSDK client)."""
+
     def __init__(
         self, home: Vec3, params: Params, position_gain: float, floor_below: Callable[[np.ndarray], float] | None = None
     ) -> None:

@@ -1,4 +1,4 @@
-"""Procedural buildings: random indoor worlds from a seed, as `layouts.Layout` boxes (`--world gen:SEED[:opts]`).
+"""Procedural buildings: random indoor worlds from a seed, as `BuildingLayout` boxes (`--world gen:SEED[:opts]`).
 
 A building is one to three equal storeys over the same footprint. Each storey's plan is a binary space
 partition of the free rectangle inside the outer walls: a region is cut by a wall (one door) or, when large, by a
@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from swarm.errors import WorldError
-from swarm.sim.layouts import SLAB, WALL, Layout, Rect
+from swarm.sim.layouts import SLAB, WALL, BuildingLayout, Rect
 
 PREFIX = "gen:"
 MIN_SIZE, MAX_SIZE = (15.0, 10.0), (60.0, 40.0)
@@ -126,7 +126,7 @@ def _option(spec: str, key: str, value: str) -> object:
     return int(value)
 
 
-def layout_from_spec(spec: str) -> Layout:
+def layout_from_spec(spec: str) -> BuildingLayout:
     options = parse_spec(spec)
     return generate(options.seed, options.size, options.storeys, options.rooms, options.furniture, name=options.name)
 
@@ -318,7 +318,7 @@ def generate(
     rooms: int | None = None,
     furniture: bool = True,
     name: str | None = None,
-) -> Layout:
+) -> BuildingLayout:
     """A random building (module docstring); `size` (W x D m), `storeys` and `rooms` (per storey) drawn from the
     seed when None."""
     rng = np.random.default_rng(seed)
@@ -333,7 +333,7 @@ def generate(
         target_area = float(rng.uniform(12.0, 30.0))
     else:
         target_area = max(_area(inner) / rooms, _MIN_ROOM * _MIN_ROOM)
-    lay = Layout(name or f"gen-{seed}", (width, depth, height), default_start=(0.0, 0.0, 0.0), storeys=storeys)
+    lay = BuildingLayout(name or f"gen-{seed}", (width, depth, height), default_start=(0.0, 0.0, 0.0), storeys=storeys)
 
     holes = _holes(rng, inner, storeys)
     planner = _Planner(rng, target_area)
@@ -400,7 +400,7 @@ def _holes(rng: np.random.Generator, inner: Rect, storeys: int) -> list[_Hole]:
     return holes
 
 
-def _stair(lay: Layout, hole: _Hole) -> None:
+def _stair(lay: BuildingLayout, hole: _Hole) -> None:
     """A flight of solid steps, 1 m wide, along one side of a stairwell hole, from the lower floor to the hole's
     far edge at the upper floor's level; the rest of the hole is free to fly through."""
     x0, y0, x1, y1 = hole.rect
@@ -427,7 +427,7 @@ def _start(ground: _Storey, holes: list[_Hole]) -> tuple[float, float]:
     raise WorldError("no ground-floor room is free for the start")  # unreachable: holes leave rooms beside them
 
 
-def _pillars(lay: Layout, rng: np.random.Generator, storey: _Storey, keep_out: list[Rect]) -> list[Rect]:
+def _pillars(lay: BuildingLayout, rng: np.random.Generator, storey: _Storey, keep_out: list[Rect]) -> list[Rect]:
     """A grid of pillars in each hall; returns their footprints."""
     placed: list[Rect] = []
     for hall in storey.halls:
@@ -451,7 +451,7 @@ _WALL_PIECES = {  # name: (length range, depth range, height range), against a w
 }
 
 
-def _furnish(lay: Layout, rng: np.random.Generator, storey: _Storey, keep_out: list[Rect]) -> None:
+def _furnish(lay: BuildingLayout, rng: np.random.Generator, storey: _Storey, keep_out: list[Rect]) -> None:
     """Cabinets, shelves and desks against the walls of every room, and a table in the middle of some."""
     blocked = keep_out + storey.keep_out
     z = lay.floor_z(storey.index)

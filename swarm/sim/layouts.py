@@ -1,6 +1,6 @@
 """Procedural layouts of the built-in worlds, as lists of axis-aligned boxes (z-up metres, floor top at z = 0).
 
-Pure data, no meshing: `worlds.py` turns a `Layout` into a triangle mesh. Boxes in a layout must not overlap
+Pure data, no meshing: `worlds.py` turns a `BuildingLayout` into a triangle mesh. Boxes in a layout must not overlap
 (they may touch: the mesher shrinks every box but the floor slab by half a millimetre, so that inside/outside
 ray parity stays exact).
 """
@@ -25,7 +25,7 @@ Doorway = tuple[float, float, float]  # (centre along the wall, width, height)
 
 
 @dataclass
-class Layout:
+class BuildingLayout:
     """Boxes of a building of `storeys` equal storeys: storey k's floor top is at k * (size[2] + SLAB)."""
 
     name: str
@@ -146,9 +146,9 @@ def slab_pieces(sx: float, sy: float, holes: Sequence[Rect]) -> list[Rect]:
     return pieces
 
 
-def office() -> Layout:
+def office() -> BuildingLayout:
     """30 x 20 x 3 m office floor: a west lobby, a central corridor, four rooms south and three north."""
-    lay = Layout("office", (30.0, 20.0, 3.0), default_start=(3.0, 10.0, 0.0))
+    lay = BuildingLayout("office", (30.0, 20.0, 3.0), default_start=(3.0, 10.0, 0.0))
     lay.shell()
     w = WALL
     corridor_s, corridor_n = 8.8, 11.2  # corridor free space in y
@@ -172,9 +172,9 @@ def office() -> Layout:
     return lay
 
 
-def warehouse() -> Layout:
+def warehouse() -> BuildingLayout:
     """40 x 25 x 6 m hall: a loading area with pillars and pallets in the south, rows of racks in the north."""
-    lay = Layout("warehouse", (40.0, 25.0, 6.0), default_start=(6.0, 3.5, 0.0))
+    lay = BuildingLayout("warehouse", (40.0, 25.0, 6.0), default_start=(6.0, 3.5, 0.0))
     lay.shell(wall=0.2)
     rack_depth, rack_height, aisle = 1.0, 4.5, 2.6
     for row in range(5):
@@ -188,19 +188,19 @@ def warehouse() -> Layout:
     return lay
 
 
-def box() -> Layout:
+def box() -> BuildingLayout:
     """One closed 8 x 6 x 3 m room with a wall stub and a pillar: the small world for fast tests."""
-    lay = Layout("box", (8.0, 6.0, 3.0), default_start=(2.0, 3.0, 0.0))
+    lay = BuildingLayout("box", (8.0, 6.0, 3.0), default_start=(2.0, 3.0, 0.0))
     lay.shell()
     lay.wall_y(4.0, 3.0, 6.0 - WALL)
     lay.pillar((6.0, 1.5))
     return lay
 
 
-def atrium() -> Layout:
+def atrium() -> BuildingLayout:
     """24 x 16 m, two 3 m storeys joined by a 6 x 5 m atrium void over the ground floor's hall: four rooms south
     and three north of the hall; upstairs a gallery round the void with two rooms west, three east, one north."""
-    lay = Layout("atrium", (24.0, 16.0, 3.0), default_start=(3.0, 8.0, 0.0), storeys=2)
+    lay = BuildingLayout("atrium", (24.0, 16.0, 3.0), default_start=(3.0, 8.0, 0.0), storeys=2)
     void = (9.0, 5.5, 15.0, 10.5)
     lay.shell(holes={1: [void]})
     w = WALL
@@ -229,10 +229,10 @@ def atrium() -> Layout:
     return lay
 
 
-def hall() -> Layout:
+def hall() -> BuildingLayout:
     """48 x 32 x 4 m hall: a grid of pillars, free-standing partitions and pallets, and six rooms along the
     north side behind a wall with one door each."""
-    lay = Layout("hall", (48.0, 32.0, 4.0), default_start=(4.0, 4.0, 0.0))
+    lay = BuildingLayout("hall", (48.0, 32.0, 4.0), default_start=(4.0, 4.0, 0.0))
     lay.shell(wall=0.2)
     lay.wall_x(26.0, 0.2, 47.8, doors=[4.0, 12.0, 20.0, 28.0, 36.0, 44.0])
     for x in (8.0, 16.0, 24.0, 32.0, 40.0):

@@ -23,7 +23,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from swarm import geo
 from swarm.config import SwarmConfig, Vec3
-from swarm.sim.autopilot import ACCEPTED, DENIED, REJECTED, Autopilot, Setpoint
+from swarm.sim.autopilot import ACCEPTED, DENIED, REJECTED, Setpoint, SimulatedPx4
 from swarm.sim.kinematics import tilt
 from swarm.sim.px4 import FlightMode, LandedState, Params
 
@@ -135,7 +135,7 @@ class SimVehicle:
         self.id = drone_id
         self.origin = config.mission.origin
         self.params = Params(sim, drone_id)
-        self.autopilot = Autopilot(home, self.params, sim.position_gain, floor_below)
+        self.autopilot = SimulatedPx4(home, self.params, sim.position_gain, floor_below)
         self.downlink = downlink or Downlink(None, (sim.host, 0))
         self.mav = mavlink.MAVLink(self.downlink, srcSystem=drone_id, srcComponent=COMPONENT_ID)  # sends
         self._parser = _new_parser()

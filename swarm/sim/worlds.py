@@ -168,12 +168,12 @@ def boxes_to_mesh(boxes: list[layouts.AxisBox], exact: int = 1) -> tuple[np.ndar
     return vertices.reshape(-1, 3), triangles.reshape(-1, 3).astype(np.int32)
 
 
-def world_from_layout(lay: layouts.Layout) -> World:
+def world_from_layout(lay: layouts.BuildingLayout) -> World:
     vertices, triangles = boxes_to_mesh(lay.boxes)  # the floor slab is added first and stays exact
     return World(lay.name, vertices, triangles, lay.default_start)
 
 
-def _from_layout(make: Callable[[], layouts.Layout]) -> Callable[[], World]:
+def _from_layout(make: Callable[[], layouts.BuildingLayout]) -> Callable[[], World]:
     def build() -> World:
         return world_from_layout(make())
 

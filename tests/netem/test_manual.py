@@ -39,7 +39,7 @@ from swarm.netem.manual import (
     parse_loss,
     state_path,
 )
-from swarm.netem.topology import Layout
+from swarm.netem.topology import NetworkLayout
 from tests.netem.measure import netem_problem, udp_one_way
 
 needs_root = pytest.mark.skipif(netem_problem() is not None, reason=netem_problem() or "")
@@ -53,16 +53,16 @@ def state_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     return directory
 
 
-Up = Callable[[int, str], Layout]
+Up = Callable[[int, str], NetworkLayout]
 
 
 @pytest.fixture
 def manual(state_dir: Path) -> Iterator[Up]:
     """`up(nodes, name)` brings a manual network up and returns its layout; afterwards every network of the
     test's state directory is removed."""
-    made: dict[str, Layout] = {}
+    made: dict[str, NetworkLayout] = {}
 
-    def up(nodes: int, name: str) -> Layout:
+    def up(nodes: int, name: str) -> NetworkLayout:
         try:
             assert netem_up(nodes, name) == 0
         finally:
@@ -87,11 +87,11 @@ def manual(state_dir: Path) -> Iterator[Up]:
     assert not left, f"netem_down left namespaces behind: {left}"
 
 
-def with_prefix(layout: Layout) -> list[str]:
+def with_prefix(layout: NetworkLayout) -> list[str]:
     return sorted(name for name in namespaces() if name.startswith(layout.prefix + "-"))
 
 
-def control_links(layout: Layout) -> list[str]:
+def control_links(layout: NetworkLayout) -> list[str]:
     return [line for line in run(["ip", "-o", "link", "show"]).splitlines() if f" sw{layout.tag}c" in line]
 
 

@@ -9,7 +9,7 @@ from swarm.errors import SwarmError
 from swarm.netem import LinkProfile, NetemUnavailable, SwarmNetwork
 from swarm.netem.commands import run, tool
 from swarm.netem.impair import Impairments, ruleset
-from swarm.netem.topology import Layout
+from swarm.netem.topology import NetworkLayout
 
 
 @pytest.mark.parametrize(
@@ -63,7 +63,7 @@ def test_bad_node_ids() -> None:
 
 
 def test_ruleset_text() -> None:
-    layout = Layout(tag="5b03", pid=42, nodes=3)
+    layout = NetworkLayout(tag="5b03", pid=42, nodes=3)
     imp = Impairments(
         all=LinkProfile(loss=0.05), nodes={3: LinkProfile(cut=True)}, pairs={(1, 2): LinkProfile(loss=0.3)}
     )

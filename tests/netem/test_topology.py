@@ -68,7 +68,7 @@ def test_instances_do_not_collide() -> None:
 def test_failing_up_removes_what_it_made(monkeypatch: pytest.MonkeyPatch) -> None:
     real_add_node = topology.add_node
 
-    def add_node(layout: topology.Layout, k: int) -> None:
+    def add_node(layout: topology.NetworkLayout, k: int) -> None:
         if k == 3:
             raise NetemUnavailable("'ip netns add' failed: injected")
         real_add_node(layout, k)

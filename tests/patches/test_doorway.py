@@ -23,7 +23,7 @@ DOOR = (3.0, 3.0)  # centre of the 1.1 m doorway in the wall y = 3 .. 3.15
 
 
 def _world() -> World:
-    lay = layouts.Layout("doorway", (6.0, 6.0, 2.6), (1.0, 1.0, 0.0))
+    lay = layouts.BuildingLayout("doorway", (6.0, 6.0, 2.6), (1.0, 1.0, 0.0))
     lay.shell()
     lay.wall_x(3.0, layouts.WALL, 6.0 - layouts.WALL, doors=[DOOR[0]])
     return World("doorway", *boxes_to_mesh(lay.boxes), lay.default_start)

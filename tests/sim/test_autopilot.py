@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from swarm.config import SimSettings
-from swarm.sim.autopilot import ACCEPTED, REJECTED, Autopilot, Setpoint
+from swarm.sim.autopilot import ACCEPTED, REJECTED, Setpoint, SimulatedPx4
 from swarm.sim.px4 import FlightMode, LandedState, Params
 
 DT = 0.02
@@ -15,7 +15,7 @@ HOME = (2.0, 3.0, 0.5)  # a raised floor: the ground clamp is at the home height
 
 
 class Clock:
-    def __init__(self, ap: Autopilot) -> None:
+    def __init__(self, ap: SimulatedPx4) -> None:
         self.ap = ap
         self.now = 100.0
 
@@ -41,20 +41,20 @@ def sim() -> SimSettings:
 
 
 @pytest.fixture
-def ap(sim: SimSettings) -> Autopilot:
-    return Autopilot(HOME, Params(sim, 1), sim.position_gain)
+def ap(sim: SimSettings) -> SimulatedPx4:
+    return SimulatedPx4(HOME, Params(sim, 1), sim.position_gain)
 
 
-def offboard_to(ap: Autopilot, clock: Clock, target: tuple[float, float, float]) -> None:
+def offboard_to(ap: SimulatedPx4, clock: Clock, target: tuple[float, float, float]) -> None:
     ap.set_setpoint(Setpoint(np.array(target, dtype=float), np.full(3, np.nan)), clock.now)
     assert ap.set_mode(FlightMode.OFFBOARD, clock.now) == ACCEPTED
 
 
-def keep_streaming(ap: Autopilot, clock: Clock, target) -> Callable[[], None]:
+def keep_streaming(ap: SimulatedPx4, clock: Clock, target) -> Callable[[], None]:
     return lambda: ap.set_setpoint(Setpoint(np.array(target, dtype=float), np.full(3, np.nan)), clock.now)
 
 
-def test_takeoff_climbs_to_the_takeoff_altitude_then_holds(ap: Autopilot, sim: SimSettings) -> None:
+def test_takeoff_climbs_to_the_takeoff_altitude_then_holds(ap: SimulatedPx4, sim: SimSettings) -> None:
     clock = Clock(ap)
     assert ap.takeoff() != ACCEPTED  # disarmed
     assert ap.arm(clock.now) == ACCEPTED and ap.armed
@@ -67,7 +67,7 @@ def test_takeoff_climbs_to_the_takeoff_altitude_then_holds(ap: Autopilot, sim: S
     assert np.allclose(ap.position[:2], HOME[:2])
 
 
-def test_speed_and_acceleration_limits(ap: Autopilot, sim: SimSettings) -> None:
+def test_speed_and_acceleration_limits(ap: SimulatedPx4, sim: SimSettings) -> None:
     clock = Clock(ap)
     ap.arm(clock.now)
     far = (HOME[0] + 30.0, HOME[1] - 20.0, HOME[2] + 8.0)
@@ -95,7 +95,7 @@ def test_speed_and_acceleration_limits(ap: Autopilot, sim: SimSettings) -> None:
     assert worst["accel"] <= sim.max_accel_m_s2 + 1e-6
 
 
-def test_reaches_an_offboard_target(ap: Autopilot) -> None:
+def test_reaches_an_offboard_target(ap: SimulatedPx4) -> None:
     clock = Clock(ap)
     ap.arm(clock.now)
     target = (HOME[0] + 4.0, HOME[1] + 2.0, HOME[2] + 1.5)
@@ -107,7 +107,7 @@ def test_reaches_an_offboard_target(ap: Autopilot) -> None:
     assert ap.distance_m == pytest.approx(np.linalg.norm(np.subtract(target, HOME)), rel=0.1)
 
 
-def test_never_below_the_home_floor(ap: Autopilot) -> None:
+def test_never_below_the_home_floor(ap: SimulatedPx4) -> None:
     clock = Clock(ap)
     ap.arm(clock.now)
     below = (HOME[0] + 1.0, HOME[1], HOME[2] - 5.0)
@@ -118,7 +118,7 @@ def test_never_below_the_home_floor(ap: Autopilot) -> None:
     assert min(lowest) >= HOME[2]
 
 
-def test_disarmed_in_air_falls_to_the_floor(ap: Autopilot) -> None:
+def test_disarmed_in_air_falls_to_the_floor(ap: SimulatedPx4) -> None:
     clock = Clock(ap)
     ap.arm(clock.now)
     ap.takeoff()
@@ -129,7 +129,7 @@ def test_disarmed_in_air_falls_to_the_floor(ap: Autopilot) -> None:
     assert ap.position[2] == HOME[2] and ap.landed_state == LandedState.ON_GROUND
 
 
-def test_landing_disarms_about_a_second_after_touchdown(ap: Autopilot, sim: SimSettings) -> None:
+def test_landing_disarms_about_a_second_after_touchdown(ap: SimulatedPx4, sim: SimSettings) -> None:
     clock = Clock(ap)
     ap.arm(clock.now)
     ap.takeoff()
@@ -148,14 +148,14 @@ def test_landing_disarms_about_a_second_after_touchdown(ap: Autopilot, sim: SimS
     assert ap.mode == FlightMode.HOLD and ap.position[2] == HOME[2]
 
 
-def test_armed_without_taking_off_disarms_after_the_preflight_delay(ap: Autopilot) -> None:
+def test_armed_without_taking_off_disarms_after_the_preflight_delay(ap: SimulatedPx4) -> None:
     clock = Clock(ap)
     ap.arm(clock.now)
     waited = clock.run_until(lambda: not ap.armed, timeout=15)
     assert waited == pytest.approx(10.0, abs=2 * DT)
 
 
-def test_offboard_needs_a_fresh_setpoint(ap: Autopilot) -> None:
+def test_offboard_needs_a_fresh_setpoint(ap: SimulatedPx4) -> None:
     clock = Clock(ap)
     assert ap.set_mode(FlightMode.OFFBOARD, clock.now) == REJECTED
     ap.set_setpoint(Setpoint(np.array(HOME), np.full(3, np.nan)), clock.now)
@@ -165,7 +165,7 @@ def test_offboard_needs_a_fresh_setpoint(ap: Autopilot) -> None:
     assert ap.set_mode(FlightMode.OFFBOARD, clock.now) == ACCEPTED
 
 
-def test_offboard_loss_holds_position(ap: Autopilot, sim: SimSettings) -> None:
+def test_offboard_loss_holds_position(ap: SimulatedPx4, sim: SimSettings) -> None:
     clock = Clock(ap)
     ap.arm(clock.now)
     target = (HOME[0] + 10.0, HOME[1], HOME[2] + 1.5)
@@ -183,7 +183,7 @@ def test_offboard_loss_holds_position(ap: Autopilot, sim: SimSettings) -> None:
     assert clock.now - last_setpoint > 5
 
 
-def test_velocity_setpoint_and_yaw(ap: Autopilot) -> None:
+def test_velocity_setpoint_and_yaw(ap: SimulatedPx4) -> None:
     clock = Clock(ap)
     ap.arm(clock.now)
     velocity = np.array([0.0, 1.0, 0.5])  # north and up
@@ -198,7 +198,7 @@ def test_velocity_setpoint_and_yaw(ap: Autopilot) -> None:
     assert ap.body.yaw == pytest.approx(math.radians(90))
 
 
-def test_return_to_launch_lands_at_home(ap: Autopilot) -> None:
+def test_return_to_launch_lands_at_home(ap: SimulatedPx4) -> None:
     clock = Clock(ap)
     ap.arm(clock.now)
     target = (HOME[0] + 5.0, HOME[1] + 5.0, HOME[2] + 1.0)
@@ -217,7 +217,7 @@ def test_a_vehicle_over_an_upper_storey_lands_on_its_slab_not_through_it(sim: Si
     def floor_below(p: np.ndarray) -> float:  # an upper floor over x > 5, the ground floor elsewhere
         return slab_top if p[0] > 5.0 and p[2] >= slab_top else HOME[2]
 
-    ap = Autopilot(HOME, Params(sim, 1), sim.position_gain, floor_below)
+    ap = SimulatedPx4(HOME, Params(sim, 1), sim.position_gain, floor_below)
     clock = Clock(ap)
     ap.arm(clock.now)
     ap.takeoff()

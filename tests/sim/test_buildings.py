@@ -7,7 +7,7 @@ from swarm.cli import main
 from swarm.errors import WorldError
 from swarm.sim import buildings
 from swarm.sim.coverage import reachable_free_space
-from swarm.sim.layouts import SLAB, Layout
+from swarm.sim.layouts import SLAB, BuildingLayout
 from swarm.sim.worlds import World, floor_levels, load_world, world_from_layout
 
 DRONE_RADIUS = 0.2
@@ -16,7 +16,7 @@ DRONE_RADIUS = 0.2
 FILL_CLEARANCE, FILL_RESOLUTION = 0.3, 0.2
 
 
-def _boxes_overlap(lay: Layout) -> bool:
+def _boxes_overlap(lay: BuildingLayout) -> bool:
     boxes = np.array(lay.boxes)
     lo, hi = boxes[:, 0], boxes[:, 1]
     overlap = np.all((lo[:, None] < hi[None] - 1e-9) & (lo[None] < hi[:, None] - 1e-9), axis=2)
