@@ -14,7 +14,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, NoReturn, get_args
 
-from swarm.config import ConfigError, Strategy, SwarmConfig, load_config, parse_override
+from swarm.config import ConfigError, Strategy, SwarmConfig, Vec3, load_config, parse_override
 from swarm.errors import SwarmError
 
 EXIT_FAILED, EXIT_BAD_INPUT = 1, 2
@@ -28,7 +28,7 @@ class _Parser(argparse.ArgumentParser):
         self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message}\n")
 
 
-def _vec3(text: str) -> tuple[float, float, float]:
+def _vec3(text: str) -> Vec3:
     parts = text.split(",")
     try:
         values = tuple(float(p) for p in parts)

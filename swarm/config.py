@@ -21,6 +21,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from swarm.errors import SwarmError
 
+# The one 3-vector type of every package: a point or vector, in the world frame (x east, y north, z up) unless named
+# otherwise, in metres, m/s or degrees as its field says.
 Vec3 = tuple[float, float, float]
 PositiveFloat = Annotated[float, Field(gt=0)]
 

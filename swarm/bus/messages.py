@@ -9,11 +9,11 @@ from pydantic import Field, StringConstraints
 from swarm.bus.codec import WireMessage
 from swarm.bus.holdings import EMPTY_DIGEST, DigestWire
 from swarm.bus.keys import MAX_AGENT_ID, MIN_AGENT_ID
+from swarm.config import Vec3
 
 AgentId = Annotated[int, Field(ge=MIN_AGENT_ID, le=MAX_AGENT_ID)]
 Counter = Annotated[int, Field(ge=0, le=2**63 - 1)]
-# Floats are finite by WireMessage's config; these only name and bound them.
-Vec3 = tuple[float, float, float]
+# Floats, Vec3's too, are finite by WireMessage's config; these only name and bound them.
 # Printable ASCII only: these end up in logs and reports.
 ShortText = Annotated[str, StringConstraints(max_length=32, pattern=r"^[\x20-\x7e]*$")]
 

@@ -25,7 +25,7 @@ from typing import Any
 from swarm.aio import wait_event
 from swarm.bus.bridge import AsyncBus
 from swarm.bus.messages import AgentState
-from swarm.config import SwarmConfig
+from swarm.config import SwarmConfig, Vec3
 from swarm.files import write_json_atomic
 from swarm.patches.mapper import Mapper
 from swarm.patches.patch import PatchId
@@ -42,7 +42,7 @@ class NodePlan:
     patches: int = 3
     seal_period_s: float = 0.5
     start_delay_s: float = 0.0
-    position: tuple[float, float, float] | None = None
+    position: Vec3 | None = None
 
 
 class MapNode:
@@ -69,13 +69,13 @@ class MapNode:
         self._seq = 0
         self.first_peer_t: float | None = None
 
-    def _camera_pose(self, frame: int) -> tuple[tuple[float, float, float], float]:
+    def _camera_pose(self, frame: int) -> tuple[Vec3, float]:
         angle = 2 * math.pi * frame / max(1, self.plan.patches * self.config.mapping.patch_frames) + self.id
         x = float(self.centre[0]) + self.radius * math.cos(angle)
         y = float(self.centre[1]) + self.radius * math.sin(angle)
         return (x, y, self.height), math.degrees(angle) + 90.0
 
-    def position(self) -> tuple[float, float, float]:
+    def position(self) -> Vec3:
         return self.plan.position if self.plan.position is not None else self._camera_pose(self.frames)[0]
 
     async def run(self) -> int:

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from swarm.config import Vec3
 from swarm.mission.ports import find_free_base
 from swarm.mission.processes import swarm_command
 
@@ -26,7 +27,7 @@ class NodeSpec:
     patches: int = 3
     period_s: float = 0.3
     delay_s: float = 0.0
-    position: tuple[float, float, float] | None = None
+    position: Vec3 | None = None
     connect: list[int] | None = None  # node ids to dial (default: every lower id)
     listen: str | None = None  # listen host (default 127.0.0.1)
     extra: list[str] = field(default_factory=list)  # more --set overrides

@@ -62,7 +62,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
-from swarm.config import SwarmConfig
+from swarm.config import SwarmConfig, Vec3
 from swarm.sim.coverage import ReachableSpace, mission_reachable_space
 from swarm.sim.worlds import World, mission_volume, spawn_points
 
@@ -80,7 +80,7 @@ _PRUNE_TRIES = 4  # views tried for removal per round, fewest unique cells first
 
 @dataclass(frozen=True)
 class OracleView:
-    position: tuple[float, float, float]
+    position: Vec3
     yaw_deg: float
 
 
@@ -623,7 +623,7 @@ class Oracle:
 _FORWARD_OFFSETS = [np.array(d) - 1 for d in np.ndindex(3, 3, 3) if [c - 1 for c in d] > [0, 0, 0]]
 
 
-def _vec3(p: np.ndarray) -> tuple[float, float, float]:
+def _vec3(p: np.ndarray) -> Vec3:
     return float(p[0]), float(p[1]), float(p[2])
 
 

@@ -38,6 +38,7 @@ from swarm.config import (
     Box,
     ConfigError,
     SwarmConfig,
+    Vec3,
     bus_port,
     dump_config,
     gcs_port,
@@ -81,7 +82,7 @@ class RunPlan:
     config: SwarmConfig
     world: World
     out: Path
-    spawns: list[tuple[float, float, float]]
+    spawns: list[Vec3]
     routes: list[ScriptedRoute]
     volume: tuple[np.ndarray, np.ndarray]
     scenario: Scenario | None = None

@@ -25,7 +25,7 @@ from typing import get_args
 
 import numpy as np
 
-from swarm.config import MappingSettings, WeightLaw
+from swarm.config import MappingSettings, Vec3, WeightLaw
 
 WEIGHT_LAWS: tuple[str, ...] = get_args(WeightLaw)
 
@@ -38,7 +38,7 @@ class Lattice:
     voxel_size: float = 0.1
     block_resolution: int = 8
     truncation_voxels: float = 4.0
-    origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    origin: Vec3 = (0.0, 0.0, 0.0)
     weight_law: WeightLaw = "constant"
 
     def __post_init__(self) -> None:
@@ -55,7 +55,7 @@ class Lattice:
         object.__setattr__(self, "origin", tuple(float(c) for c in self.origin))
 
     @classmethod
-    def from_settings(cls, settings: MappingSettings, origin: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> Lattice:
+    def from_settings(cls, settings: MappingSettings, origin: Vec3 = (0.0, 0.0, 0.0)) -> Lattice:
         return cls(
             voxel_size=settings.voxel_size_m,
             block_resolution=settings.block_resolution,

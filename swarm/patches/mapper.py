@@ -13,7 +13,7 @@ from contextlib import contextmanager
 
 import numpy as np
 
-from swarm.config import MappingSettings
+from swarm.config import MappingSettings, Vec3
 from swarm.patches.backend import TsdfBackend, VoxelBlockGridBackend
 from swarm.patches.fused import Bounds, FusedMap
 from swarm.patches.lattice import Lattice
@@ -30,7 +30,7 @@ class Mapper:
         producer: int,
         epoch: int,
         bounds: Bounds,
-        origin: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        origin: Vec3 = (0.0, 0.0, 0.0),
         known_weight: float = 1.0,
         backend: TsdfBackend | None = None,
     ) -> None:

@@ -42,10 +42,9 @@ import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
+from swarm.config import Vec3
 from swarm.patches.digest import PatchDigest
 from swarm.patches.patch import PatchId
-
-Position = tuple[float, float, float]
 
 
 @dataclass(frozen=True)
@@ -108,7 +107,7 @@ class _Backoff:
 
 @dataclass
 class _Peer:
-    position: Position
+    position: Vec3
     digest: PatchDigest
 
 
@@ -336,6 +335,6 @@ class PullScheduler:
             del self._backoff[key]
 
 
-def _distance(a: tuple[float, ...], b: Position) -> float:
+def _distance(a: tuple[float, ...], b: Vec3) -> float:
     d = math.dist(a, b)
     return d if math.isfinite(d) else math.inf

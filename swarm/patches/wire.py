@@ -36,8 +36,8 @@ from pydantic import Field
 
 from swarm.bus import codec
 from swarm.bus.codec import WireMessage
-from swarm.bus.messages import AgentId, Counter, Vec3
-from swarm.config import WeightLaw
+from swarm.bus.messages import AgentId, Counter
+from swarm.config import Vec3, WeightLaw
 from swarm.patches.lattice import Lattice
 from swarm.patches.patch import TSDF_SCALE, FrameSpan, Patch, PatchId, VoxelBlocks, is_rigid
 

@@ -17,6 +17,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Literal
 
+from swarm.config import Vec3
+
 Role = Literal["leader", "explorer"]
 MembershipEvent = Literal["joined", "left"]
 RETIRED_PHASES = frozenset({"landed", "failed", "failsafe"})  # out of exploration for good: in no cluster
@@ -27,9 +29,9 @@ class Peer:
     id: int
     first_seen: float
     last_heard: float
-    position: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    heading_to: tuple[float, float, float] | None = None
+    position: Vec3 = (0.0, 0.0, 0.0)
+    velocity: Vec3 = (0.0, 0.0, 0.0)
+    heading_to: Vec3 | None = None
     phase: str = ""
     epoch: int = 0
     token_alive: bool = False
@@ -48,11 +50,11 @@ class PeerTable:
     def heard(
         self,
         peer_id: int,
-        position: tuple[float, float, float],
+        position: Vec3,
         phase: str,
         epoch: int,
-        velocity: tuple[float, float, float] = (0.0, 0.0, 0.0),
-        heading_to: tuple[float, float, float] | None = None,
+        velocity: Vec3 = (0.0, 0.0, 0.0),
+        heading_to: Vec3 | None = None,
     ) -> None:
         """A heartbeat arrived from `peer_id`."""
         if peer_id == self.own_id:

@@ -13,7 +13,8 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from swarm.bus.codec import ArraySpec, WireMessage
-from swarm.bus.messages import AgentId, Counter, Vec3
+from swarm.bus.messages import AgentId, Counter
+from swarm.config import Vec3
 
 MAX_CANDIDATES = 512
 MAX_VISITED = 1024

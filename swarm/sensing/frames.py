@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from swarm.config import CameraSettings
+from swarm.config import CameraSettings, Vec3
 from swarm.sensing.messages import Intrinsics, Pose
 
 
@@ -41,7 +41,7 @@ class DepthFrame:
 OPTICAL_IN_LINK = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
 
-def mount_transform(translation_m: tuple[float, float, float], rpy_deg: tuple[float, float, float]) -> np.ndarray:
+def mount_transform(translation_m: Vec3, rpy_deg: Vec3) -> np.ndarray:
     """4x4 optical-frame-to-body transform of a camera mounted at `translation_m` with `rpy_deg`."""
     roll, pitch, yaw = rpy_deg
     T = np.eye(4)

@@ -16,6 +16,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from swarm.config import Vec3
+
 PREDICT_MAX_S = 1.0  # extrapolate a heartbeat at most this far: beyond that the peer is wherever it last said
 
 
@@ -23,8 +25,8 @@ class PeerSighting(NamedTuple):
     """A peer's last heartbeat: where it was and how fast it moved, at `heard` (wall-clock seconds, the clock of
     the sensor stamps)."""
 
-    position: tuple[float, float, float]
-    velocity: tuple[float, float, float]
+    position: Vec3
+    velocity: Vec3
     heard: float
 
     def at(self, t: float) -> np.ndarray:

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from swarm.errors import WorldError
-from swarm.sim.layouts import SLAB, WALL, BuildingLayout, Rect
+from swarm.sim.layouts import SLAB, WALL, BuildingLayout, Doorway, Rect
 
 PREFIX = "gen:"
 MIN_SIZE, MAX_SIZE = (15.0, 10.0), (60.0, 40.0)
@@ -154,7 +154,7 @@ class _Wall:
     a0: float  # extent along its axis
     a1: float
     corridor: bool  # one side is a corridor (extra doors are likely)
-    doors: list[tuple[float, float, float]] = field(default_factory=list)  # (centre, width, height)
+    doors: list[Doorway] = field(default_factory=list)
 
     def footprint(self) -> Rect:
         if self.axis == 0:
@@ -190,7 +190,7 @@ class _Planner:
         self.rng = rng
         self.target_area = target_area
 
-    def door(self, wall: _Wall, lo: float, hi: float) -> tuple[float, float, float] | None:
+    def door(self, wall: _Wall, lo: float, hi: float) -> Doorway | None:
         """A door of random width with its centre drawn in [lo, hi] less its half width; None if none fits."""
         width = math.floor(min(float(self.rng.uniform(*DOOR_WIDTHS)), hi - lo) * 100) / 100
         if width < DOOR_WIDTHS[0]:

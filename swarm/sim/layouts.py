@@ -11,7 +11,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from itertools import pairwise
 
-Vec3 = tuple[float, float, float]
+from swarm.config import Vec3
+
 AxisBox = tuple[Vec3, Vec3]  # (min corner, max corner)
 
 WALL = 0.15

@@ -547,7 +547,7 @@ def _new_parser() -> mavlink.MAVLink:
     return parser
 
 
-def _masked(values: tuple[float, float, float], mask: int, first_bit: int) -> np.ndarray:
+def _masked(values: Vec3, mask: int, first_bit: int) -> np.ndarray:
     """The three values with NaN where the type mask ignores them (bits first_bit, <<1, <<2)."""
     out = np.array(values, dtype=np.float64)
     for axis in range(3):

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import open3d as o3d
 
-from swarm.config import Box, MissionSettings
+from swarm.config import Box, MissionSettings, Vec3
 from swarm.errors import WorldError
 from swarm.sim import buildings, layouts
 
@@ -35,7 +35,7 @@ class World:
     name: str
     vertices: np.ndarray  # (V,3) float64
     triangles: np.ndarray  # (F,3) int32
-    default_start: tuple[float, float, float]
+    default_start: Vec3
     _scene: o3d.t.geometry.RaycastingScene | None = field(default=None, init=False, repr=False)
     _closed: bool | None = field(default=None, init=False, repr=False)
 
@@ -260,7 +260,7 @@ def world_command(spec: str, out: Path | None) -> int:
     return 0
 
 
-def find_default_start(world: World, clearance: float = 0.5, column_height: float = 2.0) -> tuple[float, float, float]:
+def find_default_start(world: World, clearance: float = 0.5, column_height: float = 2.0) -> Vec3:
     """A free floor point for a mesh without a declared start.
 
     Candidates are the points of a grid (0.5 m, at most 200 x 200) over the bounds, taken in order of distance
@@ -331,13 +331,8 @@ def _columns_clear(world: World, feet: np.ndarray, clearance: float, column_heig
 
 
 def spawn_points(
-    world: World,
-    start: tuple[float, float, float] | None,
-    n: int,
-    spacing: float,
-    clearance: float = 0.5,
-    column_height: float = 2.0,
-) -> list[tuple[float, float, float]]:
+    world: World, start: Vec3 | None, n: int, spacing: float, clearance: float = 0.5, column_height: float = 2.0
+) -> list[Vec3]:
     """n take-off points >= spacing apart around `start`, each standing on the floor with a clear column.
 
     Candidates lie on a square grid of pitch `spacing` centred on start, in order of distance to start (ties

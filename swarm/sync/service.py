@@ -30,7 +30,7 @@ from swarm.bus.bridge import AsyncBus
 from swarm.bus.codec import DecodeError, decode, encode
 from swarm.bus.holdings import EMPTY_DIGEST, DigestWire
 from swarm.bus.messages import AgentState
-from swarm.config import SyncSettings
+from swarm.config import SyncSettings, Vec3
 from swarm.patches.digest import PatchDigest
 from swarm.patches.patch import PatchId
 from swarm.patches.pull import PullRequest, PullScheduler, PullSettings
@@ -47,7 +47,7 @@ _CHUNK_OVERHEAD = 512  # envelope and header fields around a chunk's data, gener
 # Decode and validate a patch's wire bytes, check that they hold patch `pid`, and fuse it; raise
 # PatchDecodeError (reason "id_mismatch" for another id) without changing anything if it is unusable.
 PatchSink = Callable[[bytes, PatchId], Awaitable[None]]
-Position = Callable[[], tuple[float, float, float]]
+Position = Callable[[], Vec3]
 
 
 @dataclass
