@@ -173,7 +173,7 @@ class MapNode:
                 velocity=(0.0, 0.0, 0.0),
                 yaw_deg=0.0,
                 flight_mode="NONE",
-                phase="landed" if done else "mapping",
+                phase="mapping",  # never landed: a map node stays a cluster member; `finished` says it is done
                 role=self.peers.role,
                 leader=self.peers.leader,
                 finished=done,
