@@ -440,6 +440,12 @@ class SyncSettings(_Section):
     backoff_max_s: PositiveFloat = Field(8.0, description="back-off cap (doubles on each failure)")
     assembly_timeout_s: PositiveFloat = Field(30.0, description="a patch still incomplete after this is dropped")
     max_assembly_bytes: int = Field(64 << 20, ge=1 << 20, description="bytes of incomplete patches kept at most")
+    max_missing_tracked: int = Field(
+        4096,
+        ge=1,
+        le=1 << 20,
+        description="missing patch ids tracked at most (the oldest first): bounds the memory a peer's digest can claim",
+    )
     linger_max_s: float = Field(
         60.0,
         ge=0.0,

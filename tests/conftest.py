@@ -13,6 +13,16 @@ def swarm_ports() -> SwarmPorts:
 
 
 @pytest.fixture(scope="session", autouse=True)
+def matplotlib_font_cache() -> None:
+    """Matplotlib builds its font cache on first use by running fc-list: build it before unit tests refuse processes
+    (on a fresh machine the first plotting unit test would otherwise fail)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.font_manager  # noqa: F401  (builds or loads the cache at import)
+
+
+@pytest.fixture(scope="session", autouse=True)
 def mavsdk_temp_dirs(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
     """MAVSDK makes a temporary directory per vehicle it meets and never removes it: the flight tests' (MAVSDK in
     this process, and the processes it starts) go to pytest's temporary tree, which pytest prunes, not /tmp."""

@@ -42,34 +42,9 @@ import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
-from swarm.config import Vec3
+from swarm.config import SyncSettings, Vec3
 from swarm.patches.digest import PatchDigest
 from swarm.patches.patch import PatchId
-
-
-@dataclass(frozen=True)
-class PullSettings:
-    max_in_flight: int = 4  # requests in flight in total (R_max)
-    batch_size: int = 4  # ids per request
-    timeout_s: float = 2.0  # a request's deadline after it is issued (T_req)
-    backoff_initial_s: float = 0.5  # first back-off of an (id, holder) pair after a failure
-    backoff_max_s: float = 8.0  # back-off cap (doubling)
-    max_missing_tracked: int = 4096  # missing ids tracked at most (the oldest in PatchId order)
-    grace_s: float = 0.0  # an id first seen missing this recently is not requested yet (its push may be under way)
-
-    def __post_init__(self) -> None:
-        for name in ("max_in_flight", "batch_size", "max_missing_tracked"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name} must be a positive int, got {value!r}")
-        for name in ("timeout_s", "backoff_initial_s", "backoff_max_s"):
-            value = getattr(self, name)
-            if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-                raise ValueError(f"{name} must be a positive finite number, got {value!r}")
-        if not isinstance(self.grace_s, (int, float)) or not math.isfinite(self.grace_s) or self.grace_s < 0:
-            raise ValueError(f"grace_s must be a non-negative finite number, got {self.grace_s!r}")
-        if self.backoff_max_s < self.backoff_initial_s:
-            raise ValueError("backoff_max_s must be at least backoff_initial_s")
 
 
 @dataclass(frozen=True)
@@ -123,10 +98,10 @@ class PullScheduler:
     """Decides which missing patches to request from which peer; see the module docstring."""
 
     def __init__(
-        self, own_id: int, settings: PullSettings | None = None, clock: Callable[[], float] = time.monotonic
+        self, own_id: int, settings: SyncSettings | None = None, clock: Callable[[], float] = time.monotonic
     ) -> None:
         self.own_id = own_id
-        self.settings = settings or PullSettings()
+        self.settings = settings or SyncSettings()
         self._clock = clock
         self._peers: dict[int, _Peer] = {}
         self._held = PatchDigest()
@@ -223,7 +198,7 @@ class PullScheduler:
             batch.append(pid)
         requests = []
         for holder, ids in batches:
-            request = PullRequest(holder, tuple(ids), self._next_token, now + self.settings.timeout_s)
+            request = PullRequest(holder, tuple(ids), self._next_token, now + self.settings.request_timeout_s)
             self._next_token += 1
             self._in_flight[request.token] = _InFlight(holder, set(ids), request.token, request.deadline)
             for pid in ids:

@@ -33,7 +33,7 @@ from swarm.bus.messages import AgentState
 from swarm.config import SyncSettings, Vec3
 from swarm.patches.digest import PatchDigest
 from swarm.patches.patch import PatchId
-from swarm.patches.pull import PullRequest, PullScheduler, PullSettings
+from swarm.patches.pull import PullRequest, PullScheduler
 from swarm.patches.wire import PatchDecodeError
 from swarm.sync.chunks import PatchChunk, Reassembler, split_patch
 from swarm.sync.requests import parse_request, request_parameters
@@ -82,17 +82,7 @@ class PatchSync:
         self._sink = sink
         self._position = position
         self._on_holdings_changed = on_holdings_changed
-        self.scheduler = PullScheduler(
-            own_id,
-            PullSettings(
-                max_in_flight=settings.max_in_flight,
-                batch_size=settings.batch_size,
-                timeout_s=settings.request_timeout_s,
-                backoff_initial_s=settings.backoff_initial_s,
-                backoff_max_s=settings.backoff_max_s,
-                grace_s=settings.grace_s,
-            ),
-        )
+        self.scheduler = PullScheduler(own_id, settings)
         self.reassembler = Reassembler(settings.max_assembly_bytes, settings.assembly_timeout_s, max_patch_bytes)
         self.counters = SyncCounters()
         self.rejected: dict[str, int] = {}  # whole patches the sink refused, by reason

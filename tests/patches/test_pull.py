@@ -4,9 +4,10 @@ import time
 
 import pytest
 
+from swarm.config import SyncSettings
 from swarm.patches.digest import PatchDigest
 from swarm.patches.patch import PatchId
-from swarm.patches.pull import PullScheduler, PullSettings
+from swarm.patches.pull import PullScheduler
 
 HERE = (0.0, 0.0, 0.0)
 
@@ -29,7 +30,7 @@ def digest(*seqs: int, producer: int = 9) -> PatchDigest:
 
 def make(**settings: object) -> tuple[PullScheduler, Clock]:
     clock = Clock()
-    return PullScheduler(1, PullSettings(**settings), clock), clock  # type: ignore[arg-type]
+    return PullScheduler(1, SyncSettings.model_validate({"grace_s": 0.0} | settings), clock), clock
 
 
 def asked(requests: list) -> dict[PatchId, int]:
@@ -56,7 +57,7 @@ def test_relay_nearer_than_the_producer_is_asked() -> None:
 
 
 def test_batching_and_in_flight_bound() -> None:
-    s, clock = make(batch_size=3, max_in_flight=2, timeout_s=2.0)
+    s, clock = make(batch_size=3, max_in_flight=2, request_timeout_s=2.0)
     s.update_peer(2, (1, 0, 0), digest(*range(10)))
     s.update_peer(3, (5, 0, 0), digest(100, 101))
     first = s.next_requests(HERE)
@@ -83,7 +84,7 @@ def test_oldest_ids_first_and_open_batches_take_ids_when_no_slot_is_left() -> No
 
 
 def test_timeout_fails_over_to_the_next_nearest_then_backs_off_doubling_to_the_max() -> None:
-    s, clock = make(timeout_s=2.0, backoff_initial_s=0.5, backoff_max_s=2.0)
+    s, clock = make(request_timeout_s=2.0, backoff_initial_s=0.5, backoff_max_s=2.0)
     s.update_peer(2, (1, 0, 0), digest(0))
     s.update_peer(3, (2, 0, 0), digest(0))
     [r] = s.next_requests(HERE)
@@ -116,7 +117,7 @@ def test_timeout_fails_over_to_the_next_nearest_then_backs_off_doubling_to_the_m
 
 
 def test_after_back_off_the_first_holder_is_tried_again() -> None:
-    s, clock = make(timeout_s=1.0, backoff_initial_s=3.0, backoff_max_s=8.0)
+    s, clock = make(request_timeout_s=1.0, backoff_initial_s=3.0, backoff_max_s=8.0)
     s.update_peer(2, (1, 0, 0), digest(0))
     s.update_peer(3, (2, 0, 0), digest(0))
     [r] = s.next_requests(HERE)
@@ -207,14 +208,19 @@ def test_hostile_digest_listing_a_billion_ids_is_tracked_bounded() -> None:
 
 
 def test_settings_are_validated() -> None:
-    for bad in ({"max_in_flight": 0}, {"batch_size": True}, {"timeout_s": float("nan")}, {"backoff_max_s": 0.1}):
+    for bad in (
+        {"max_in_flight": 0},
+        {"max_missing_tracked": 0},
+        {"request_timeout_s": float("nan")},
+        {"backoff_max_s": 0.1},
+    ):
         with pytest.raises(ValueError):
-            PullSettings(**bad)  # type: ignore[arg-type]
+            SyncSettings.model_validate(bad)
 
 
 def test_grace_delays_the_first_request_of_a_newly_advertised_id() -> None:
     now = [0.0]
-    scheduler = PullScheduler(1, PullSettings(grace_s=1.0), clock=lambda: now[0])
+    scheduler = PullScheduler(1, SyncSettings(grace_s=1.0), clock=lambda: now[0])
     scheduler.update_peer(2, (0.0, 0.0, 0.0), PatchDigest.of([PatchId(2, 0, 0)]))
     assert scheduler.next_requests((0.0, 0.0, 0.0)) == []
     now[0] = 0.5
