@@ -76,7 +76,7 @@ case "$job" in
     "$env_dir/bin/ruff" format --check --quiet .
     say "unit tier (pytest -m unit -n 2)"
     "$env_dir/bin/python" -m pytest -m unit -n 2 -q
-    say "every other tier (pytest -m 'not unit')"
-    exec "$env_dir/bin/python" -m pytest -m "not unit" ;;
+    say "every other tier (pytest -m 'not unit'; the 25 slowest tests are listed at the end)"
+    exec "$env_dir/bin/python" -m pytest -m "not unit" --durations=25 ;;
   env) echo "$env_dir" ;;
 esac
