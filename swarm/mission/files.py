@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 from typing import Any, Literal
 
-from swarm.agent.summary import GivenUpFrontier, KindTraffic
+from swarm.agent.summary import GivenUpFrontier, KindTraffic, SyncStats
 from swarm.bus.holdings import DigestWire
 from swarm.files import FileModel
 from swarm.sim.status import CollisionRecord, Stall
@@ -82,6 +82,36 @@ NO_COVERAGE: dict[str, Any] = {
     "explored_by_agent": {},
     "overlap_fraction": 0.0,
 }
+
+
+# --- map node status (`swarm mapnode --status`) ------------------------------------------------------------------
+
+
+class SealedPatch(FileModel):
+    id: str  # "producer.epoch.seq"
+    t: float  # unix time it was sealed
+    bytes: int
+
+
+class MapNodeStatus(FileModel):
+    """A map-sharing node's status, rewritten every period while it runs (`swarm.mission.mapnode`)."""
+
+    id: int
+    epoch: int
+    done: bool
+    t: float  # unix time
+    sealed: list[SealedPatch]
+    held: list[str]
+    held_at: dict[str, float]  # patch id -> unix time it was first held
+    fused_digest: str  # "" until the node fused a patch
+    fused_patches: int
+    peers: list[int]
+    leader: int
+    role: str
+    cluster: list[int]
+    first_peer_t: float | None
+    sync: SyncStats
+    traffic: dict[str, KindTraffic]
 
 
 # --- report.json -----------------------------------------------------------------------------------------------

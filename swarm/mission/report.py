@@ -273,18 +273,15 @@ def finish_report(
 
     A figure that cannot be drawn (a missing world mesh, a matplotlib failure) is logged and recorded as
     `plots_error`; the page is still written, with whatever figures exist, because the numbers matter more.
-    The figures and the page are drawn from the models' JSON form, what report.json and the other files hold.
     """
-    observer_data = observer.model_dump(mode="json") if observer is not None else None
-    summary_data = {k: s.model_dump(mode="json") for k, s in summaries.items()}
     try:
-        report.plots = write_plots(out, report.model_dump(mode="json"), observer_data, summary_data)
+        report.plots = write_plots(out, report, observer, summaries)
     except Exception as exc:  # noqa: BLE001 - a figure must never cost the run its report
         log.warning("plots not written: %s", exc, exc_info=True)
         report.plots = [name for name in PLOT_NAMES if (out / name).exists()]  # the ones drawn before
         report.plots_error = f"{type(exc).__name__}: {exc}"
     try:
-        write_report_page(out, report.model_dump(mode="json"))
+        write_report_page(out, report)
         report.report_page = REPORT_PAGE
     except OSError as exc:
         log.warning("report page not written: %s", exc)

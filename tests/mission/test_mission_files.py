@@ -9,9 +9,16 @@ import pytest
 
 from swarm.files import FileFormatError, read_model, write_model
 from swarm.mission import files as mission_files
-from swarm.mission.files import SCHEMA_PATH, MissionReport, ObserverStatus, schema_text
+from swarm.mission.files import SCHEMA_PATH, MapNodeStatus, MissionReport, ObserverStatus, schema_text
 from swarm.mission.report import read_report
-from tests.file_models import mission_report, mission_report_data, observer_status, observer_status_data
+from tests.file_models import (
+    TRAFFIC,
+    mission_report,
+    mission_report_data,
+    observer_status,
+    observer_status_data,
+    sync_stats,
+)
 
 
 def test_an_observer_status_round_trips(tmp_path: Path) -> None:
@@ -70,3 +77,34 @@ def test_check_fails_on_a_stale_schema_file(tmp_path: Path, monkeypatch: pytest.
     assert mission_files.main(["--check"]) == 1
     assert mission_files.main([]) == 0
     assert mission_files.main(["--check"]) == 0
+
+
+def test_a_map_node_status_round_trips_and_a_bad_one_is_one_line(tmp_path: Path) -> None:
+    status = MapNodeStatus.model_validate(
+        {
+            "id": 1,
+            "epoch": 1,
+            "done": False,
+            "t": 1_700_000_000.0,
+            "sealed": [{"id": "1.1.0", "t": 1_700_000_000.0, "bytes": 2048}],
+            "held": ["1.1.0"],
+            "held_at": {"1.1.0": 1_700_000_000.0},
+            "fused_digest": "",
+            "fused_patches": 1,
+            "peers": [2],
+            "leader": 1,
+            "role": "leader",
+            "cluster": [1, 2],
+            "first_peer_t": None,
+            "sync": sync_stats(),
+            "traffic": TRAFFIC,
+        }
+    )
+    path = tmp_path / "node-1.json"
+    write_model(path, status, indent=None)
+    assert read_model(path, MapNodeStatus) == status
+    data = status.model_dump()
+    data["sealed"][0]["bytes"] = "big"
+    path.write_text(json.dumps(data))
+    with pytest.raises(FileFormatError, match=r"not a valid MapNodeStatus: sealed\.0\.bytes"):
+        read_model(path, MapNodeStatus)

@@ -321,8 +321,18 @@ def _synthetic_run(tmp_path: Path) -> tuple[dict[str, Any], dict[str, Any], dict
     return report, observer, summaries
 
 
+def _models(
+    report: dict[str, Any], observer: dict[str, Any], summaries: dict[int, dict[str, Any]]
+) -> tuple[MissionReport, ObserverStatus, dict[int, AgentSummary]]:
+    return (
+        MissionReport.model_validate(report),
+        ObserverStatus.model_validate(observer),
+        {k: AgentSummary.model_validate(s) for k, s in summaries.items()},
+    )
+
+
 def test_write_plots_writes_four_non_empty_pngs(tmp_path: Path) -> None:
-    report, observer, summaries = _synthetic_run(tmp_path)
+    report, observer, summaries = _models(*_synthetic_run(tmp_path))
     names = write_plots(tmp_path, report, observer, summaries)
     assert names == list(PLOT_NAMES)
     for name in names:
@@ -333,14 +343,14 @@ def test_write_plots_writes_four_non_empty_pngs(tmp_path: Path) -> None:
 def test_write_plots_skips_figures_without_data(tmp_path: Path) -> None:
     report, _, _ = _synthetic_run(tmp_path)
     report.update(explored_timeline=[], explored_by_agent={}, leaders=[])
-    assert write_plots(tmp_path, report, None, {}) == []
+    assert write_plots(tmp_path, MissionReport.model_validate(report), None, {}) == []
     assert not list(tmp_path.glob("*.png"))
 
 
 def test_report_page_has_the_headline_numbers_and_image_links(tmp_path: Path) -> None:
     report, _, _ = _synthetic_run(tmp_path)
     report["plots"] = list(PLOT_NAMES)
-    text = write_report_page(tmp_path, report).read_text()
+    text = write_report_page(tmp_path, MissionReport.model_validate(report)).read_text()
     assert text.startswith("# Exploration report: box, 2 drones, strategy coordinated")
     assert "complete" in text and "every drone explored and landed" in text
     assert "| duration | 23.4 s |" in text
@@ -358,7 +368,7 @@ def test_report_page_has_the_headline_numbers_and_image_links(tmp_path: Path) ->
 def test_report_page_lists_twenty_leader_entries_and_counts_the_rest(tmp_path: Path) -> None:
     report, _, _ = _synthetic_run(tmp_path)
     report["leaders"] = [{"t": float(i), "leader": 1, "members": [1]} for i in range(25)]
-    text = write_report_page(tmp_path, report).read_text()
+    text = write_report_page(tmp_path, MissionReport.model_validate(report)).read_text()
     assert "- 19.0 s: drone 1 leads 1" in text and "- 20.0 s:" not in text
     assert "5 more entries" in text
 
@@ -383,14 +393,8 @@ def test_a_plotting_failure_is_recorded_not_raised(tmp_path: Path, monkeypatch: 
         raise RuntimeError("no fonts")
 
     monkeypatch.setattr(report_module, "write_plots", broken)
-    report_data, observer, summaries = _synthetic_run(tmp_path)
-    report = MissionReport.model_validate(report_data)
-    finish_report(
-        tmp_path,
-        report,
-        ObserverStatus.model_validate(observer),
-        {k: AgentSummary.model_validate(s) for k, s in summaries.items()},
-    )
+    report, observer, summaries = _models(*_synthetic_run(tmp_path))
+    finish_report(tmp_path, report, observer, summaries)
     assert report.plots_error == "RuntimeError: no fonts"
     assert report.plots == [] and report.report_page == "report.md"
     assert json.loads(report.to_json())["plots_error"] == "RuntimeError: no fonts"
