@@ -49,3 +49,23 @@ def test_a_file_that_does_not_validate_is_one_line_naming_file_model_and_problem
 def test_a_missing_file_is_not_a_format_error(tmp_path: Path) -> None:
     with pytest.raises(FileNotFoundError):
         read_model(tmp_path / "absent.json", Example)
+
+
+def test_the_cli_reports_a_bad_file_as_one_line_and_fails(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from swarm.cli import main
+    from swarm.mission import run as run_module
+    from swarm.mission.report import read_summary
+
+    (tmp_path / "agents").mkdir()
+    (tmp_path / "agents" / "agent-1.json").write_text('{"id": 1}')
+
+    def mission_reading_a_bad_summary(config: object, live: bool | None = None) -> dict[str, object]:
+        read_summary(tmp_path, 1)
+        raise AssertionError("an invalid summary was read")
+
+    monkeypatch.setattr(run_module, "run_mission", mission_reading_a_bad_summary)
+    assert main(["run", "--out", str(tmp_path / "run")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"swarm run: error: {tmp_path}/agents/agent-1.json: not a valid AgentSummary: epoch: Field required"]
