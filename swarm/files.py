@@ -1,11 +1,36 @@
-"""Files other processes read while they are being written: always replaced whole, never seen half-written."""
+"""Files between processes: always replaced whole (never seen half-written), and typed.
+
+Every status or summary file one process writes and another reads is a `FileModel`, written with `write_model`
+and read with `read_model` through the same class, as bus messages are `WireMessage`s. Unknown keys are
+refused (`extra="forbid"`): writer and reader are the same class of the same installed version, so an unknown
+key is a typo or a file from another version, and both deserve an error rather than a silently ignored field.
+A file that does not validate raises `FileFormatError`, one line naming the file, the model and the first
+problem, instead of the reader quietly using a default.
+"""
 
 from __future__ import annotations
 
 import json
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
+
+from pydantic import BaseModel, ConfigDict, ValidationError
+
+from swarm.errors import SwarmError
+
+
+class FileFormatError(SwarmError):
+    """A file that exists but is not what its model says (not JSON, a missing key, a wrong type)."""
+
+
+class FileModel(BaseModel):
+    """Base of every file model: no unknown keys; validated on read, written as JSON."""
+
+    model_config = ConfigDict(extra="forbid")
+
+
+M = TypeVar("M", bound=FileModel)
 
 
 def write_atomic(path: Path, data: bytes) -> None:
@@ -17,3 +42,31 @@ def write_atomic(path: Path, data: bytes) -> None:
 
 def write_json_atomic(path: Path, value: Any, indent: int | None = None) -> None:
     write_atomic(path, json.dumps(value, indent=indent).encode())
+
+
+def write_model(path: Path, model: FileModel, indent: int | None = 2) -> None:
+    """Write `model` as JSON to `path` atomically."""
+    write_atomic(Path(path), model.model_dump_json(indent=indent).encode())
+
+
+def read_model(path: Path, model: type[M]) -> M:
+    """The file at `path` validated as `model`.
+
+    FileNotFoundError (and other OSErrors) pass through untouched, so a reader polling for a file another
+    process has not written yet keeps telling "not there yet" apart from "there and wrong" (FileFormatError).
+    """
+    data = Path(path).read_bytes()
+    try:
+        return model.model_validate_json(data)
+    except ValidationError as exc:
+        raise FileFormatError(f"{path}: not a valid {model.__name__}: {first_error(exc)}") from None
+
+
+def first_error(exc: ValidationError) -> str:
+    """The first problem pydantic found, as one line: where in the file, and what."""
+    err = exc.errors(include_url=False)[0]
+    where = ".".join(str(part) for part in err["loc"])
+    message = " ".join(str(err["msg"]).split())
+    if err["type"] == "json_invalid":
+        return f"not JSON ({message})"
+    return f"{where}: {message}" if where else message

@@ -31,11 +31,12 @@ from swarm.agent.exploration import Exploration
 from swarm.agent.flight import Flight, Mission, Neighbour, Phase, parked, route_mission
 from swarm.agent.mapping import MappingTask
 from swarm.agent.sensing import StreamSource
+from swarm.agent.summary import NO_MAPPING, SCRIPTED_EXPLORATION, AgentSummary
 from swarm.aio import wait_event
 from swarm.bus.bridge import AsyncBus
 from swarm.bus.messages import AgentState
 from swarm.config import ConfigError, SwarmConfig
-from swarm.files import write_json_atomic
+from swarm.files import write_model
 from swarm.patches.lattice import Lattice
 from swarm.patches.patch import PatchId
 from swarm.patches.wire import decode_expected
@@ -389,26 +390,28 @@ class Agent:
         out_dir = self.config.agent.out_dir
         if out_dir is None:
             return
-        summary = {
-            "id": self.id,
-            "epoch": self.epoch,
-            "phase": final.value,
-            "landed": final == Phase.LANDED,
-            "distance_m": round(self.flight.distance_m, 3),
-            "duration_s": round(time.time() - self.started, 3),
-            "bytes_sent": bus.counters.bytes_sent,
-            "bytes_received": bus.counters.bytes_received,
-            "traffic": bus.counters.snapshot(),
-            "peers_seen": sorted(self.peers.ever_seen),
-            "peer_events": self.peer_events,
-            "mavsdk_released": released,
-            "sync": self.sync.stats(),
-            "heartbeats_on_wrong_key": self.keys_mismatch,
-            "give_way": self.flight.yields,
-            "timeline": self.timeline,
-            **(self.exploration.summary() if self.exploration is not None else {"strategy": "scripted"}),
-            **(mapping.summary() if mapping is not None else {"patches_sealed": 0}),
-        }
+        summary = AgentSummary.model_validate(
+            {
+                "id": self.id,
+                "epoch": self.epoch,
+                "phase": final.value,
+                "landed": final == Phase.LANDED,
+                "distance_m": round(self.flight.distance_m, 3),
+                "duration_s": round(time.time() - self.started, 3),
+                "bytes_sent": bus.counters.bytes_sent,
+                "bytes_received": bus.counters.bytes_received,
+                "traffic": bus.counters.snapshot(),
+                "peers_seen": sorted(self.peers.ever_seen),
+                "peer_events": self.peer_events,
+                "mavsdk_released": released,
+                "sync": self.sync.stats(),
+                "heartbeats_on_wrong_key": self.keys_mismatch,
+                "give_way": self.flight.yields,
+                "timeline": self.timeline,
+                **(self.exploration.summary() if self.exploration is not None else SCRIPTED_EXPLORATION),
+                **(mapping.summary() if mapping is not None else NO_MAPPING),
+            }
+        )
         path = Path(out_dir) / f"agent-{self.id}.json"
         path.parent.mkdir(parents=True, exist_ok=True)
-        write_json_atomic(path, summary, indent=2)
+        write_model(path, summary)

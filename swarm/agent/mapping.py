@@ -261,17 +261,13 @@ class MappingTask:
             "frame_rate_hz": round(self.config.camera.rate_hz * self.frames / (self.frames + self.frames_skipped), 2)
             if self.frames
             else 0.0,
-            **(
-                {
-                    "sensor_stream": {
-                        **self.stream_counters,
-                        "pixels_masked_as_peers": self.pixels_masked,
-                        "camera_silences": self.camera_silences,
-                    }
-                }
-                if self.stream_counters is not None
-                else {}
-            ),
+            "sensor_stream": {
+                **self.stream_counters,
+                "pixels_masked_as_peers": self.pixels_masked,
+                "camera_silences": self.camera_silences,
+            }
+            if self.stream_counters is not None
+            else None,
             "known_voxels": int(self.mapper.fused.voxel_count),
             "patches_received": self.patches_received,
             "fused_digest": self.mapper.fused.digest(),

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import re
 import statistics
 from collections.abc import Iterable, Iterator
@@ -36,11 +37,15 @@ from rich.table import Table
 
 from swarm.config import SwarmConfig
 from swarm.errors import WorldError
+from swarm.files import FileFormatError
 from swarm.mission.bench import _console_and_root
 from swarm.mission.bench_explore_plot import plot_bench_explore
+from swarm.mission.report import read_report
 from swarm.mission.run import run_mission, was_interrupted
 from swarm.sim.collisions import NEAR_GAP_M
 from swarm.sim.worlds import load_world
+
+log = logging.getLogger(__name__)
 
 STRATEGIES = ("coordinated", "uncoordinated")
 SUCCESS_FRACTION = 0.95
@@ -149,17 +154,21 @@ def _finished_report(config: SwarmConfig) -> dict[str, Any] | None:
     picks up where an interrupted one stopped."""
     assert config.mission.out is not None
     try:
-        report = json.loads((config.mission.out / "report.json").read_text())
-        mission = report["mission"]
-        same = (mission["world"], report["drones"], mission["strategy"], mission["seed"]) == (
-            config.mission.world,
-            config.mission.drones,
-            config.explore.strategy,
-            config.mission.seed,
-        )
-    except (OSError, ValueError, KeyError, TypeError):
+        report = read_report(config.mission.out / "report.json")
+    except OSError:
         return None
-    return report if same and not was_interrupted(report) else None
+    except FileFormatError as exc:
+        log.warning("flying it again: %s", exc)
+        return None
+    mission = report.mission
+    same = (mission.world, report.drones, mission.strategy, mission.seed) == (
+        str(config.mission.world),
+        config.mission.drones,
+        config.explore.strategy,
+        config.mission.seed,
+    )
+    data = json.loads(report.to_json())
+    return data if same and not was_interrupted(data) else None
 
 
 def is_success(row: dict[str, Any]) -> bool:

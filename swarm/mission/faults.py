@@ -20,9 +20,10 @@ from pathlib import Path
 from typing import Any
 
 from swarm.config import FaultSpec
-from swarm.files import write_json_atomic
+from swarm.files import write_model
 from swarm.mission.links import any_vehicle_airborne
 from swarm.mission.processes import Child
+from swarm.sim.status import SimControl, SimStatus
 
 KILL_WAIT_S = 5.0
 FAILSAFE_EXIT_CODE = 3  # the agent's exit code after a telemetry-loss failsafe landing (swarm.agent.main)
@@ -65,7 +66,7 @@ class FaultInjector:
         """Agents between their kill and their new process: their exit is not the end of them."""
         return set(self._down)
 
-    def tick(self, t: float, sim: dict[str, Any] | None, agents: dict[int, Child]) -> None:
+    def tick(self, t: float, sim: SimStatus | None, agents: dict[int, Child]) -> None:
         if self.takeoff_t is None:
             if not any_vehicle_airborne(sim):
                 return
@@ -112,7 +113,7 @@ class FaultInjector:
             (self._silent.add if action.step == "start" else self._silent.discard)(k)
             if action.step == "start":
                 self._telemetry_lost.add(k)
-            write_json_atomic(self.control_path, {"telemetry_off": sorted(self._silent)})
+            write_model(self.control_path, SimControl(telemetry_off=sorted(self._silent)))
             record["result"] = "vehicle silent" if action.step == "start" else "vehicle sending again"
         self.records.append(record)
 
@@ -141,7 +142,7 @@ class FaultInjector:
         self._frozen.clear()
         if self._silent:
             self._silent.clear()
-            write_json_atomic(self.control_path, {"telemetry_off": []})
+            write_model(self.control_path, SimControl(telemetry_off=[]))
 
     def report(self) -> list[dict[str, Any]]:
         """Each fault as asked, with what was done and when (`actions`), in the order they were given."""

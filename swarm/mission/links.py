@@ -30,12 +30,14 @@ from typing import Any
 import numpy as np
 from scipy.sparse.csgraph import connected_components
 
+from swarm.mission.files import ObserverStatus
 from swarm.mission.observer import FRESH_S
 from swarm.netem.network import SwarmNetwork
 from swarm.netem.profile import LinkProfile
 from swarm.netem.scenario import CLEAN, Pair, Profiles, Scenario, combine, radio_profile, timeline
 from swarm.patches.digest import PatchDigest
 from swarm.roles.membership import RETIRED_PHASES
+from swarm.sim.status import SimStatus, VehicleStatus
 
 RADIO_PERIOD_S = 1.0
 BACKEND = "nftables (bridge table in the hub: random drop, cut = drop all)"
@@ -53,31 +55,28 @@ def components(drones: int, profiles: Mapping[Pair, LinkProfile]) -> list[list[i
     return sorted(groups.values())
 
 
-def holdings_of(observer: Mapping[str, Any] | None) -> dict[int, set[str]]:
-    """Each agent's patch ids from the observer snapshot (agents whose holdings cannot be read are left out)."""
-    held: dict[int, set[str]] = {}
-    for key, entry in ((observer or {}).get("agents") or {}).items():
-        wire = entry.get("holdings")
-        if wire is None:
-            continue
-        try:
-            held[int(key)] = {str(pid) for pid in PatchDigest.from_wire(wire).ids()}
-        except (ValueError, TypeError, KeyError):
-            continue
-    return held
+def holdings_of(observer: ObserverStatus | None) -> dict[int, set[str]]:
+    """Each agent's patch ids from the observer snapshot (agents not heard yet are left out)."""
+    if observer is None:
+        return {}
+    return {
+        int(key): {str(pid) for pid in PatchDigest.from_wire_model(entry.holdings).ids()}
+        for key, entry in observer.agents.items()
+        if entry.holdings is not None
+    }
 
 
-def syncing_agents(observer: Mapping[str, Any] | None, now_wall: float, fresh_s: float = FRESH_S) -> set[int]:
+def syncing_agents(observer: ObserverStatus | None, now_wall: float, fresh_s: float = FRESH_S) -> set[int]:
     """Agents heard within fresh_s (observer wall-clock `last_heard`), in the air or landed and lingering: a
     landed agent keeps serving and pulling patches until it leaves."""
-    agents = (observer or {}).get("agents") or {}
-    return {int(k) for k, e in agents.items() if now_wall - float(e.get("last_heard", -math.inf)) < fresh_s}
+    agents = observer.agents if observer is not None else {}
+    return {int(k) for k, e in agents.items() if e.last_heard is not None and now_wall - e.last_heard < fresh_s}
 
 
-def active_agents(observer: Mapping[str, Any] | None) -> set[int]:
+def active_agents(observer: ObserverStatus | None) -> set[int]:
     """Agents that have reported and are not on the ground for good."""
-    agents = (observer or {}).get("agents") or {}
-    return {int(k) for k, e in agents.items() if "phase" in e and e.get("phase") not in RETIRED_PHASES}
+    agents = observer.agents if observer is not None else {}
+    return {int(k) for k, e in agents.items() if e.phase is not None and e.phase not in RETIRED_PHASES}
 
 
 @dataclass
@@ -96,9 +95,9 @@ class HealWatch:
         }
 
 
-def any_vehicle_airborne(sim: Mapping[str, Any] | None) -> bool:
+def any_vehicle_airborne(sim: SimStatus | None) -> bool:
     """Whether the simulator's status shows a vehicle off the ground: time 0 of scenarios and faults."""
-    return any(v.get("landed_state") not in (None, "on_ground") for v in (sim or {}).get("vehicles") or [])
+    return sim is not None and any(v.landed_state != "on_ground" for v in sim.vehicles)
 
 
 @dataclass
@@ -120,9 +119,9 @@ class LinkController:
         self._last_radio_t = -math.inf
         self._pending: list[HealWatch] = []
 
-    def tick(self, t: float, sim: Mapping[str, Any] | None, observer: Mapping[str, Any] | None) -> None:
+    def tick(self, t: float, sim: SimStatus | None, observer: ObserverStatus | None) -> None:
         """Apply whatever is due at mission time t; follow heals. Cheap when nothing changes."""
-        vehicles = (sim or {}).get("vehicles") or []
+        vehicles = sim.vehicles if sim is not None else []
         if self.takeoff_t is None:
             if not any_vehicle_airborne(sim):
                 return
@@ -156,9 +155,9 @@ class LinkController:
 
     # ----- internals -----
 
-    def _radio_profiles(self, vehicles: Sequence[Mapping[str, Any]]) -> Profiles:
+    def _radio_profiles(self, vehicles: Sequence[VehicleStatus]) -> Profiles:
         assert self.scenario.radio is not None
-        positions = {int(v["id"]): v.get("position") for v in vehicles if v.get("position") is not None}
+        positions = {v.id: v.position for v in vehicles}
         profiles: Profiles = {}
         for a, b in self._scripted:
             if a in positions and b in positions:
@@ -168,7 +167,7 @@ class LinkController:
                 profiles[(a, b)] = self._radio.get((a, b), CLEAN)
         return profiles
 
-    def _apply(self, t: float, scenario_t: float, wanted: Profiles, observer: Mapping[str, Any] | None) -> None:
+    def _apply(self, t: float, scenario_t: float, wanted: Profiles, observer: ObserverStatus | None) -> None:
         before = self._in_force
         self.net.set_pairs(wanted)
         self._in_force = wanted
@@ -195,7 +194,7 @@ class LinkController:
         split = components(self.drones, self._in_force)
         self.partitions.append({"start": round(t, 2), "end": None, "components": split})
 
-    def _watch_heal(self, t: float, healed: list[Pair], observer: Mapping[str, Any] | None) -> None:
+    def _watch_heal(self, t: float, healed: list[Pair], observer: ObserverStatus | None) -> None:
         joined = {k for pair in healed for k in pair}
         component = next(c for c in components(self.drones, self._in_force) if joined & set(c))
         active = active_agents(observer)
@@ -209,7 +208,7 @@ class LinkController:
         else:
             self._pending.append(watch)
 
-    def _follow_heals(self, t: float, observer: Mapping[str, Any] | None) -> None:
+    def _follow_heals(self, t: float, observer: ObserverStatus | None) -> None:
         if not self._pending:
             return
         held = holdings_of(observer)

@@ -26,7 +26,8 @@ from swarm.aio import wait_event
 from swarm.bus.bridge import AsyncBus
 from swarm.bus.messages import AgentState
 from swarm.config import SwarmConfig, Vec3
-from swarm.files import write_json_atomic
+from swarm.files import write_model
+from swarm.mission.files import MapNodeStatus
 from swarm.patches.mapper import Mapper
 from swarm.patches.patch import PatchId
 from swarm.roles.membership import PeerTable
@@ -212,25 +213,27 @@ class MapNode:
                 self._worker, self.mapper.fused.digest
             )
             self._digest_of = held
-        status = {
-            "id": self.id,
-            "epoch": self.epoch,
-            "done": done,
-            "t": time.time(),
-            "sealed": self.sealed,
-            "held": [str(pid) for pid in self.sync.held_ids()],
-            "held_at": {str(pid): t for pid, t in self.sync.held_at.items()},
-            "fused_digest": self._fused_digest,
-            "fused_patches": held,
-            "peers": sorted(self.peers.peers),
-            "leader": self.peers.leader,
-            "role": self.peers.role,
-            "cluster": self.peers.cluster,
-            "first_peer_t": self.first_peer_t,
-            "sync": self.sync.stats(),
-            "traffic": self.bus.counters.snapshot(),
-        }
-        write_json_atomic(self.status_path, status)
+        status = MapNodeStatus.model_validate(
+            {
+                "id": self.id,
+                "epoch": self.epoch,
+                "done": done,
+                "t": time.time(),
+                "sealed": self.sealed,
+                "held": [str(pid) for pid in self.sync.held_ids()],
+                "held_at": {str(pid): t for pid, t in self.sync.held_at.items()},
+                "fused_digest": self._fused_digest,
+                "fused_patches": held,
+                "peers": sorted(self.peers.peers),
+                "leader": self.peers.leader,
+                "role": self.peers.role,
+                "cluster": self.peers.cluster,
+                "first_peer_t": self.first_peer_t,
+                "sync": self.sync.stats(),
+                "traffic": self.bus.counters.snapshot(),
+            }
+        )
+        write_model(self.status_path, status, indent=None)
 
 
 def mapnode_command(config: SwarmConfig, plan: NodePlan, status_path: Path) -> int:

@@ -6,7 +6,6 @@ Status files are polled; nothing here sleeps to hide a race: `wait_for` polls a 
 
 from __future__ import annotations
 
-import json
 import os
 import signal
 import subprocess
@@ -17,6 +16,8 @@ from pathlib import Path
 from typing import Any
 
 from swarm.config import Vec3
+from swarm.files import read_model
+from swarm.mission.files import MapNodeStatus
 from swarm.mission.ports import find_free_base
 from swarm.mission.processes import swarm_command
 
@@ -86,9 +87,10 @@ class NodeSwarm:
         self.procs[spec.id] = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT)
 
     def status(self, node_id: int) -> dict[str, Any]:
+        """Node K's status as JSON data, {} before it first wrote one; FileFormatError when it is invalid."""
         try:
-            return json.loads(self.status_path(node_id).read_text())
-        except (OSError, ValueError):
+            return read_model(self.status_path(node_id), MapNodeStatus).model_dump(mode="json")
+        except FileNotFoundError:
             return {}
 
     def statuses(self) -> dict[int, dict[str, Any]]:

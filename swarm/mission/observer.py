@@ -31,8 +31,9 @@ from swarm.aio import wait_event
 from swarm.bus.bridge import AsyncBus
 from swarm.bus.messages import AgentState
 from swarm.config import SwarmConfig
-from swarm.files import write_json_atomic
+from swarm.files import write_model
 from swarm.mission.coverage import SwarmCoverage
+from swarm.mission.files import NO_COVERAGE, ObserverStatus
 from swarm.roles.membership import RETIRED_PHASES
 
 SNAPSHOT_PERIOD_S = 0.5
@@ -195,18 +196,20 @@ class Observer:
         self.timeline.append({"t": round(time.time() - self.started, 3), "event": event, "agent": agent_id})
 
     def _write(self, bus: AsyncBus, done: bool) -> None:
-        snapshot = {
-            "done": done,
-            "t": round(time.time() - self.started, 3),
-            "agents": {str(k): v for k, v in sorted(self.agents.items())},
-            "timeline": self.timeline,
-            "traffic": bus.counters.snapshot(),
-            "trajectories": self.trajectories.snapshot(),
-            "leaders": self.leaders.entries,
-            "leader_changes": self.leader_changes,
-            **(self.coverage.snapshot() if self.coverage is not None else {}),
-        }
-        write_json_atomic(self.status_path, snapshot)
+        snapshot = ObserverStatus.model_validate(
+            {
+                "done": done,
+                "t": round(time.time() - self.started, 3),
+                "agents": {str(k): v for k, v in sorted(self.agents.items())},
+                "timeline": self.timeline,
+                "traffic": bus.counters.snapshot(),
+                "trajectories": self.trajectories.snapshot(),
+                "leaders": self.leaders.entries,
+                "leader_changes": self.leader_changes,
+                **(self.coverage.snapshot() if self.coverage is not None else NO_COVERAGE),
+            }
+        )
+        write_model(self.status_path, snapshot, indent=None)
 
 
 def observe_command(

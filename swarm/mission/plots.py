@@ -23,6 +23,8 @@ if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
+    from swarm.agent.summary import AgentSummary
+    from swarm.mission.files import MissionReport, ObserverStatus
     from swarm.sim.worlds import World
 
 log = logging.getLogger(__name__)
@@ -70,23 +72,21 @@ def floor_plan(
     return FloorPlan(solid.reshape(gx.shape), extent, float(z))
 
 
-def report_floor_plan(report: Mapping[str, Any]) -> FloorPlan | None:
+def report_floor_plan(report: MissionReport) -> FloorPlan | None:
     """The floor plan of the report's world at home floor + 1 m over the mission volume, or None when the world
     cannot be loaded any more (a mesh file moved since the run): the trajectories are still worth drawing."""
     from swarm.sim.worlds import load_world
 
-    mission = report.get("mission", {})
-    spec = mission.get("world") or report.get("world")
+    spec = report.mission.world or report.world
     if not spec:
         return None
     try:
-        world = load_world(str(spec))
+        world = load_world(spec)
     except WorldError as exc:
         log.warning("no floor plan: %s", exc)
         return None
-    volume = mission.get("volume")
-    lo, hi = (volume["min"], volume["max"]) if volume else (list(world.bounds[0]), list(world.bounds[1]))
-    spawns = mission.get("spawns") or []
+    lo, hi = report.mission.volume.min, report.mission.volume.max
+    spawns = report.mission.spawns
     home_z = float(spawns[0][2]) if spawns else float(world.default_start[2])
     return floor_plan(world, lo, hi, home_z + FLOOR_LIFT_M)
 
@@ -259,20 +259,21 @@ def plot_bytes(timelines: Mapping[int, Sequence[Sequence[float]]], path: Path) -
 
 
 def write_plots(
-    run_dir: Path, report: dict[str, Any], observer: dict[str, Any] | None, summaries: dict[int, dict[str, Any]]
+    run_dir: Path, report: MissionReport, observer: ObserverStatus | None, summaries: Mapping[int, AgentSummary]
 ) -> list[str]:
-    """Draw every figure the run has data for into run_dir; the file names written, relative to run_dir."""
-    obs = observer or {}
-    by_agent = report.get("explored_by_agent") or obs.get("explored_by_agent", {})
-    trajectories = obs.get("trajectories", {})
-    leaders = report.get("leaders") or obs.get("leaders", [])
-    end_t = float(obs.get("t", report.get("duration_s", 0.0)))
+    """Draw every figure the run has data for into run_dir; the file names written, relative to run_dir.
+
+    The figures take plain JSON data (the files' content), so each can be drawn from any run directory."""
+    by_agent = report.explored_by_agent or (observer.explored_by_agent if observer is not None else {})
+    trajectories = observer.trajectories if observer is not None else {}
+    leaders = [e.model_dump() for e in (report.leaders or (observer.leaders if observer is not None else []))]
+    end_t = observer.t if observer is not None else report.duration_s
     written = [
-        plot_explored(report.get("explored_timeline", []), by_agent, run_dir / EXPLORED_PNG),
+        plot_explored(report.explored_timeline, by_agent, run_dir / EXPLORED_PNG),
         plot_trajectories(
             trajectories, report_floor_plan(report) if trajectories else None, run_dir / TRAJECTORIES_PNG
         ),
         plot_leaders(leaders, end_t, run_dir / LEADERS_PNG),
-        plot_bytes({k: s.get("timeline", []) for k, s in summaries.items()}, run_dir / BYTES_PNG),
+        plot_bytes({k: s.timeline for k, s in summaries.items()}, run_dir / BYTES_PNG),
     ]
     return [path.relative_to(run_dir).as_posix() for path in written if path is not None]

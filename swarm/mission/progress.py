@@ -10,7 +10,9 @@ from rich.table import Table
 from rich.text import Text
 
 if TYPE_CHECKING:
+    from swarm.mission.files import ObserverStatus
     from swarm.mission.run import RunPlan
+    from swarm.sim.status import SimStatus
 
 PLAIN_PERIOD_S = 10.0
 
@@ -37,11 +39,11 @@ class ProgressView:
             self._live.__exit__(*exc)  # type: ignore[arg-type]
 
     def update(
-        self, elapsed: float, sim: dict[str, Any] | None, observer: dict[str, Any] | None, exit_codes: dict[int, int]
+        self, elapsed: float, sim: SimStatus | None, observer: ObserverStatus | None, exit_codes: dict[int, int]
     ) -> None:
         rows = _rows(sim, observer, exit_codes)
-        collisions = (sim or {}).get("collisions", 0)
-        explored = 100.0 * (observer or {}).get("explored_fraction", 0.0)
+        collisions = sim.collisions if sim is not None else 0  # nothing to show before the first status
+        explored = 100.0 * observer.explored_fraction if observer is not None else 0.0
         if self._live is not None:
             self._live.update(self._render(elapsed, rows, collisions, explored))
         elif elapsed - self._last_plain >= PLAIN_PERIOD_S:
@@ -66,24 +68,22 @@ class ProgressView:
         return Group(title, table)
 
 
-def _rows(
-    sim: dict[str, Any] | None, observer: dict[str, Any] | None, exit_codes: dict[int, int]
-) -> list[dict[str, Any]]:
-    agents = (observer or {}).get("agents", {})
+def _rows(sim: SimStatus | None, observer: ObserverStatus | None, exit_codes: dict[int, int]) -> list[dict[str, Any]]:
+    agents = observer.agents if observer is not None else {}
     rows = []
-    for v in (sim or {}).get("vehicles", []):
-        seen = agents.get(str(v["id"]), {})
-        phase = seen.get("phase", "starting")
-        if v["id"] in exit_codes:
-            phase = "exited" if exit_codes[v["id"]] == 0 else f"exit {exit_codes[v['id']]}"
+    for v in sim.vehicles if sim is not None else []:
+        seen = agents.get(str(v.id))
+        phase = (seen.phase if seen is not None else None) or "starting"
+        if v.id in exit_codes:
+            phase = "exited" if exit_codes[v.id] == 0 else f"exit {exit_codes[v.id]}"
         rows.append(
             {
-                "id": v["id"],
+                "id": v.id,
                 "phase": phase,
-                "role": seen.get("role", "-"),
-                "mode": v.get("mode", "?"),
-                "position": "({:5.1f}, {:5.1f}, {:4.1f})".format(*v["position"]),
-                "distance": f"{v.get('distance_m', 0.0):6.1f}",
+                "role": (seen.role if seen is not None else None) or "-",
+                "mode": v.mode,
+                "position": "({:5.1f}, {:5.1f}, {:4.1f})".format(*v.position),
+                "distance": f"{v.distance_m:6.1f}",
             }
         )
     return rows

@@ -1,6 +1,6 @@
 """report.md: the mission report as a page a person reads (report.json stays the one for programs).
 
-Everything on it comes from the report dict, so the page and report.json can never disagree; the figures are
+Everything on it comes from the `MissionReport`, so the page and report.json can never disagree; the figures are
 the PNG files `swarm.mission.plots` wrote beside it, linked by relative name so the run directory can be moved.
 """
 
@@ -8,7 +8,10 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from swarm.mission.files import LeaderEntry, MissionReport
 
 REPORT_PAGE = "report.md"
 LEADER_ENTRIES_SHOWN = 20
@@ -40,62 +43,54 @@ def _seconds(value: Any) -> str:
     return "never" if value is None else f"{float(value):.1f} s"
 
 
-def headline_rows(report: dict[str, Any]) -> list[tuple[str, str]]:
+def headline_rows(report: MissionReport) -> list[tuple[str, str]]:
     """The figures a run is judged by, formatted: how fast and how much it explored, and what it cost."""
-    bandwidth = report.get("bandwidth", {})
-    ratio = bandwidth.get("baseline_ratio")
-    rows = [
-        ("duration", _seconds(report.get("duration_s", 0.0))),
-        ("explored fraction", f"{float(report.get('explored_fraction', 0.0)):.3f}"),
-    ]
-    rows += [(f"time to {float(th):.0%}", _seconds(t)) for th, t in report.get("time_to", {}).items()]
+    ratio = report.bandwidth.baseline_ratio
+    rows = [("duration", _seconds(report.duration_s)), ("explored fraction", f"{report.explored_fraction:.3f}")]
+    rows += [(f"time to {float(th):.0%}", _seconds(t)) for th, t in report.time_to.items()]
     rows += [
-        ("collisions", str(report.get("collisions", 0))),
-        ("overlap fraction", f"{float(report.get('overlap_fraction', 0.0)):.3f}"),
-        ("converged", _cell(report.get("converged"))),
-        ("phantom obstacles along the flown paths", str((report.get("phantoms") or {}).get("phantoms", "-"))),
-        ("bandwidth (bytes per agent-second)", f"{bandwidth.get('bytes_per_agent_s', 0.0)}"),
+        ("collisions", str(report.collisions)),
+        ("overlap fraction", f"{report.overlap_fraction:.3f}"),
+        ("converged", _cell(report.converged)),
+        ("phantom obstacles along the flown paths", str(report.phantoms.phantoms if report.phantoms else "-")),
+        ("bandwidth (bytes per agent-second)", f"{report.bandwidth.bytes_per_agent_s}"),
         ("whole-map baseline ratio", "-" if ratio is None else f"{ratio}x"),
     ]
     return rows
 
 
-def agent_rows(report: dict[str, Any]) -> list[list[Any]]:
+def agent_rows(report: MissionReport) -> list[list[Any]]:
     return [
         [
-            a.get("id"),
-            a.get("distance_m"),
-            a.get("patches_sealed"),
-            a.get("patches_held"),
-            a.get("targets_assigned", 0),
-            a.get("targets_self_selected", 0),
-            a.get("landed"),
-            a.get("exit_code"),
+            a.id,
+            a.distance_m,
+            a.patches_sealed,
+            a.patches_held,
+            a.targets_assigned,
+            a.targets_self_selected,
+            a.landed,
+            a.exit_code,
         ]
-        for a in report.get("agents", [])
+        for a in report.agents
     ]
 
 
-def leader_lines(leaders: Sequence[dict[str, Any]], limit: int = LEADER_ENTRIES_SHOWN) -> list[str]:
+def leader_lines(leaders: Sequence[LeaderEntry], limit: int = LEADER_ENTRIES_SHOWN) -> list[str]:
     """The first `limit` cluster entries as list items; the rest are counted, not listed (they are in the JSON)."""
     if not leaders:
         return ["No cluster was reported."]
-    lines = [
-        f"- {float(e['t']):.1f} s: drone {e['leader']} leads {', '.join(str(m) for m in e['members'])}"
-        for e in leaders[:limit]
-    ]
+    lines = [f"- {e.t:.1f} s: drone {e.leader} leads {', '.join(str(m) for m in e.members)}" for e in leaders[:limit]]
     if len(leaders) > limit:
         lines.append(f"- ... {len(leaders) - limit} more entries in report.json")
     return lines
 
 
-def render_report_page(report: dict[str, Any]) -> str:
-    mission = report.get("mission", {})
-    strategy = mission.get("strategy") or "unspecified"
+def render_report_page(report: MissionReport) -> str:
+    strategy = report.mission.strategy or "unspecified"
     lines = [
-        f"# Exploration report: {report.get('world', '?')}, {report.get('drones', '?')} drones, strategy {strategy}",
+        f"# Exploration report: {report.world}, {report.drones} drones, strategy {strategy}",
         "",
-        f"**Status: {report.get('status', '?')}**: {report.get('reason', '')}",
+        f"**Status: {report.status}**: {report.reason}",
         "",
         "## Headline figures",
         "",
@@ -119,15 +114,15 @@ def render_report_page(report: dict[str, Any]) -> str:
         "",
         "## Leader timeline",
         "",
-        *leader_lines(report.get("leaders", [])),
+        *leader_lines(report.leaders),
         "",
     ]
-    for name in report.get("plots", []):
+    for name in report.plots:
         lines += [f"## {FIGURE_CAPTIONS.get(name, name)}", "", f"![]({name})", ""]
     return "\n".join(lines)
 
 
-def write_report_page(run_dir: Path, report: dict[str, Any]) -> Path:
+def write_report_page(run_dir: Path, report: MissionReport) -> Path:
     """Write report.md into run_dir and return its path."""
     path = run_dir / REPORT_PAGE
     path.write_text(render_report_page(report))

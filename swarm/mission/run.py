@@ -21,6 +21,7 @@ report.json.
 from __future__ import annotations
 
 import datetime as dt
+import json
 import shutil
 import signal
 import sys
@@ -52,7 +53,7 @@ from swarm.mission.links import LinkController
 from swarm.mission.ports import ensure_free
 from swarm.mission.processes import Child, start_child, stop_all, swarm_command
 from swarm.mission.progress import ProgressView
-from swarm.mission.report import build_report, read_json, run_priority, write_report
+from swarm.mission.report import build_report, read_observer_status, read_sim_status, run_priority, write_report
 from swarm.mission.routes import ScriptedRoute, scripted_routes
 from swarm.netem.commands import NetemUnavailable, check_prerequisites
 from swarm.netem.network import SwarmNetwork
@@ -248,9 +249,9 @@ def run_mission(
         if state.links is not None:
             state.links.finish(state.finished - state.started)
         shutil.rmtree(_agents_tmp(plan), ignore_errors=True)
-    report = build_report(plan, state, read_json(out / "sim.json"), read_json(out / "observer.json"))
+    report = build_report(plan, state, read_sim_status(out), read_observer_status(out))
     write_report(out, report)
-    return report
+    return json.loads(report.to_json())  # the report as report.json holds it
 
 
 def was_interrupted(report: dict[str, Any]) -> bool:
@@ -277,8 +278,8 @@ def _start_simulator(plan: RunPlan, state: RunState) -> None:
     )
     deadline = time.monotonic() + SIM_READY_TIMEOUT_S
     while True:
-        status = read_json(plan.out / "sim.json")
-        if status and status.get("ready"):
+        status = read_sim_status(plan.out)
+        if status is not None and status.ready:
             _start_cameras(plan, state, sim_config.sim.host)
             return
         if state.sim.poll() is not None:
@@ -419,11 +420,11 @@ def _start_swarm(plan: RunPlan, state: RunState) -> None:
 
 def _warn_unless_prioritised(plan: RunPlan, state: RunState) -> None:
     p = run_priority(plan, state)
-    if not p["granted"]:
+    if not p.granted:
         print(
-            f"swarm run: warning: niceness {p['asked']} asked, {p['got']} given (lowering it needs root or "
-            "CAP_SYS_NICE): a burst of load on this machine can stall the simulator's telemetry for longer than "
-            "the agents' telemetry timeout and land every drone",
+            f"swarm run: warning: niceness {p.asked.model_dump()} asked, {p.got.model_dump()} given "
+            "(lowering it needs root or CAP_SYS_NICE): a burst of load on this machine can stall the simulator's "
+            "telemetry for longer than the agents' telemetry timeout and land every drone",
             file=sys.stderr,
             flush=True,
         )
@@ -466,7 +467,7 @@ def _supervise(plan: RunPlan, state: RunState, view: ProgressView, on_tick: Call
             if code is not None and k not in state.exit_codes and k not in restarting:
                 state.exit_codes[k] = code
         elapsed = time.monotonic() - state.started
-        sim, observer = read_json(plan.out / "sim.json"), read_json(plan.out / "observer.json")
+        sim, observer = read_sim_status(plan.out), read_observer_status(plan.out)
         view.update(elapsed, sim, observer, state.exit_codes)
         if state.links is not None:
             try:

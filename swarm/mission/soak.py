@@ -25,7 +25,7 @@ from rich.table import Table
 
 from swarm.config import ConfigError, SwarmConfig
 from swarm.errors import SwarmError
-from swarm.mission.report import held_patch_ids, read_json, sealed_patch_ids
+from swarm.mission.report import held_patch_ids, read_summary, sealed_patch_ids
 from swarm.mission.run import RunState, run_mission, was_interrupted
 from swarm.netem.commands import NetemUnavailable, check_prerequisites
 
@@ -109,8 +109,8 @@ def patches_lost(out: Path, drones: int) -> tuple[int, int]:
     sealed = sealed_patch_ids(out / "agents" / "patches")
     held: set[str] = set()
     for k in range(1, drones + 1):
-        summary = read_json(out / "agents" / f"agent-{k}.json")
-        if summary:
+        summary = read_summary(out, k)
+        if summary is not None:
             held |= held_patch_ids(summary)
     return len(sealed), len(sealed - held)
 

@@ -8,7 +8,6 @@ collision checks run at sim.physics_hz; telemetry streams at their own rates (at
 from __future__ import annotations
 
 import errno
-import json
 import selectors
 import signal
 import socket
@@ -23,10 +22,11 @@ import numpy as np
 from swarm.bus.session import zenoh_error_text
 from swarm.config import ConfigError, SwarmConfig, gcs_port, vehicle_port
 from swarm.errors import PortInUseError, SwarmError, WorldError
-from swarm.files import write_json_atomic
+from swarm.files import FileFormatError, read_model, write_model
 from swarm.sim.collisions import CRUISE_HEIGHT_M, CollisionMonitor
 from swarm.sim.px4 import FlightMode
 from swarm.sim.sensors import OdometryPublisher
+from swarm.sim.status import SimControl, SimStatus, VehicleStatus
 from swarm.sim.vehicle import Downlink, SimVehicle
 from swarm.sim.worlds import World, load_world, mission_volume, spawn_points
 
@@ -165,8 +165,8 @@ class SimServer:
         return self.vehicles[drone_id]
 
     def _read_control(self) -> None:
-        """Fault injection from `swarm run`: `sim.control_path` holds {"telemetry_off": [drone ids]}. A missing
-        file means no fault; an unreadable one is reported once and changes nothing."""
+        """Fault injection from `swarm run`: `sim.control_path` holds a `SimControl`. A missing file means no
+        fault; an invalid one is reported once (one line) and changes nothing."""
         path = self.config.sim.control_path
         if path is None:
             return
@@ -178,8 +178,8 @@ class SimServer:
             return
         self._control_mtime = stat.st_mtime_ns
         try:
-            off = {int(v) for v in json.loads(path.read_text())["telemetry_off"]}
-        except (OSError, ValueError, KeyError, TypeError) as exc:
+            off = set(read_model(path, SimControl).telemetry_off)
+        except (OSError, FileFormatError) as exc:
             print(f"swarm sim: ignoring control file {path}: {exc}", file=sys.stderr, flush=True)
             return
         for vid in self.ids:
@@ -255,47 +255,55 @@ class SimServer:
     # --- status ------------------------------------------------------------------------------------------------
 
     def status(self) -> dict:
+        """The status as plain JSON data (what `sim.json` holds), for in-process callers and tests."""
+        return self.status_model().model_dump(mode="json")
+
+    def status_model(self) -> SimStatus:
         with self._lock:
             vehicles = []
             for vid, vehicle in self.vehicles.items():
                 v = vehicle.status()
                 vehicles.append(
-                    {
-                        "id": vid,
-                        "vehicle_port": vehicle_port(self.config.sim, vid),
-                        "gcs_port": gcs_port(self.config.sim, vid),
-                        "home": v["home"],
-                        "position": v["position"],
-                        "velocity": v["velocity"],
-                        "armed": v["armed"],
-                        "mode": v["mode"],
-                        "landed_state": v["landed_state"],
-                        "distance_m": v["distance_m"],
-                        "collisions": self.collisions.counts[vid],
-                        "closest_world_m": _rounded(self.collisions.closest_world(vid)),
-                        "closest_world_at": _rounded_point(self.collisions.closest_world_at(vid)),
-                        "closest_drone_m": _rounded(self.collisions.closest_drone(vid)),
-                        "gcs_seen": v["gcs_seen"],
-                        "last_gcs_message_age_s": v["last_gcs_message_age_s"],
-                    }
+                    VehicleStatus(
+                        **{
+                            "id": vid,
+                            "vehicle_port": vehicle_port(self.config.sim, vid),
+                            "gcs_port": gcs_port(self.config.sim, vid),
+                            "home": v["home"],
+                            "position": v["position"],
+                            "velocity": v["velocity"],
+                            "armed": v["armed"],
+                            "mode": v["mode"],
+                            "landed_state": v["landed_state"],
+                            "distance_m": v["distance_m"],
+                            "collisions": self.collisions.counts[vid],
+                            "closest_world_m": _rounded(self.collisions.closest_world(vid)),
+                            "closest_world_at": _rounded_point(self.collisions.closest_world_at(vid)),
+                            "closest_drone_m": _rounded(self.collisions.closest_drone(vid)),
+                            "gcs_seen": v["gcs_seen"],
+                            "last_gcs_message_age_s": v["last_gcs_message_age_s"],
+                        }
+                    )
                 )
-            return {
-                "ready": self._ready,
-                "done": self._done,
-                "t": round(self._t, 3),
-                "world": self.world.name,
-                "collisions": self.collisions.total,
-                "collision_events": [e.to_json() for e in self.collisions.events],
-                "stalls": list(self.stalls),
-                "vehicles": vehicles,
-            }
+            return SimStatus.model_validate(
+                {
+                    "ready": self._ready,
+                    "done": self._done,
+                    "t": round(self._t, 3),
+                    "world": self.world.name,
+                    "collisions": self.collisions.total,
+                    "collision_events": [e.to_json() for e in self.collisions.events],
+                    "stalls": list(self.stalls),
+                    "vehicles": vehicles,
+                }
+            )
 
     def write_status(self, path: Path) -> None:
         """Write the status JSON atomically (temp file + rename), so a reader never sees half a file."""
         path = Path(path)
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
-            write_json_atomic(path, self.status())
+            write_model(path, self.status_model(), indent=None)
         except OSError as exc:
             raise SwarmError(f"cannot write simulator status to {path}: {exc.strerror or exc}") from None
 

@@ -14,6 +14,7 @@ from swarm.config import SwarmConfig, load_config
 from swarm.errors import WorldError
 from swarm.mission.bench_explore import bench_explore, expand_worlds, oracle_times, summarise
 from swarm.mission.run import INTERRUPTED
+from tests.file_models import agent_row_data, mission_report_data
 from tests.helpers import swarm_cmd
 
 
@@ -266,11 +267,14 @@ def test_resume_keeps_the_missions_flown_to_their_end_and_flies_the_rest(
 
     def fake_run(cfg: SwarmConfig, live: bool | None = None) -> dict:  # writes report.json as a mission does
         flown.append((cfg.explore.strategy, cfg.mission.drones, cfg.mission.world))
-        report = {
-            **_report(cfg, INTERRUPTED if len(flown) == stop_at[0] else ""),
-            "drones": cfg.mission.drones,
-            "mission": {"world": cfg.mission.world, "strategy": cfg.explore.strategy, "seed": cfg.mission.seed},
-        }
+        short = _report(cfg, INTERRUPTED if len(flown) == stop_at[0] else "")
+        mission = {"world": cfg.mission.world, "strategy": cfg.explore.strategy, "seed": cfg.mission.seed}
+        report = mission_report_data(
+            **{key: short[key] for key in ("status", "reason", "duration_s", "explored_fraction", "run_dir")},
+            drones=cfg.mission.drones,
+            mission={**mission_report_data()["mission"], **mission},
+            agents=[agent_row_data(k, distance_m=d) for k, d in ((1, 50.0), (2, 40.0))],
+        )
         assert cfg.mission.out is not None
         cfg.mission.out.mkdir(parents=True, exist_ok=True)
         (cfg.mission.out / "report.json").write_text(json.dumps(report))

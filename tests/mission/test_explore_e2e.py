@@ -13,7 +13,7 @@ from typing import Any
 import pytest
 
 from swarm.config import load_config
-from swarm.mission.report import read_json
+from swarm.mission.report import read_sim_status
 from swarm.mission.run import run_mission
 from tests.helpers import SwarmPorts, log_events, processes_mentioning
 
@@ -55,8 +55,9 @@ def test_killing_the_leader_hands_over_within_3_s_and_the_others_finish(
     # The dead drone hovers where it was killed (PX4 holds on offboard loss) and sends no heartbeat, so the
     # survivors cannot see it: a known gap (see docs/architecture.md, Faults). Between themselves and with the
     # world they must not collide.
-    events = (read_json(out / "sim.json") or {}).get("collision_events", [])
-    assert all(1 in e["vehicles"] for e in events), events
+    sim = read_sim_status(out)
+    assert sim is not None
+    assert all(1 in e.vehicles for e in sim.collision_events), sim.collision_events
     assert report["explored_fraction"] >= 0.9
     leaders_after = {entry["leader"] for entry in report["leaders"] if entry["t"] > 0 and 1 not in entry["members"]}
     assert 2 in leaders_after, report["leaders"]

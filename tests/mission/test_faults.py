@@ -14,9 +14,10 @@ from swarm.cli import main
 from swarm.config import ConfigError, FaultSpec, load_config
 from swarm.mission.faults import FaultInjector
 from swarm.mission.processes import Child, start_child
+from tests.file_models import sim_status, vehicle_status
 
-AIRBORNE = {"vehicles": [{"id": 1, "landed_state": "in_air"}]}
-ON_GROUND = {"vehicles": [{"id": 1, "landed_state": "on_ground"}]}
+AIRBORNE = sim_status(vehicle_status(1, landed_state="in_air", armed=True))
+ON_GROUND = sim_status(vehicle_status(1, landed_state="on_ground"))
 
 
 @pytest.mark.parametrize(

@@ -10,8 +10,10 @@ from typing import Any
 import pytest
 
 from swarm.config import load_config
-from swarm.mission.report import held_patch_ids, read_json, sealed_patch_ids
+from swarm.files import read_model
+from swarm.mission.report import held_patch_ids, read_summary, sealed_patch_ids
 from swarm.mission.run import run_mission
+from swarm.sim.status import SimControl
 from tests.helpers import SwarmPorts, log_events, processes_mentioning
 
 pytestmark = [pytest.mark.timeout(300), pytest.mark.mission]
@@ -63,12 +65,15 @@ def test_a_restarted_agent_rejoins_with_a_new_epoch_and_a_frozen_one_catches_up(
     [recovered] = [e for e in again if e["event"] == "recovered"]
     kept = {p.stem for p in (out / "agents" / "state" / "agent-2").glob(f"2.{epoch_1}.*.patch")}
     assert recovered["patches"] == len(kept) == len(by_epoch[epoch_1]) and recovered["rejected"] == 0
-    summary_2 = read_json(out / "agents" / "agent-2.json")
-    assert held_patch_ids(summary_2) == sealed, "the restarted agent does not hold the swarm's whole map"
+    summary_2 = read_summary(out, 2)
+    assert summary_2 is not None and held_patch_ids(summary_2) == sealed, (
+        "the restarted agent does not hold the swarm's whole map"
+    )
 
     stalls = [e for e in log_events(out / "logs" / "agent-3.log") if e["event"] == "stalled"]
     assert stalls and stalls[0]["seconds"] >= 9.0, stalls
-    assert held_patch_ids(read_json(out / "agents" / "agent-3.json")) == sealed
+    summary_3 = read_summary(out, 3)
+    assert summary_3 is not None and held_patch_ids(summary_3) == sealed
     assert report["converged"] is True
     without_3 = [e for e in report["leaders"] if 12.0 < e["t"] and 3 not in e["members"]]
     back_with_3 = [e for e in report["leaders"] if without_3 and e["t"] > without_3[0]["t"] and 3 in e["members"]]
@@ -91,7 +96,7 @@ def test_drones_lost_to_a_kill_and_to_telemetry_loss_leave_the_rest_to_finish(
     assert any(e["event"] == "failsafe" for e in log_events(out / "logs" / "agent-2.log"))
     assert agents[1]["exit_code"] == 0 and agents[1]["landed"]
     assert [a["result"] for a in _actions(report, silence)] == ["vehicle silent", "vehicle sending again"]
-    assert read_json(out / "sim-control.json") == {"telemetry_off": []}
+    assert read_model(out / "sim-control.json", SimControl) == SimControl(telemetry_off=[])
     done = [e for e in log_events(out / "logs" / "agent-1.log") if e["event"] == "exploration_done"]
     assert done, "agent 1 never finished exploring"
     assert not processes_mentioning(str(out)), "swarm run left processes behind"

@@ -17,7 +17,7 @@ from swarm.bus.codec import SCHEMA_VERSION
 from swarm.bus.keys import Keys
 from swarm.config import bus_port, load_config
 from swarm.mission.links import any_vehicle_airborne
-from swarm.mission.report import held_patch_ids, read_json, sealed_patch_ids
+from swarm.mission.report import held_patch_ids, read_sim_status, read_summary, sealed_patch_ids
 from swarm.mission.run import RunState, run_mission
 from tests.helpers import SwarmPorts, processes_mentioning
 
@@ -69,7 +69,7 @@ class Flood:
         ]
 
     def tick(self, state: RunState) -> None:
-        if self.sent >= MESSAGES or not any_vehicle_airborne(read_json(self.run_dir / "sim.json")):
+        if self.sent >= MESSAGES or not any_vehicle_airborne(read_sim_status(self.run_dir)):
             return
         if self.session is None:
             config = zenoh.Config()
@@ -113,10 +113,11 @@ def test_agents_fed_10000_hostile_messages_keep_flying_and_their_maps_hold_only_
     sealed = sealed_patch_ids(out / "agents" / "patches")
     assert sealed and all(p.split(".")[0] in ("1", "2") for p in sealed)
     for k in (1, 2):
-        summary = read_json(out / "agents" / f"agent-{k}.json")
+        summary = read_summary(out, k)
+        assert summary is not None
         assert held_patch_ids(summary) == sealed, f"agent {k}'s map holds something the swarm did not seal"
-        dropped = sum(sum(kind["dropped"].values()) for kind in summary["traffic"].values())
-        rejected = sum(summary["sync"].get("rejected", {}).values())
-        assert dropped + rejected > 1000, (summary["traffic"], summary["sync"])
+        dropped = sum(sum(kind.dropped.values()) for kind in summary.traffic.values())
+        rejected = sum(summary.sync.rejected.values())
+        assert dropped + rejected > 1000, (summary.traffic, summary.sync)
     assert report["converged"] is True
     assert not processes_mentioning(str(out)), "swarm run left processes behind"

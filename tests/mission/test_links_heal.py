@@ -3,27 +3,30 @@
 from __future__ import annotations
 
 import time
-from typing import Any
 
+from swarm.mission.files import ObserverStatus
 from swarm.mission.links import HealWatch, LinkController
 from swarm.netem.scenario import Scenario
 from swarm.patches.digest import PatchDigest
 from swarm.patches.patch import PatchId
+from tests.file_models import observer_status
 
 
-def _observer(agents: dict[int, tuple[str, list[int], float]]) -> dict[str, Any]:
+def _observer(agents: dict[int, tuple[str, list[int], float]]) -> ObserverStatus:
     """agents: id -> (phase, the seqs it holds of producer 1, seconds since it was last heard)."""
     now = time.time()
-    return {
-        "agents": {
+    return observer_status(
+        agents={
             str(k): {
+                "heartbeats": 1,
+                "alive": True,
                 "phase": phase,
                 "last_heard": now - age,
                 "holdings": PatchDigest.of(PatchId(1, 1, s) for s in seqs).to_wire(),
             }
             for k, (phase, seqs, age) in agents.items()
         }
-    }
+    )
 
 
 def _watching(target: list[int]) -> LinkController:

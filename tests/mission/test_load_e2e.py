@@ -16,7 +16,7 @@ from typing import Any
 import pytest
 
 from swarm.config import load_config
-from swarm.mission.report import read_json
+from swarm.mission.report import read_sim_status
 from swarm.mission.run import RunState, run_mission
 from tests.helpers import SwarmPorts, kill_all, log_events, processes_mentioning
 
@@ -56,8 +56,9 @@ class Load:
     def __call__(self, state: RunState) -> None:
         now = time.monotonic()
         if self.all_airborne_at is None:
-            vehicles = (read_json(self.sim_status) or {}).get("vehicles") or []
-            if vehicles and all(v["landed_state"] == "in_air" for v in vehicles):
+            sim = read_sim_status(self.sim_status.parent)
+            vehicles = sim.vehicles if sim is not None else []
+            if vehicles and all(v.landed_state == "in_air" for v in vehicles):
                 self.all_airborne_at = now
         elif not self.procs and now - self.all_airborne_at >= LOAD_AFTER_TAKEOFF_S:
             self.jiffies.append(_cpu_jiffies())

@@ -10,15 +10,18 @@ from typing import Any
 import numpy as np
 import pytest
 
+from swarm.agent.summary import AgentSummary
 from swarm.bus.messages import AgentState
 from swarm.config import load_config
 from swarm.mission import observer as observer_module
 from swarm.mission.coverage import SwarmCoverage, overlap_fraction
+from swarm.mission.files import MissionReport, ObserverStatus
 from swarm.mission.observer import LeaderTimeline, Observer, Trajectories, clusters_of
 from swarm.mission.plots import PLOT_NAMES, floor_plan, leader_segments, plot_explored, received_rate, write_plots
 from swarm.mission.report import finish_report, time_to, write_report
 from swarm.mission.report_md import write_report_page
 from swarm.sim.worlds import load_world
+from tests.file_models import agent_row_data, agent_summary_data, mission_report_data, observer_status_data
 from tests.mission.spin_patches import spin_patches
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -254,62 +257,82 @@ def _synthetic_run(tmp_path: Path) -> tuple[dict[str, Any], dict[str, Any], dict
         {"t": 12.0, "leader": 1, "members": [1, 2]},
     ]
     by_agent = {"1": [[t, f * 0.6] for t, f in timeline], "2": [[t, f * 0.55] for t, f in timeline]}
-    observer = {
-        "t": 23.0,
-        "explored_timeline": timeline,
-        "explored_by_agent": by_agent,
-        "overlap_fraction": 0.1234,
-        "leaders": leaders,
-        "trajectories": {
+    observer = observer_status_data(
+        t=23.0,
+        explored_timeline=timeline,
+        explored_by_agent=by_agent,
+        overlap_fraction=0.1234,
+        leaders=leaders,
+        trajectories={
             str(k): [[0.5 * i, sx + 0.1 * i * (1 if k == 1 else -1), sy + 0.05 * i, sz + 1.0] for i in range(30)]
             for k in (1, 2)
         },
-    }
+    )
     summaries = {
-        k: {"timeline": [[float(i), 100 * i, 1500 * i * k + (i % 3) * 200] for i in range(20)]} for k in (1, 2)
+        k: agent_summary_data(k, timeline=[[float(i), 100 * i, 1500 * i * k + (i % 3) * 200] for i in range(20)])
+        for k in (1, 2)
     }
-    report = {
-        "status": "complete",
-        "reason": "every drone explored and landed",
-        "world": "box",
-        "drones": 2,
-        "duration_s": 23.4,
-        "collisions": 0,
-        "explored_fraction": 1.0,
-        "explored_timeline": timeline,
-        "time_to": time_to(timeline),
-        "explored_by_agent": by_agent,
-        "overlap_fraction": 0.1234,
-        "leaders": leaders,
-        "converged": True,
-        "bandwidth": {"bytes_per_agent_s": 4321.5, "baseline_ratio": 17.25},
-        "agents": [
-            {
-                "id": k,
-                "distance_m": 12.5 * k,
-                "patches_sealed": 7,
-                "patches_held": 14,
-                "targets_assigned": 3 * k,
-                "targets_self_selected": k - 1,
-                "landed": True,
-                "exit_code": 0,
-            }
+    report = mission_report_data(
+        status="complete",
+        reason="every drone explored and landed",
+        world="box",
+        drones=2,
+        duration_s=23.4,
+        collisions=0,
+        explored_fraction=1.0,
+        explored_timeline=timeline,
+        time_to=time_to(timeline),
+        explored_by_agent=by_agent,
+        overlap_fraction=0.1234,
+        leaders=leaders,
+        converged=True,
+        bandwidth={
+            "bytes_per_agent_s": 4321.5,
+            "whole_map_baseline_bytes_per_agent_s": 74548.0,
+            "baseline_ratio": 17.25,
+            "baseline_loop_s": 2.0,
+            "agent_seconds": 46.8,
+        },
+        agents=[
+            agent_row_data(
+                k,
+                distance_m=12.5 * k,
+                patches_sealed=7,
+                patches_held=14,
+                targets_assigned=3 * k,
+                targets_self_selected=k - 1,
+                landed=True,
+                exit_code=0,
+            )
             for k in (1, 2)
         ],
-        "mission": {
+        mission={
+            "name": "synthetic",
+            "seed": 1,
+            "max_time_s": 300.0,
             "volume": {"min": [float(v) for v in lo], "max": [float(v) for v in hi]},
             "spawns": [[sx, sy, sz]],
             "world": "box",
             "strategy": "coordinated",
         },
-        "plots": [],
-        "report_page": None,
-    }
+        plots=[],
+        report_page=None,
+    )
     return report, observer, summaries
 
 
+def _models(
+    report: dict[str, Any], observer: dict[str, Any], summaries: dict[int, dict[str, Any]]
+) -> tuple[MissionReport, ObserverStatus, dict[int, AgentSummary]]:
+    return (
+        MissionReport.model_validate(report),
+        ObserverStatus.model_validate(observer),
+        {k: AgentSummary.model_validate(s) for k, s in summaries.items()},
+    )
+
+
 def test_write_plots_writes_four_non_empty_pngs(tmp_path: Path) -> None:
-    report, observer, summaries = _synthetic_run(tmp_path)
+    report, observer, summaries = _models(*_synthetic_run(tmp_path))
     names = write_plots(tmp_path, report, observer, summaries)
     assert names == list(PLOT_NAMES)
     for name in names:
@@ -320,14 +343,14 @@ def test_write_plots_writes_four_non_empty_pngs(tmp_path: Path) -> None:
 def test_write_plots_skips_figures_without_data(tmp_path: Path) -> None:
     report, _, _ = _synthetic_run(tmp_path)
     report.update(explored_timeline=[], explored_by_agent={}, leaders=[])
-    assert write_plots(tmp_path, report, None, {}) == []
+    assert write_plots(tmp_path, MissionReport.model_validate(report), None, {}) == []
     assert not list(tmp_path.glob("*.png"))
 
 
 def test_report_page_has_the_headline_numbers_and_image_links(tmp_path: Path) -> None:
     report, _, _ = _synthetic_run(tmp_path)
     report["plots"] = list(PLOT_NAMES)
-    text = write_report_page(tmp_path, report).read_text()
+    text = write_report_page(tmp_path, MissionReport.model_validate(report)).read_text()
     assert text.startswith("# Exploration report: box, 2 drones, strategy coordinated")
     assert "complete" in text and "every drone explored and landed" in text
     assert "| duration | 23.4 s |" in text
@@ -345,7 +368,7 @@ def test_report_page_has_the_headline_numbers_and_image_links(tmp_path: Path) ->
 def test_report_page_lists_twenty_leader_entries_and_counts_the_rest(tmp_path: Path) -> None:
     report, _, _ = _synthetic_run(tmp_path)
     report["leaders"] = [{"t": float(i), "leader": 1, "members": [1]} for i in range(25)]
-    text = write_report_page(tmp_path, report).read_text()
+    text = write_report_page(tmp_path, MissionReport.model_validate(report)).read_text()
     assert "- 19.0 s: drone 1 leads 1" in text and "- 20.0 s:" not in text
     assert "5 more entries" in text
 
@@ -356,7 +379,7 @@ def test_write_report_renders_figures_and_page_from_the_run_directory(tmp_path: 
     (tmp_path / "agents").mkdir()
     for k, summary in summaries.items():
         (tmp_path / "agents" / f"agent-{k}.json").write_text(json.dumps(summary))
-    write_report(tmp_path, report)
+    write_report(tmp_path, MissionReport.model_validate(report))
     written = json.loads((tmp_path / "report.json").read_text())
     assert written["plots"] == list(PLOT_NAMES) and written["report_page"] == "report.md"
     assert "plots_error" not in written
@@ -370,8 +393,9 @@ def test_a_plotting_failure_is_recorded_not_raised(tmp_path: Path, monkeypatch: 
         raise RuntimeError("no fonts")
 
     monkeypatch.setattr(report_module, "write_plots", broken)
-    report, observer, summaries = _synthetic_run(tmp_path)
+    report, observer, summaries = _models(*_synthetic_run(tmp_path))
     finish_report(tmp_path, report, observer, summaries)
-    assert report["plots_error"] == "RuntimeError: no fonts"
-    assert report["plots"] == [] and report["report_page"] == "report.md"
+    assert report.plots_error == "RuntimeError: no fonts"
+    assert report.plots == [] and report.report_page == "report.md"
+    assert json.loads(report.to_json())["plots_error"] == "RuntimeError: no fonts"
     assert (tmp_path / "report.md").exists()

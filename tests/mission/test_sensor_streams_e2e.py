@@ -14,7 +14,7 @@ import pytest
 
 from swarm.agent.bagmap import map_bags
 from swarm.config import load_config
-from swarm.mission.report import read_json
+from swarm.mission.report import read_observer_status
 from swarm.mission.run import NO_WORLD_FOR_AGENTS, RunState, run_mission
 from swarm.sim.worlds import load_world
 from tests.helpers import SwarmPorts, processes_mentioning
@@ -95,8 +95,9 @@ def test_a_mission_whose_cameras_die_fails_at_once_saying_so_and_lands(tmp_path:
     killed: list[float] = []
 
     def kill_cameras_once_flying(state: RunState) -> None:
-        agents = (read_json(out / "observer.json") or {}).get("agents", {})
-        if not killed and state.cameras is not None and any(a.get("phase") == "flying" for a in agents.values()):
+        observer = read_observer_status(out)
+        agents = observer.agents if observer is not None else {}
+        if not killed and state.cameras is not None and any(a.phase == "flying" for a in agents.values()):
             state.cameras.signal(signal.SIGKILL)
             killed.append(1.0)
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from swarm.config import load_config
-from swarm.mission.report import held_patch_ids, read_json, sealed_patch_ids
+from swarm.mission.report import held_patch_ids, read_summary, sealed_patch_ids
 from swarm.mission.run import run_mission
 from tests.helpers import SwarmPorts
 
@@ -36,7 +36,8 @@ def test_a_mission_over_mutual_tls_completes_and_converges(tmp_path: Path, swarm
     assert report["converged"]
     sealed = sealed_patch_ids(out / "agents" / "patches")
     for k in (1, 2):
-        assert held_patch_ids(read_json(out / "agents" / f"agent-{k}.json")) == sealed
+        summary = read_summary(out, k)
+        assert summary is not None and held_patch_ids(summary) == sealed
     for name in ("observer", "agent-1", "agent-2"):
         bus = tomllib.loads((out / "config" / f"{name}.toml").read_text())["bus"]
         assert bus["tls_dir"] == str(out / "certs")

@@ -1,0 +1,132 @@
+"""The agent's summary file (`agents/agent-K.json`): what one agent says about its run when it exits.
+
+Written by the agent (`swarm.agent.main`), read by the mission harness for `report.json`. Every key is always
+written: an agent that flew a scripted route or mapped nothing writes zero counts and `None` for figures it has
+no data for, so a missing key is always an error, never a zero.
+"""
+
+from __future__ import annotations
+
+from swarm.bus.holdings import DigestWire
+from swarm.files import FileModel
+
+
+class KindTraffic(FileModel):
+    """Bus traffic of one message kind (`swarm.bus.counters.TrafficCounters.snapshot`)."""
+
+    sent_msgs: int
+    sent_bytes: int
+    recv_msgs: int
+    recv_bytes: int
+    dropped: dict[str, int]
+
+
+class PeerEvent(FileModel):
+    t: float  # unix time
+    event: str  # "joined" or "left"
+    peer: int
+    cause: str
+
+
+class SyncStats(FileModel):
+    """The patch-sharing counters (`swarm.sync.service.SyncService.stats`)."""
+
+    patches_held: int
+    patches_requested: int
+    patches_served: int
+    patches_pushed: int
+    received_by_push: int
+    received_by_pull: int
+    duplicate_chunks: int
+    requests_served: int
+    requests_refused: int
+    request_timeouts: int
+    push_chunks_dropped_on_purpose: int
+    rejected: dict[str, int]
+    assembly_dropped: dict[str, int]
+    received_from: dict[str, int]  # peer id (as a JSON key) -> patches
+    served_to: dict[str, int]
+    holdings: DigestWire
+
+
+class GivenUpFrontier(FileModel):
+    viewpoint: list[float]
+    point: list[float]
+    reason: str
+    at_s: float
+
+
+class WholeMapBaseline(FileModel):
+    """What sending the whole fused map every exploration loop would have cost (the bandwidth comparison)."""
+
+    loop_s: float
+    loops: int
+    bytes: int
+
+
+class AgentSummary(FileModel):
+    id: int
+    epoch: int
+    phase: str  # the final flight Phase's value
+    landed: bool
+    distance_m: float
+    duration_s: float
+    bytes_sent: int
+    bytes_received: int
+    traffic: dict[str, KindTraffic]
+    peers_seen: list[int]
+    peer_events: list[PeerEvent]
+    mavsdk_released: bool
+    sync: SyncStats
+    heartbeats_on_wrong_key: int
+    give_way: int
+    timeline: list[tuple[float, int, int]]  # (t since start, bytes sent, bytes received), once a second
+    # exploration (`ExplorationTask.summary`; a scripted agent: zeros and None)
+    strategy: str
+    targets_assigned: int
+    targets_self_selected: int
+    exploration_loops: int
+    exploration_done: bool
+    exploration_done_reason: str
+    targets_visited: int
+    frontiers_given_up: list[GivenUpFrontier]
+    decision_ms_p50: float | None
+    decision_ms_max: float | None
+    # mapping (`MappingTask.summary`; an agent without a camera: zeros and None)
+    patches_sealed: int
+    frames: int
+    frames_skipped: int
+    mapping_ms_per_frame: float
+    frame_rate_hz: float
+    sensor_stream: dict[str, int] | None  # a streamed camera's frames, drops by reason, masked pixels, silences
+    known_voxels: int
+    patches_received: int
+    fused_digest: str | None
+    whole_map_baseline: WholeMapBaseline | None
+
+
+SCRIPTED_EXPLORATION = {
+    "strategy": "scripted",
+    "targets_assigned": 0,
+    "targets_self_selected": 0,
+    "exploration_loops": 0,
+    "exploration_done": False,
+    "exploration_done_reason": "",
+    "targets_visited": 0,
+    "frontiers_given_up": [],
+    "decision_ms_p50": None,
+    "decision_ms_max": None,
+}
+
+NO_MAPPING = {
+    "patches_sealed": 0,
+    "frames": 0,
+    "frames_skipped": 0,
+    "mapping_ms_per_frame": 0.0,
+    "frame_rate_hz": 0.0,
+    "sensor_stream": None,
+    "known_voxels": 0,
+    "patches_received": 0,
+    "fused_digest": None,
+    "whole_map_baseline": None,
+}
