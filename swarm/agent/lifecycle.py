@@ -18,8 +18,9 @@ Landing and failsafe are the safe way down and must never be held up by bookkeep
 bug in the flight code, so `transition` raises, and `Flight._set_phase` logs it loudly (`illegal_transition`)
 and takes the phase anyway, so the heartbeat says what the drone does. The unit tests hold the table to the code.
 
-"Returning" is no phase: a mission ends where it ends and the drone lands there (the route or the exploration
-brings it home). Lingering and exit come after the flight, while the heartbeat keeps the final phase (a
+"Returning" is no phase: it is the end of the mission, flown in phase flying (the exploration flies the drone
+back above its take-off point, `Exploration._return`; a route ends where it ends), and the drone lands where
+the mission left it. Lingering and exit come after the flight, while the heartbeat keeps the final phase (a
 lingering agent's says landed); they are process `Stage`s of `swarm.agent.main.Agent`.
 """
 

@@ -22,6 +22,7 @@ from swarm.bus.codec import (
     encode,
 )
 from swarm.bus.messages import AgentState
+from swarm.bus.phase import Phase
 from tests.bus.fuzz_inputs import structures
 from tests.bus.helpers import make_state
 
@@ -135,6 +136,15 @@ def test_kind_must_be_well_formed() -> None:
 
         class BadKind(WireMessage):
             KIND = "Bad Kind"
+
+
+@pytest.mark.parametrize("phase", list(Phase))
+def test_a_heartbeats_phase_goes_on_the_wire_as_its_plain_string(phase: Phase) -> None:
+    state = make_state(2, 7).model_copy(update={"phase": phase})
+    fields = state.model_dump(mode="python") | {"phase": phase.value}
+    assert type(fields["phase"]) is str
+    assert encode(state) == pack({"v": SCHEMA_VERSION, "k": AgentState.KIND, "d": fields})
+    assert decode(pack({"v": SCHEMA_VERSION, "k": AgentState.KIND, "d": fields}), AgentState).phase is phase
 
 
 # --- rejections ------------------------------------------------------------------------------------------
