@@ -283,7 +283,8 @@ class Flight:
                     # resume from the refuge if the way on is clear, else from where we left the segment; the
                     # deadline restarts
                     x, y, z = (float(c) for c in self.ap.telemetry.position)
-                    resume = resume_from((x, y, z), left_at, (target[0], target[1], target[2]), self.is_clear)
+                    way_to: Vec3 = (float(target[0]), float(target[1]), float(target[2]))
+                    resume = resume_from((x, y, z), left_at, way_to, self.is_clear)
                     cue = Cue.WAY_ON_BLOCKED if resume == left_at else Cue.WAY_ON_CLEAR
                 else:
                     cue = Cue.INTERRUPTED if interrupt is not None and interrupt.is_set() else Cue.YIELD_TIMED_OUT

@@ -7,7 +7,8 @@ membership upkeep (expire silent peers, re-elect). A liveliness token announces 
 the flight to land and the process to exit at once after it; a second signal exits immediately. After a normal
 landing the open patch is sealed and pushed, and the agent lingers on the bus until every peer has finished
 (landed, last patch sealed) and holds the same patches (bounded by `sync.linger_max_s`); then its mesh and
-summary are written and the bus is closed.
+summary are written and the bus is closed. These are the process stages flight, lingering and exiting
+(`swarm.agent.lifecycle.Stage`); the heartbeat keeps the flight's final phase through them.
 """
 
 from __future__ import annotations

@@ -4,14 +4,13 @@ the path that should take it (a fake autopilot, no processes), and nothing else 
 from __future__ import annotations
 
 import asyncio
-import time
 from collections.abc import Callable
 from itertools import pairwise, product
 from typing import Any
 
 import pytest
 
-from swarm.agent.autopilot import FlightError, TelemetryCache
+from swarm.agent.autopilot import FlightError
 from swarm.agent.flight import Flight
 from swarm.agent.lifecycle import (
     ALLOWED,
@@ -24,6 +23,7 @@ from swarm.agent.lifecycle import (
 )
 from swarm.bus.phase import Phase
 from swarm.config import load_config
+from tests.agent.fake_autopilot import FakeAutopilot
 
 pytestmark = pytest.mark.unit
 
@@ -81,67 +81,6 @@ def test_staying_in_a_phase_is_no_transition() -> None:
 
 
 # -- the flight takes them -----------------------------------------------------------------------------------
-
-
-class FakeAutopilot:
-    """What `Flight` uses of an autopilot, answering at once: a drone on the ground (or, `in_air`, hovering)."""
-
-    def __init__(self, *, in_air: bool = False, refuse: frozenset[str] = frozenset(), climbs: bool = True) -> None:
-        self.telemetry = TelemetryCache(
-            position=(0.0, 0.0, 1.5 if in_air else 0.0),
-            flight_mode="HOLD",
-            armed=in_air,
-            landed_state="IN_AIR" if in_air else "ON_GROUND",
-            updated=time.monotonic(),
-            samples=1,
-        )
-        self.home_world = None
-        self.refuse = refuse
-        self.climbs = climbs
-        self.silent = False
-        self.commands: list[str] = []
-        self.on_command: dict[str, Callable[[], None]] = {}
-
-    def _command(self, name: str) -> None:
-        self.commands.append(name)
-        if name in self.refuse:
-            raise FlightError(f"{name} refused")
-        self.on_command.get(name, lambda: None)()
-
-    def go_silent(self) -> None:
-        self.silent = True
-        self.telemetry.updated = time.monotonic() - 10.0
-
-    @property
-    def telemetry_age_s(self) -> float:
-        return time.monotonic() - self.telemetry.updated if self.silent else 0.0
-
-    @property
-    def height_above_home(self) -> float:
-        return self.telemetry.position[2]
-
-    async def connect(self, timeout_s: float) -> None:
-        self._command("connect")
-
-    async def wait_healthy(self, timeout_s: float) -> None:
-        self._command("wait_healthy")
-
-    async def arm_and_takeoff(self, altitude_m: float) -> None:
-        self._command("arm_and_takeoff")
-        self.telemetry.armed, self.telemetry.landed_state = True, "IN_AIR"
-        if self.climbs:
-            self.telemetry.position = (0.0, 0.0, altitude_m)
-
-    async def set_setpoint(self, target_world: Any, yaw_enu_deg: float) -> None:
-        self._command("set_setpoint")
-
-    async def hold(self, timeout_s: float | None = None) -> None:
-        self._command("hold")
-
-    async def land(self, timeout_s: float | None = None) -> None:
-        self._command("land")
-        self.telemetry.position = (0.0, 0.0, 0.0)
-        self.telemetry.flight_mode, self.telemetry.armed, self.telemetry.landed_state = "LAND", False, "ON_GROUND"
 
 
 async def _idle_mission(flight: Flight, stop: asyncio.Event) -> None:
