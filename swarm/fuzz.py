@@ -30,6 +30,7 @@ import numpy as np
 from swarm.bus.codec import DecodeError, WireMessage, decode, encode
 from swarm.bus.holdings import DigestWire
 from swarm.bus.messages import AgentState
+from swarm.bus.phase import Phase
 from swarm.patches.digest import DigestMessage, PatchDigest
 from swarm.patches.lattice import Lattice
 from swarm.patches.patch import FrameSpan, Patch, PatchId, VoxelBlocks
@@ -182,7 +183,7 @@ def _seed_state() -> bytes:
             heading_to=(4.0, 4.0, 1.5),
             yaw_deg=-45.0,
             flight_mode="OFFBOARD",
-            phase="flying",
+            phase=Phase.FLYING,
             role="explorer",
             leader=1,
             holdings=_seed_digest(),

@@ -13,8 +13,12 @@ other hovers; else to the nearest point the map lets it fly straight to, `is_cle
 segment) until the other has passed, then flies back to where it left its segment and on along it, unless the
 map shows the straight way on clear (from a refuge beside a doorway, the line to the waypoint beyond it clips the
 jamb). The drone with the right of way holds its position while a higher id is very close and in its way (not
-one that stepped off its segment), and gives the segment up after MAX_YIELD_S. A drone about to land first waits
-for any drone under it to move off, and lands beside one that sits on the ground there.
+one that stepped off its segment), and gives the segment up after MAX_YIELD_S. Which of these the drone does is
+the pure step function of `swarm.agent.separation` (follow, hold, yield, rejoin, replan); the geometry is here. A
+drone about to land first waits for any drone under it to move off, and lands beside one that sits on the ground
+there.
+
+Phases (`swarm.bus.phase.Phase`, what the heartbeat says) change as `swarm.agent.lifecycle.ALLOWED` says.
 
 Fail safe: if position telemetry stops for `telemetry_timeout_s` while airborne, the drone is told to hold,
 then to land, and the flight ends in phase `failsafe`; if telemetry comes back, the agent watches the landing
@@ -33,13 +37,15 @@ import asyncio
 import math
 import time
 from collections.abc import Awaitable, Callable
-from enum import StrEnum
 from typing import NamedTuple
 
 import numpy as np
 
 from swarm.agent.autopilot import Autopilot, FlightError
+from swarm.agent.lifecycle import IllegalTransition, transition
+from swarm.agent.separation import MAX_YIELD_S, Cue, Manoeuvre, Separation, step
 from swarm.agent.watchdog import LoopMonitor
+from swarm.bus.phase import Phase
 from swarm.config import AgentSettings, Vec3
 
 LOOKAHEAD_M = 1.0
@@ -59,7 +65,6 @@ PASS_CLEARANCE_M = 0.6  # ... that is in its way: this close to the rest of its 
 SLOW_M_S = 0.2  # a peer slower than this, going nowhere, has no track to step off: the yielder climbs or descends
 REFUGE_CLEAR_M = PASS_CLEARANCE_M + 0.2  # a refuge this far off the other's segment lets it pass
 REJOIN_TOLERANCE_M = 0.1  # a drone flying its step aside back is at the segment again this close to it
-MAX_YIELD_S = 8.0  # yielding longer than this gives up the path (the mission replans)
 LAND_CLEAR_M = PASS_CLEARANCE_M  # a drone this close horizontally under us is in the way of a landing
 GROUNDED_M = 0.3  # a drone this low above our home's floor, and slow, sits on the ground
 LAND_ASIDE_M = 1.0  # ... so we land this far beside it
@@ -80,18 +85,6 @@ class Neighbour(NamedTuple):
 
 Neighbours = Callable[[], list[Neighbour]]
 Mission = Callable[["Flight", asyncio.Event], Awaitable[None]]
-
-
-class Phase(StrEnum):
-    CONNECTING = "connecting"
-    READY = "ready"
-    TAKEOFF = "takeoff"
-    FLYING = "flying"
-    HOVERING = "hovering"
-    LANDING = "landing"
-    LANDED = "landed"
-    FAILSAFE = "failsafe"
-    FAILED = "failed"
 
 
 class TelemetryLost(FlightError):
@@ -138,9 +131,17 @@ class Flight:
         return self._carrot
 
     def _set_phase(self, phase: Phase) -> None:
-        if phase != self.phase:
-            self.phase = phase
-            self.log("phase", phase=phase.value)
+        """Change phase as the lifecycle allows (`swarm.agent.lifecycle.ALLOWED`). An illegal change is a bug:
+        logged loudly, and taken all the same (landing and failsafe are never refused; the heartbeat says what
+        the drone does)."""
+        if phase == self.phase:
+            return
+        try:
+            transition(self.phase, phase)
+        except IllegalTransition as exc:
+            self.log("illegal_transition", reason=str(exc), previous=self.phase.value, wanted=phase.value)
+        self.phase = phase
+        self.log("phase", phase=phase.value)
 
     async def run(self, mission: Mission, stop: asyncio.Event) -> Phase:
         """Fly the whole mission; returns the final phase (LANDED, FAILSAFE or FAILED)."""
@@ -265,44 +266,55 @@ class Flight:
         speed = self.settings.cruise_speed_m_s
         deadline = time.monotonic() + 20.0 + 3.0 * (length + float(np.linalg.norm(start - here))) / speed
         travelled = min(max(lead, 0.0), length)
-        held_since: float | None = None
+        separation = Separation()  # the manoeuvre (swarm.agent.separation): what to do about a drone nearby
         while True:
             if interrupt is not None and interrupt.is_set():
+                separation = step(separation, Cue.INTERRUPTED, time.monotonic())
                 return False
             self.heading_to = tuple(float(c) for c in target)
             position = np.array(self.ap.telemetry.position)
             rival = self._rival(position, target)
-            if rival is not None:
-                if rival.id < self.settings.id and not rival.silent:
-                    left_at = tuple(float(c) for c in position)
-                    if not await self._step_aside(rival.id, stop, interrupt):
-                        return False
+            separation = step(separation, self._cue(rival), time.monotonic())
+            if separation.manoeuvre == Manoeuvre.YIELD:
+                assert rival is not None
+                left_at: Vec3 = (float(position[0]), float(position[1]), float(position[2]))
+                resume = left_at
+                if await self._step_aside(rival.id, stop, interrupt):
                     # resume from the refuge if the way on is clear, else from where we left the segment; the
                     # deadline restarts
-                    here = tuple(float(c) for c in self.ap.telemetry.position)
-                    resume = resume_from(here, left_at, tuple(target.tolist()), self.is_clear)
-                    if resume == left_at and not await self._fly_back_to(left_at, stop, interrupt):
+                    x, y, z = (float(c) for c in self.ap.telemetry.position)
+                    way_to: Vec3 = (float(target[0]), float(target[1]), float(target[2]))
+                    resume = resume_from((x, y, z), left_at, way_to, self.is_clear)
+                    cue = Cue.WAY_ON_BLOCKED if resume == left_at else Cue.WAY_ON_CLEAR
+                else:
+                    cue = Cue.INTERRUPTED if interrupt is not None and interrupt.is_set() else Cue.YIELD_TIMED_OUT
+                separation = step(separation, cue, time.monotonic())
+                if separation.manoeuvre == Manoeuvre.REPLAN:
+                    return False
+                if separation.manoeuvre == Manoeuvre.REJOIN:
+                    back = await self._fly_back_to(left_at, stop, interrupt)
+                    separation = step(separation, Cue.BACK if back else Cue.NOT_BACK, time.monotonic())
+                    if separation.manoeuvre == Manoeuvre.REPLAN:
                         return False
-                    start, travelled = np.array(resume), 0.0
-                    segment = target - start
-                    length = float(np.linalg.norm(segment))
-                    deadline = time.monotonic() + 20.0 + 3.0 * length / speed
-                    continue
+                start, travelled = np.array(resume), 0.0
+                segment = target - start
+                length = float(np.linalg.norm(segment))
+                deadline = time.monotonic() + 20.0 + 3.0 * length / speed
+                continue
+            if separation.manoeuvre == Manoeuvre.REPLAN:
+                assert rival is not None
+                self.log("blocked_by", peer=rival.id)
+                return False  # it is not moving off: the mission plans again
+            if separation.manoeuvre == Manoeuvre.HOLD:
                 # right of way, but someone is close and in our way: hold where we are (the carrot can be a
                 # metre ahead, so merely not advancing it would carry us on into the other drone)
-                now = time.monotonic()
-                held_since = now if held_since is None else held_since
-                if now - held_since > MAX_YIELD_S:
-                    self.log("blocked_by", peer=rival.id)
-                    return False  # it is not moving off: the mission plans again
                 deadline += SETPOINT_PERIOD_S  # holding does not count against the segment's time
                 if length > 0:
                     along = float(np.dot(position - start, segment)) / length
                     travelled = min(travelled, max(along, 0.0))
-            else:
-                held_since = None
             carrot = start + segment * (travelled / length) if length > 0 else target
-            if rival is None and travelled < length and np.linalg.norm(carrot - position) < LOOKAHEAD_M:
+            following = separation.manoeuvre == Manoeuvre.FOLLOW
+            if following and travelled < length and np.linalg.norm(carrot - position) < LOOKAHEAD_M:
                 travelled = min(length, travelled + speed * SETPOINT_PERIOD_S)
                 carrot = start + segment * (travelled / length)
             self._carrot = tuple(float(c) for c in carrot)
@@ -320,6 +332,13 @@ class Flight:
             return True
         self._carrot = tuple(float(c) for c in self.ap.telemetry.position)
         return await self._fly_segment_to(left_at, stop, interrupt, tolerance=REJOIN_TOLERANCE_M)
+
+    def _cue(self, rival: Neighbour | None) -> Cue:
+        """What the separation manoeuvre is told about `rival`: a live lower id is given way to; any other is
+        held for."""
+        if rival is None:
+            return Cue.CLEAR
+        return Cue.GIVE_WAY if rival.id < self.settings.id and not rival.silent else Cue.HOLD_FOR
 
     def _rival(self, position: np.ndarray, target: np.ndarray) -> Neighbour | None:
         """The neighbour we must give way to (a lower id within the separation distance), or one we hold for: a
@@ -504,12 +523,12 @@ class Flight:
         and stops sending; the vehicle may still hear us even though we no longer hear it.
         """
         self._set_phase(Phase.FAILSAFE)
-        for step in (self.ap.hold, self.ap.land):
+        for command in (self.ap.hold, self.ap.land):
             try:
-                await step(timeout_s=FAILSAFE_COMMAND_TIMEOUT_S)
-                self.log("failsafe_command", command=step.__name__, accepted=True)
+                await command(timeout_s=FAILSAFE_COMMAND_TIMEOUT_S)
+                self.log("failsafe_command", command=command.__name__, accepted=True)
             except FlightError as exc:
-                self.log("failsafe_command", command=step.__name__, accepted=False, reason=str(exc))
+                self.log("failsafe_command", command=command.__name__, accepted=False, reason=str(exc))
         try:
             await self._see_landing_through(LAND_TIMEOUT_S, blind_s=FAILSAFE_BLIND_S)
         except FlightError as exc:

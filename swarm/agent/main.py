@@ -7,7 +7,8 @@ membership upkeep (expire silent peers, re-elect). A liveliness token announces 
 the flight to land and the process to exit at once after it; a second signal exits immediately. After a normal
 landing the open patch is sealed and pushed, and the agent lingers on the bus until every peer has finished
 (landed, last patch sealed) and holds the same patches (bounded by `sync.linger_max_s`); then its mesh and
-summary are written and the bus is closed.
+summary are written and the bus is closed. These are the process stages flight, lingering and exiting
+(`swarm.agent.lifecycle.Stage`); the heartbeat keeps the flight's final phase through them.
 """
 
 from __future__ import annotations
@@ -28,13 +29,15 @@ import zenoh
 from swarm.agent.autopilot import Autopilot
 from swarm.agent.events import EventLog
 from swarm.agent.exploration import Exploration
-from swarm.agent.flight import Flight, Mission, Neighbour, Phase, parked, route_mission
+from swarm.agent.flight import Flight, Mission, Neighbour, parked, route_mission
+from swarm.agent.lifecycle import Stage, next_stage
 from swarm.agent.mapping import MappingTask
 from swarm.agent.sensing import StreamSource
 from swarm.agent.summary import NO_MAPPING, SCRIPTED_EXPLORATION, AgentSummary
 from swarm.aio import wait_event
 from swarm.bus.bridge import AsyncBus
 from swarm.bus.messages import AgentState
+from swarm.bus.phase import AIRBORNE_PHASES, Phase
 from swarm.config import ConfigError, SwarmConfig
 from swarm.files import write_model
 from swarm.patches.lattice import Lattice
@@ -53,8 +56,6 @@ LINGER_POLL_S = 0.2
 MIN_HEARTBEAT_GAP_S = 0.05
 TIMELINE_PERIOD_S = 1.0
 NEIGHBOUR_FRESH_S = 1.0  # a peer heard longer ago than this is not extrapolated: it is taken to hover there
-# phases whose drone may be in the air, or (failsafe) came down where it was rather than at its home: kept clear of
-AIRBORNE_PHASES = frozenset({"takeoff", "flying", "hovering", "landing", "failsafe"})
 
 
 def agent_command(config: SwarmConfig) -> NoReturn:
@@ -84,11 +85,12 @@ class Agent:
         self._last_leader = self.id
         self._announce = asyncio.Event()
         self.finished = False
+        self.stage = Stage.FLIGHT  # the process around the flight (swarm.agent.lifecycle): flight, lingering, exiting
         self.keys_mismatch = 0
         self.exploration: Exploration | None = None
         self.timeline: list[list[float]] = []  # [t since start, bytes sent, bytes received], once a second
         self.sharing = config.explore.strategy != "frontier-only"
-        self._last_seen: dict[int, tuple[str, tuple[float, float, float]]] = {}  # peer -> (phase, position)
+        self._last_seen: dict[int, tuple[Phase, tuple[float, float, float]]] = {}  # peer -> (phase, position)
         self.lost_in_air: dict[int, tuple[float, float, float]] = {}  # peers that vanished while flying
 
     async def run(self) -> int:
@@ -167,7 +169,9 @@ class Agent:
             if self.exploration is not None:
                 await self.exploration.close()
             if not self.stop.is_set() and self.sharing:
+                self.stage = next_stage(self.stage, Stage.LINGERING)
                 await self._linger()
+            self.stage = next_stage(self.stage, Stage.EXITING)
             self._publish_state(bus)  # the last phase and holdings go out before we leave
             for task in background:
                 task.cancel()
@@ -273,7 +277,7 @@ class Agent:
             if p.phase not in AIRBORNE_PHASES:
                 continue
             age = now - p.last_heard
-            if age < NEIGHBOUR_FRESH_S and p.phase != "failsafe":
+            if age < NEIGHBOUR_FRESH_S and p.phase != Phase.FAILSAFE:
                 position = tuple(float(x + v * age) for x, v in zip(p.position, p.velocity))
                 found.append(Neighbour(p.id, position, p.velocity, p.heading_to))
             else:  # no recent heartbeat, or its agent lost its drone (failsafe): it will not give way or move off
@@ -315,7 +319,7 @@ class Agent:
             heading_to=self.flight.heading_to,
             yaw_deg=tel.yaw_deg,
             flight_mode=tel.flight_mode,
-            phase=self.flight.phase.value,
+            phase=self.flight.phase,
             role=self.peers.role,
             leader=self.peers.leader,
             finished=self.finished,
@@ -355,7 +359,7 @@ class Agent:
     def _on_membership(self, event: str, peer_id: int, cause: str) -> None:
         if event == "left":
             self.sync.peer_left(peer_id)
-            phase, position = self._last_seen.get(peer_id, ("", (0.0, 0.0, 0.0)))
+            phase, position = self._last_seen.get(peer_id, (None, (0.0, 0.0, 0.0)))
             if phase in AIRBORNE_PHASES:  # its vehicle may still hover there, unseen by the camera: avoid it
                 self.lost_in_air[peer_id] = position
                 self.log("peer_lost_in_air", peer=peer_id, position=[round(c, 2) for c in position])

@@ -8,6 +8,7 @@ no data for, so a missing key is always an error, never a zero.
 from __future__ import annotations
 
 from swarm.bus.holdings import DigestWire
+from swarm.bus.phase import Phase
 from swarm.files import FileModel
 
 
@@ -67,7 +68,7 @@ class WholeMapBaseline(FileModel):
 class AgentSummary(FileModel):
     id: int
     epoch: int
-    phase: str  # the final flight Phase's value
+    phase: Phase  # the final flight phase
     landed: bool
     distance_m: float
     duration_s: float

@@ -9,6 +9,7 @@ from pydantic import Field, StringConstraints
 from swarm.bus.codec import WireMessage
 from swarm.bus.holdings import EMPTY_DIGEST, DigestWire
 from swarm.bus.keys import MAX_AGENT_ID, MIN_AGENT_ID
+from swarm.bus.phase import Phase
 from swarm.config import Vec3
 
 AgentId = Annotated[int, Field(ge=MIN_AGENT_ID, le=MAX_AGENT_ID)]
@@ -36,7 +37,7 @@ class AgentState(WireMessage):
     )
     yaw_deg: float = Field(ge=-360.0, le=360.0)
     flight_mode: ShortText = Field(description="autopilot flight mode, e.g. OFFBOARD")
-    phase: ShortText = Field(description="e.g. connecting, takeoff, flying, landing, landed, failsafe")
+    phase: Phase = Field(description="what the agent is doing (swarm.bus.phase); an unknown one is malformed")
     role: Role
     leader: AgentId
     finished: bool = Field(

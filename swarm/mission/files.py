@@ -16,6 +16,7 @@ from typing import Any, Literal
 
 from swarm.agent.summary import GivenUpFrontier, KindTraffic, SyncStats
 from swarm.bus.holdings import DigestWire
+from swarm.bus.phase import Phase
 from swarm.files import FileModel
 from swarm.sim.status import CollisionRecord, Stall
 
@@ -32,7 +33,7 @@ class ObservedAgent(FileModel):
 
     heartbeats: int
     alive: bool
-    phase: str | None = None
+    phase: Phase | None = None
     role: str | None = None
     leader: int | None = None
     flight_mode: str | None = None
@@ -133,7 +134,7 @@ class AgentRow(FileModel):
     bytes_sent: int
     bytes_received: int
     landed: bool
-    phase: str  # "unknown" when the agent wrote no summary
+    phase: Phase | Literal["unknown"]  # "unknown" when the agent wrote no summary
     exit_code: int | None
     route_length_m: float | None
     peers_seen: list[int]

@@ -30,13 +30,13 @@ from typing import Any
 import numpy as np
 from scipy.sparse.csgraph import connected_components
 
+from swarm.bus.phase import RETIRED_PHASES
 from swarm.mission.files import ObserverStatus
 from swarm.mission.observer import FRESH_S
 from swarm.netem.network import SwarmNetwork
 from swarm.netem.profile import LinkProfile
 from swarm.netem.scenario import CLEAN, Pair, Profiles, Scenario, combine, radio_profile, timeline
 from swarm.patches.digest import PatchDigest
-from swarm.roles.membership import RETIRED_PHASES
 from swarm.sim.status import SimStatus, VehicleStatus
 
 RADIO_PERIOD_S = 1.0

@@ -25,6 +25,7 @@ from typing import Any
 from swarm.aio import wait_event
 from swarm.bus.bridge import AsyncBus
 from swarm.bus.messages import AgentState
+from swarm.bus.phase import Phase
 from swarm.config import SwarmConfig, Vec3
 from swarm.files import write_model
 from swarm.mission.files import MapNodeStatus
@@ -174,7 +175,7 @@ class MapNode:
                 velocity=(0.0, 0.0, 0.0),
                 yaw_deg=0.0,
                 flight_mode="NONE",
-                phase="mapping",  # never landed: a map node stays a cluster member; `finished` says it is done
+                phase=Phase.MAPPING,  # never landed: a map node stays a cluster member; `finished` says it is done
                 role=self.peers.role,
                 leader=self.peers.leader,
                 finished=done,

@@ -30,15 +30,15 @@ from typing import Any
 from swarm.aio import wait_event
 from swarm.bus.bridge import AsyncBus
 from swarm.bus.messages import AgentState
+from swarm.bus.phase import RETIRED_PHASES, Phase
 from swarm.config import SwarmConfig
 from swarm.files import write_model
 from swarm.mission.coverage import SwarmCoverage
 from swarm.mission.files import NO_COVERAGE, ObserverStatus
-from swarm.roles.membership import RETIRED_PHASES
 
 SNAPSHOT_PERIOD_S = 0.5
 COVERAGE_PERIOD_S = 2.0
-NO_POSITION_PHASE = "connecting"  # before its autopilot's telemetry, an agent's heartbeat says (0, 0, 0)
+NO_POSITION_PHASE = Phase.CONNECTING  # before its autopilot's telemetry, an agent's heartbeat says (0, 0, 0)
 TRAJECTORY_PERIOD_S = 0.5  # at most one trajectory sample per agent this often: enough for a plot, small JSON
 FRESH_S = 2.0  # a heartbeat older than this no longer says which cluster the agent is in
 

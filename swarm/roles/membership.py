@@ -5,9 +5,10 @@ goes (Zenoh's lease, about a second after its link dies) or when it falls silent
 first. The cluster is this agent plus every present peer that still takes part in exploration; its leader is the
 lowest id (Mahdoui's rule). Every agent starts as the leader of a cluster of one.
 
-A peer whose heartbeat says it is down for good (`RETIRED_PHASES`: landed, failed, or handed to the autopilot's
-failsafe) stays present (it still serves and pulls patches while it lingers) but leaves the cluster: it no longer
-decides, so as the lowest id it would leave its explorers waiting for assignments that never come.
+A peer whose heartbeat says it is down for good (`RETIRED_PHASES` of `swarm.bus.phase`: landed, failed, or
+handed to the autopilot's failsafe) stays present (it still serves and pulls patches while it lingers) but
+leaves the cluster: it no longer decides, so as the lowest id it would leave its explorers waiting for
+assignments that never come.
 """
 
 from __future__ import annotations
@@ -17,11 +18,11 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Literal
 
+from swarm.bus.phase import RETIRED_PHASES, Phase
 from swarm.config import Vec3
 
 Role = Literal["leader", "explorer"]
 MembershipEvent = Literal["joined", "left"]
-RETIRED_PHASES = frozenset({"landed", "failed", "failsafe"})  # out of exploration for good: in no cluster
 
 
 @dataclass
@@ -32,7 +33,7 @@ class Peer:
     position: Vec3 = (0.0, 0.0, 0.0)
     velocity: Vec3 = (0.0, 0.0, 0.0)
     heading_to: Vec3 | None = None
-    phase: str = ""
+    phase: Phase | None = None  # None: heard only by its token so far
     epoch: int = 0
     token_alive: bool = False
     heartbeats: int = 0
@@ -51,7 +52,7 @@ class PeerTable:
         self,
         peer_id: int,
         position: Vec3,
-        phase: str,
+        phase: Phase,
         epoch: int,
         velocity: Vec3 = (0.0, 0.0, 0.0),
         heading_to: Vec3 | None = None,

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 
+from swarm.bus.phase import Phase
 from swarm.config import gcs_port
 from swarm.sim.worlds import load_world
 from tests.helpers import kill_all, swarm_cmd
@@ -59,7 +60,7 @@ def test_telemetry_loss_holds_then_lands_and_a_late_hold_is_landed_again(tmp_pat
             stderr=subprocess.STDOUT,
         )
         try:
-            wait_until(lambda: any(e.get("phase") == "hovering" for e in _events(log)), 60, "hovering")
+            wait_until(lambda: any(e.get("phase") == Phase.HOVERING for e in _events(log)), 60, "hovering")
             assert server.status()["vehicles"][0]["position"][2] > 2.0  # airborne, by simulator truth
             cut_at = time.monotonic()
             server.set_telemetry_enabled(1, False)

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from swarm.bus.phase import Phase
 from tests.helpers import kill_all, log_events, swarm_cmd
 from tests.sim.support import free_port_block, wait_until
 
@@ -57,7 +58,7 @@ def test_a_stall_of_simulator_and_agent_together_is_not_taken_for_a_lost_link(tm
         stderr=subprocess.STDOUT,
     )
     try:
-        wait_until(lambda: any(e.get("phase") == "hovering" for e in log_events(log)), 60, "hovering")
+        wait_until(lambda: any(e.get("phase") == Phase.HOVERING for e in log_events(log)), 60, "hovering")
         for proc in (sim, agent):
             proc.send_signal(signal.SIGSTOP)
         time.sleep(FREEZE_S)
@@ -68,7 +69,7 @@ def test_a_stall_of_simulator_and_agent_together_is_not_taken_for_a_lost_link(tm
         assert not [e for e in events if e["event"].startswith("failsafe")], log.read_text()
         [gap] = [e for e in events if e["event"] == "telemetry_gap_unheard"]
         assert gap["age"] > 1.5 and gap["heard"] < 0.5, gap
-        assert [e["phase"] for e in events if e["event"] == "phase"][-2:] == ["landing", "landed"]
+        assert [e["phase"] for e in events if e["event"] == "phase"][-2:] == [Phase.LANDING, Phase.LANDED]
     finally:
         kill_all([agent])
         sim.send_signal(signal.SIGCONT)

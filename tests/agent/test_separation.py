@@ -29,6 +29,7 @@ from swarm.agent.flight import (
     refuge_candidates,
     resume_from,
 )
+from swarm.bus.phase import Phase
 from swarm.config import Vec3, gcs_port
 from swarm.sim.worlds import load_world
 from tests.sim.support import free_port_block, running_sim, sim_config
@@ -261,7 +262,7 @@ def test_a_drone_coming_down_onto_one_on_the_ground_lands_beside_it() -> None:
     status, flight, events = asyncio.run(_come_down_onto_a_grounded_drone())
     [beside] = [e for e in events if e["event"] == "land_beside"]
     assert beside["below"] == [2] and beside["spot"] is not None  # it was over the grounded drone
-    assert flight.phase.value == "landed"
+    assert flight.phase == Phase.LANDED
     assert status["collision_events"] == []
     x, y, _ = status["vehicles"][0]["position"]
     assert math.hypot(x - 2.3, y - 2.0) > 0.8

@@ -13,6 +13,7 @@ from hypothesis.extra.numpy import arrays
 from swarm.bus.holdings import DigestWire
 from swarm.bus.keys import MAX_AGENT_ID, MIN_AGENT_ID
 from swarm.bus.messages import AgentState
+from swarm.bus.phase import Phase
 from swarm.patches.digest import DigestMessage, PatchDigest
 from swarm.patches.lattice import Lattice
 from swarm.patches.patch import FrameSpan, Patch, PatchId, VoxelBlocks
@@ -96,7 +97,7 @@ agent_states = st.builds(
     heading_to=st.none() | vec3,
     yaw_deg=st.floats(-360.0, 360.0),
     flight_mode=short_text,
-    phase=short_text,
+    phase=st.sampled_from(Phase),
     role=st.sampled_from(["leader", "explorer"]),
     leader=agent_ids,
     finished=st.booleans(),

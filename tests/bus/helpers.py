@@ -10,6 +10,7 @@ from typing import Any
 
 from swarm.bus.bridge import AsyncBus
 from swarm.bus.messages import AgentState
+from swarm.bus.phase import Phase
 from swarm.config import BusSettings
 from swarm.errors import BusError
 
@@ -27,7 +28,7 @@ def make_state(agent_id: int, seq: int, epoch: int = 0) -> AgentState:
         velocity=(0.1, -0.2, 0.0),
         yaw_deg=-90.0 + seq % 180,
         flight_mode="OFFBOARD",
-        phase="flying",
+        phase=Phase.FLYING,
         role="leader" if agent_id == 1 else "explorer",
         leader=1,
     )

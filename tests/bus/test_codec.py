@@ -22,6 +22,7 @@ from swarm.bus.codec import (
     encode,
 )
 from swarm.bus.messages import AgentState
+from swarm.bus.phase import Phase
 from tests.bus.fuzz_inputs import structures
 from tests.bus.helpers import make_state
 
@@ -137,6 +138,15 @@ def test_kind_must_be_well_formed() -> None:
             KIND = "Bad Kind"
 
 
+@pytest.mark.parametrize("phase", list(Phase))
+def test_a_heartbeats_phase_goes_on_the_wire_as_its_plain_string(phase: Phase) -> None:
+    state = make_state(2, 7).model_copy(update={"phase": phase})
+    fields = state.model_dump(mode="python") | {"phase": phase.value}
+    assert type(fields["phase"]) is str
+    assert encode(state) == pack({"v": SCHEMA_VERSION, "k": AgentState.KIND, "d": fields})
+    assert decode(pack({"v": SCHEMA_VERSION, "k": AgentState.KIND, "d": fields}), AgentState).phase is phase
+
+
 # --- rejections ------------------------------------------------------------------------------------------
 
 
@@ -222,8 +232,12 @@ def test_wrong_kind() -> None:
         state_fields(leader=2**64 - 1),
         state_fields(seq=-1),
         state_fields(role="king"),
-        state_fields(phase="x" * 33),
-        state_fields(phase="x" * 100_000),
+        state_fields(flight_mode="x" * 33),
+        state_fields(flight_mode="x" * 100_000),
+        state_fields(phase="cruising"),
+        state_fields(phase="Flying"),
+        state_fields(phase=""),
+        state_fields(phase=3),
         state_fields(flight_mode="caf\u00e9"),
         state_fields(flight_mode=b"\xff\xfe"),
         state_fields(position="abc"),

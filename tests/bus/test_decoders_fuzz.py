@@ -44,6 +44,7 @@ from swarm.bus.codec import (
 from swarm.bus.holdings import MAX_EPOCHS_PER_PRODUCER, MAX_PRODUCERS, MAX_RANGES, DigestWire
 from swarm.bus.keys import MAX_AGENT_ID, MIN_AGENT_ID
 from swarm.bus.messages import AgentState
+from swarm.bus.phase import Phase
 from swarm.patches import wire
 from swarm.patches.digest import DigestMessage, PatchDigest
 from swarm.patches.lattice import Lattice
@@ -155,7 +156,8 @@ def check_state(msg: AgentState) -> None:
     assert MIN_AGENT_ID <= msg.id <= MAX_AGENT_ID and MIN_AGENT_ID <= msg.leader <= MAX_AGENT_ID
     floats = [*msg.position, *msg.velocity, *(msg.heading_to or ()), msg.t, msg.yaw_deg]
     assert all(math.isfinite(x) for x in floats) and msg.t >= 0 and abs(msg.yaw_deg) <= 360
-    assert all(len(s) <= 32 and s.isascii() and s.isprintable() for s in (msg.phase, msg.flight_mode))
+    assert len(msg.flight_mode) <= 32 and msg.flight_mode.isascii() and msg.flight_mode.isprintable()
+    assert msg.phase in Phase
     check_digest(msg.holdings)
 
 
@@ -801,8 +803,8 @@ def test_digest_limits_in_heartbeats(at: list[dict[str, Any]], past: list[dict[s
 
 def test_short_text_limit() -> None:
     fields = seed_fields("state")
-    assert reason(envelope(fields | {"phase": "x" * 32}, AgentState.KIND), AgentState) == "accepted"
-    assert reason(envelope(fields | {"phase": "x" * 33}, AgentState.KIND), AgentState) == "invalid"
+    assert reason(envelope(fields | {"flight_mode": "x" * 32}, AgentState.KIND), AgentState) == "accepted"
+    assert reason(envelope(fields | {"flight_mode": "x" * 33}, AgentState.KIND), AgentState) == "invalid"
 
 
 @pytest.mark.parametrize(

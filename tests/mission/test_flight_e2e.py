@@ -13,6 +13,7 @@ from typing import Any
 
 import pytest
 
+from swarm.bus.phase import Phase
 from tests.helpers import SwarmPorts, kill_all, log_events, processes_mentioning, swarm_cmd
 
 pytestmark = [pytest.mark.timeout(240), pytest.mark.mission]
@@ -176,7 +177,7 @@ def test_killed_agent_is_seen_leaving_within_3_s_and_sigterm_lands(tmp_path: Pat
         sim, cameras, agent1, agent2 = procs
         _wait_for(logs["agent-1"], lambda e: e["event"] == "peer_joined" and e["peer"] == 2, 60)
         _wait_for(logs["agent-2"], lambda e: e["event"] == "peer_joined" and e["peer"] == 1, 60)
-        _wait_for(logs["agent-1"], lambda e: e["event"] == "phase" and e["phase"] == "hovering", 60)
+        _wait_for(logs["agent-1"], lambda e: e["event"] == "phase" and e["phase"] == Phase.HOVERING, 60)
         assert agent2.poll() is None
 
         killed_at = time.time()
@@ -196,7 +197,7 @@ def test_killed_agent_is_seen_leaving_within_3_s_and_sigterm_lands(tmp_path: Pat
         assert code == 0
         events = log_events(logs["agent-1"])
         phases = [e["phase"] for e in events if e["event"] == "phase"]
-        assert phases[-2:] == ["landing", "landed"], phases
+        assert phases[-2:] == [Phase.LANDING, Phase.LANDED], phases
         summary = json.loads((tmp_path / "agent-1.json").read_text())
         assert summary["frames"] > 10 and summary["sensor_stream"]["frames"] >= summary["frames"], summary
     finally:
@@ -220,14 +221,14 @@ def test_sigterm_ends_swarm_run_as_ctrl_c_does_landing_and_cleaning_up(tmp_path:
     try:
         log = out / "logs" / "agent-1.log"
         deadline = time.monotonic() + 60
-        while not (log.is_file() and any(e.get("phase") == "flying" for e in log_events(log))):
+        while not (log.is_file() and any(e.get("phase") == Phase.FLYING for e in log_events(log))):
             assert run.poll() is None and time.monotonic() < deadline, "the drone never flew"
             time.sleep(0.2)
         run.send_signal(signal.SIGTERM)
         assert run.wait(timeout=90) != 0
         report = json.loads((out / "report.json").read_text())
         assert (report["status"], report["reason"]) == ("failed", "interrupted")
-        assert report["agents"][0]["phase"] == "landed", report["agents"]
+        assert report["agents"][0]["phase"] == Phase.LANDED, report["agents"]
         assert not processes_mentioning(str(out)), "swarm run left processes behind"
     finally:
         kill_all([run])

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 
+from swarm.bus.phase import Phase
 from swarm.mission.files import ObserverStatus
 from swarm.mission.links import HealWatch, LinkController
 from swarm.netem.scenario import Scenario
@@ -12,7 +13,7 @@ from swarm.patches.patch import PatchId
 from tests.file_models import observer_status
 
 
-def _observer(agents: dict[int, tuple[str, list[int], float]]) -> ObserverStatus:
+def _observer(agents: dict[int, tuple[Phase, list[int], float]]) -> ObserverStatus:
     """agents: id -> (phase, the seqs it holds of producer 1, seconds since it was last heard)."""
     now = time.time()
     return observer_status(
@@ -40,11 +41,17 @@ def _watching(target: list[int]) -> LinkController:
 def test_landed_members_that_still_linger_must_hold_everything_and_are_then_converged() -> None:
     links = _watching([0, 1, 2])
     links._follow_heals(
-        12.0, _observer({1: ("landed", [0, 1, 2], 0.1), 2: ("landed", [0, 1], 0.1), 3: ("flying", [0, 1, 2], 0.1)})
+        12.0,
+        _observer(
+            {1: (Phase.LANDED, [0, 1, 2], 0.1), 2: (Phase.LANDED, [0, 1], 0.1), 3: (Phase.FLYING, [0, 1, 2], 0.1)}
+        ),
     )
     assert links.heals[0].s is None  # agent 2 landed but lingers, and still lacks a patch
     links._follow_heals(
-        13.5, _observer({1: ("landed", [0, 1, 2], 0.1), 2: ("landed", [0, 1, 2], 0.1), 3: ("landed", [0, 1, 2], 0.1)})
+        13.5,
+        _observer(
+            {1: (Phase.LANDED, [0, 1, 2], 0.1), 2: (Phase.LANDED, [0, 1, 2], 0.1), 3: (Phase.LANDED, [0, 1, 2], 0.1)}
+        ),
     )
     assert links.heals[0].s == 3.5
 
@@ -52,6 +59,6 @@ def test_landed_members_that_still_linger_must_hold_everything_and_are_then_conv
 def test_a_member_that_left_no_longer_counts() -> None:
     links = _watching([0, 1])
     links._follow_heals(
-        11.0, _observer({1: ("landed", [0, 1], 0.1), 2: ("landed", [0], 30.0), 3: ("flying", [0, 1], 0.1)})
+        11.0, _observer({1: (Phase.LANDED, [0, 1], 0.1), 2: (Phase.LANDED, [0], 30.0), 3: (Phase.FLYING, [0, 1], 0.1)})
     )
     assert links.heals[0].s == 1.0

@@ -15,6 +15,7 @@ from typing import Any
 
 import pytest
 
+from swarm.bus.phase import Phase
 from swarm.config import load_config
 from swarm.mission.report import read_sim_status
 from swarm.mission.run import RunState, run_mission
@@ -121,8 +122,8 @@ def test_a_3_s_load_of_both_cores_in_mid_flight_neither_stalls_the_swarm_nor_lan
         events = log_events(out / "logs" / f"agent-{agent['id']}.log")
         assert not [e for e in events if e["event"].startswith("failsafe")], f"agent {agent['id']} failed safe"
         # the load came in the middle of every drone's flight: after it was flying, before it began to land
-        [flying] = [e["t"] for e in events if e.get("phase") == "flying"]
-        landing = [e["t"] for e in events if e.get("phase") == "landing"]
+        [flying] = [e["t"] for e in events if e.get("phase") == Phase.FLYING]
+        landing = [e["t"] for e in events if e.get("phase") == Phase.LANDING]
         assert flying < load.started_wall and landing and load.ended_wall < landing[0], (flying, landing)
     assert all(stall["s"] < 1.5 for stall in report["sim_stalls"]), report["sim_stalls"]
     assert not processes_mentioning(str(out)), "swarm run left processes behind"

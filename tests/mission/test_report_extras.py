@@ -12,6 +12,7 @@ import pytest
 
 from swarm.agent.summary import AgentSummary
 from swarm.bus.messages import AgentState
+from swarm.bus.phase import Phase
 from swarm.config import load_config
 from swarm.mission import observer as observer_module
 from swarm.mission.coverage import SwarmCoverage, overlap_fraction
@@ -92,12 +93,12 @@ def test_coverage_keeps_one_map_per_producer_and_measures_their_overlap(tmp_path
 def test_clusters_group_fresh_active_agents_by_their_leader() -> None:
     now = 100.0
     agents = {
-        1: {"leader": 1, "phase": "flying", "last_heard": 99.9},
-        2: {"leader": 1, "phase": "flying", "last_heard": 99.0},
-        3: {"leader": 3, "phase": "flying", "last_heard": 98.5},
-        4: {"leader": 1, "phase": "flying", "last_heard": 97.5},  # silent for 2.5 s: in no cluster
-        5: {"leader": 1, "phase": "landed", "last_heard": 99.9},
-        6: {"leader": 6, "phase": "failed", "last_heard": 99.9},
+        1: {"leader": 1, "phase": Phase.FLYING, "last_heard": 99.9},
+        2: {"leader": 1, "phase": Phase.FLYING, "last_heard": 99.0},
+        3: {"leader": 3, "phase": Phase.FLYING, "last_heard": 98.5},
+        4: {"leader": 1, "phase": Phase.FLYING, "last_heard": 97.5},  # silent for 2.5 s: in no cluster
+        5: {"leader": 1, "phase": Phase.LANDED, "last_heard": 99.9},
+        6: {"leader": 6, "phase": Phase.FAILED, "last_heard": 99.9},
         7: {"heartbeats": 0, "alive": True},  # joined, never heard
     }
     assert clusters_of(agents, now) == [(1, (1, 2)), (3, (3,))]
@@ -128,7 +129,7 @@ class FakeClock:
         return self.t
 
 
-def _heartbeat(agent: int, leader: int, seq: int, x: float, phase: str = "flying") -> AgentState:
+def _heartbeat(agent: int, leader: int, seq: int, x: float, phase: Phase = Phase.FLYING) -> AgentState:
     return AgentState(
         id=agent,
         epoch=1,
@@ -157,13 +158,13 @@ def test_observer_builds_leaders_and_trajectories_from_heartbeats(monkeypatch: p
         observer._follow_leaders()
 
     for _ in range(5):
-        tick([(1, 1, "flying"), (2, 1, "flying"), (3, 1, "flying")])
+        tick([(1, 1, Phase.FLYING), (2, 1, Phase.FLYING), (3, 1, Phase.FLYING)])
     for _ in range(5):  # drone 3 loses the others and leads itself
-        tick([(1, 1, "flying"), (2, 1, "flying"), (3, 3, "flying")])
+        tick([(1, 1, Phase.FLYING), (2, 1, Phase.FLYING), (3, 3, Phase.FLYING)])
     for _ in range(5):  # back together
-        tick([(1, 1, "flying"), (2, 1, "flying"), (3, 1, "flying")])
+        tick([(1, 1, Phase.FLYING), (2, 1, Phase.FLYING), (3, 1, Phase.FLYING)])
     for _ in range(15):  # drone 2 lands; drone 3 goes silent and drops out after 2 s
-        tick([(1, 1, "flying"), (2, 1, "landed")])
+        tick([(1, 1, Phase.FLYING), (2, 1, Phase.LANDED)])
 
     pairs = [(e["leader"], e["members"]) for e in observer.leaders.entries]
     assert pairs == [(1, [1, 2, 3]), (1, [1, 2]), (3, [3]), (1, [1, 2, 3]), (1, [1, 3]), (1, [1])]
@@ -184,11 +185,11 @@ def test_a_connecting_agents_heartbeats_are_not_trajectory_samples(monkeypatch: 
     clock = FakeClock(1000.0)
     monkeypatch.setattr(observer_module.time, "time", clock)
     observer = Observer(load_config(None, {}), Path("unused.json"))
-    observer._on_state("k", _heartbeat(1, 1, 1, 0.0, "connecting"))
+    observer._on_state("k", _heartbeat(1, 1, 1, 0.0, Phase.CONNECTING))
     assert observer.trajectories.snapshot() == {}
-    assert observer.agents[1]["phase"] == "connecting"  # the heartbeat itself still counts
+    assert observer.agents[1]["phase"] == Phase.CONNECTING  # the heartbeat itself still counts
     clock.t += 1.0
-    observer._on_state("k", _heartbeat(1, 1, 2, 3.0, "ready"))
+    observer._on_state("k", _heartbeat(1, 1, 2, 3.0, Phase.READY))
     assert [s[1] for s in observer.trajectories.snapshot()["1"]] == [3.0]
 
 

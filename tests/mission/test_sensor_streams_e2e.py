@@ -13,6 +13,7 @@ import open3d as o3d
 import pytest
 
 from swarm.agent.bagmap import map_bags
+from swarm.bus.phase import Phase
 from swarm.config import load_config
 from swarm.mission.report import read_observer_status
 from swarm.mission.run import NO_WORLD_FOR_AGENTS, RunState, run_mission
@@ -97,7 +98,7 @@ def test_a_mission_whose_cameras_die_fails_at_once_saying_so_and_lands(tmp_path:
     def kill_cameras_once_flying(state: RunState) -> None:
         observer = read_observer_status(out)
         agents = observer.agents if observer is not None else {}
-        if not killed and state.cameras is not None and any(a.phase == "flying" for a in agents.values()):
+        if not killed and state.cameras is not None and any(a.phase == Phase.FLYING for a in agents.values()):
             state.cameras.signal(signal.SIGKILL)
             killed.append(1.0)
 

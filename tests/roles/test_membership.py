@@ -1,3 +1,4 @@
+from swarm.bus.phase import Phase
 from swarm.roles.membership import PeerTable
 
 
@@ -24,7 +25,7 @@ def test_every_agent_starts_as_leader_of_itself() -> None:
 
 def test_lowest_id_leads_and_roles_follow_membership() -> None:
     table, events, _ = make(own=2)
-    table.heard(3, (0, 0, 1), "flying", 1)
+    table.heard(3, (0, 0, 1), Phase.FLYING, 1)
     assert table.role == "leader"
     table.token_appeared(1)
     assert table.leader == 1 and table.role == "explorer"
@@ -35,32 +36,32 @@ def test_lowest_id_leads_and_roles_follow_membership() -> None:
 
 def test_silent_peer_expires_after_timeout_and_rejoins_on_heartbeat() -> None:
     table, events, clock = make()
-    table.heard(5, (1, 2, 3), "flying", 9)
+    table.heard(5, (1, 2, 3), Phase.FLYING, 9)
     clock.now += 2.9
     assert table.expire() == []
     clock.now += 0.2
     assert table.expire() == [5]
     assert table.cluster == [2]
-    table.heard(5, (1, 2, 3), "flying", 9)
+    table.heard(5, (1, 2, 3), Phase.FLYING, 9)
     assert [e[0] for e in events] == ["joined", "left", "joined"]
     assert table.ever_seen == {5}
 
 
 def test_own_messages_are_ignored() -> None:
     table, events, _ = make(own=4)
-    table.heard(4, (0, 0, 0), "flying", 1)
+    table.heard(4, (0, 0, 0), Phase.FLYING, 1)
     table.token_appeared(4)
     assert table.cluster == [4] and events == []
 
 
 def test_a_peer_down_for_good_leaves_the_cluster_but_stays_present() -> None:
     table, events, _ = make(own=3)
-    table.heard(1, (0, 0, 1), "flying", 1)
-    table.heard(2, (0, 0, 1), "landing", 1)
+    table.heard(1, (0, 0, 1), Phase.FLYING, 1)
+    table.heard(2, (0, 0, 1), Phase.LANDING, 1)
     assert table.cluster == [1, 2, 3] and table.leader == 1
-    table.heard(1, (0, 0, 0), "landed", 1)
+    table.heard(1, (0, 0, 0), Phase.LANDED, 1)
     assert table.cluster == [2, 3] and table.leader == 2 and table.role == "explorer"
-    for phase in ("failsafe", "failed"):
+    for phase in (Phase.FAILSAFE, Phase.FAILED):
         table.heard(2, (0, 0, 0), phase, 1)
         assert table.cluster == [3] and table.role == "leader"
     assert set(table.peers) == {1, 2}, "a landed peer still syncs: it stays present"

@@ -18,6 +18,7 @@ from swarm.bus.codec import SCHEMA_VERSION, encode
 from swarm.bus.holdings import DigestWire
 from swarm.bus.keys import Keys
 from swarm.bus.messages import AgentState
+from swarm.bus.phase import Phase
 from swarm.sync.chunks import PatchChunk
 from tests.sync.nodes import NodeSpec, NodeSwarm, holds_all
 
@@ -90,7 +91,7 @@ def _fake_holder_state(seq: int) -> AgentState:
         velocity=(0.0, 0.0, 0.0),
         yaw_deg=0.0,
         flight_mode="NONE",
-        phase="mapping",
+        phase=Phase.MAPPING,
         role="explorer",
         leader=FAKE_ID,
         holdings=holdings,

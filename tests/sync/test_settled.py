@@ -6,6 +6,7 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 from swarm.bus.keys import Keys
+from swarm.bus.phase import Phase
 from swarm.config import SyncSettings
 from swarm.patches.patch import PatchId
 from swarm.sync.service import PatchSync
@@ -23,7 +24,7 @@ def _sync(wait_s: float = 8.0) -> PatchSync:
 
 
 def _finished_state(agent_id: int):
-    return make_state(agent_id, seq=1).model_copy(update={"finished": True, "phase": "landed"})
+    return make_state(agent_id, seq=1).model_copy(update={"finished": True, "phase": Phase.LANDED})
 
 
 def test_settled_with_no_peers_and_with_a_finished_peer_holding_the_same() -> None:

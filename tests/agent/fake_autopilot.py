@@ -1,0 +1,73 @@
+"""An autopilot for unit tests of `Flight`: answers at once, and the drone is wherever its setpoint puts it."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+from swarm.agent.autopilot import FlightError, TelemetryCache
+from swarm.config import Vec3
+
+
+class FakeAutopilot:
+    """What `Flight` uses of an autopilot, answering at once: a drone on the ground (or, `in_air`, hovering)."""
+
+    def __init__(self, *, in_air: bool = False, refuse: frozenset[str] = frozenset(), climbs: bool = True) -> None:
+        self.telemetry = TelemetryCache(
+            position=(0.0, 0.0, 1.5 if in_air else 0.0),
+            flight_mode="HOLD",
+            armed=in_air,
+            landed_state="IN_AIR" if in_air else "ON_GROUND",
+            updated=time.monotonic(),
+            samples=1,
+        )
+        self.home_world = None
+        self.refuse = refuse
+        self.climbs = climbs
+        self.silent = False
+        self.commands: list[str] = []
+        self.visited: list[Vec3] = []  # every setpoint, in order
+        self.on_command: dict[str, Callable[[], None]] = {}
+
+    def _command(self, name: str) -> None:
+        self.commands.append(name)
+        if name in self.refuse:
+            raise FlightError(f"{name} refused")
+        self.on_command.get(name, lambda: None)()
+
+    def go_silent(self) -> None:
+        self.silent = True
+        self.telemetry.updated = time.monotonic() - 10.0
+
+    @property
+    def telemetry_age_s(self) -> float:
+        return time.monotonic() - self.telemetry.updated if self.silent else 0.0
+
+    @property
+    def height_above_home(self) -> float:
+        return self.telemetry.position[2]
+
+    async def connect(self, timeout_s: float) -> None:
+        self._command("connect")
+
+    async def wait_healthy(self, timeout_s: float) -> None:
+        self._command("wait_healthy")
+
+    async def arm_and_takeoff(self, altitude_m: float) -> None:
+        self._command("arm_and_takeoff")
+        self.telemetry.armed, self.telemetry.landed_state = True, "IN_AIR"
+        if self.climbs:
+            self.telemetry.position = (0.0, 0.0, altitude_m)
+
+    async def set_setpoint(self, target_world: Vec3, yaw_enu_deg: float) -> None:
+        self._command("set_setpoint")
+        self.telemetry.position = target_world  # it is there at once
+        self.visited.append(target_world)
+
+    async def hold(self, timeout_s: float | None = None) -> None:
+        self._command("hold")
+
+    async def land(self, timeout_s: float | None = None) -> None:
+        self._command("land")
+        self.telemetry.position = (0.0, 0.0, 0.0)
+        self.telemetry.flight_mode, self.telemetry.armed, self.telemetry.landed_state = "LAND", False, "ON_GROUND"
