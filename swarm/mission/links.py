@@ -158,7 +158,7 @@ class LinkController:
 
     def _radio_profiles(self, vehicles: Sequence[Mapping[str, Any]]) -> Profiles:
         assert self.scenario.radio is not None
-        positions = {int(v["id"]): v.get("position") for v in vehicles if v.get("position") is not None}
+        positions = {int(v["id"]): v["position"] for v in vehicles if v.get("position") is not None}
         profiles: Profiles = {}
         for a, b in self._scripted:
             if a in positions and b in positions:
