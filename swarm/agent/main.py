@@ -34,7 +34,7 @@ from swarm.agent.sensing import StreamSource
 from swarm.aio import wait_event
 from swarm.bus.bridge import AsyncBus
 from swarm.bus.messages import AgentState
-from swarm.config import ConfigError, SwarmConfig
+from swarm.config import ConfigError, SwarmConfig, vec3
 from swarm.files import write_json_atomic
 from swarm.patches.lattice import Lattice
 from swarm.patches.patch import PatchId
@@ -273,7 +273,7 @@ class Agent:
                 continue
             age = now - p.last_heard
             if age < NEIGHBOUR_FRESH_S and p.phase != "failsafe":
-                position = tuple(float(x + v * age) for x, v in zip(p.position, p.velocity))
+                position = vec3(x + v * age for x, v in zip(p.position, p.velocity))
                 found.append(Neighbour(p.id, position, p.velocity, p.heading_to))
             else:  # no recent heartbeat, or its agent lost its drone (failsafe): it will not give way or move off
                 found.append(Neighbour(p.id, p.position, (0.0, 0.0, 0.0), silent=True))

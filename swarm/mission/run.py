@@ -458,7 +458,7 @@ def _agents_tmp(plan: RunPlan) -> Path:
 
 
 def _supervise(plan: RunPlan, state: RunState, view: ProgressView, on_tick: Callable[[RunState], None] | None) -> None:
-    max_time = plan.config.mission.max_time_s
+    max_time = mission_time_limit_s(plan.config.mission, plan.world)
     while True:
         restarting = state.faults.restarting if state.faults is not None else set()
         for k, child in state.agents.items():
