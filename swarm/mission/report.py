@@ -88,7 +88,7 @@ def build_report(
     explored = float((observer or {}).get("explored_fraction", 0.0))
     if status == "complete" and _judged_by_coverage(plan.config) and explored < COVERAGE_TARGET:
         status, state.reason = "incomplete", _why_short(explored, agents)
-    links = state.links.report() if getattr(state, "links", None) is not None else {}
+    links = state.links.report() if state.links is not None else {}
     return {
         "status": status,
         "reason": state.reason,
@@ -164,7 +164,7 @@ def _why_short(explored: float, agents: list[dict[str, Any]]) -> str:
 def run_priority(plan: RunPlan, state: RunState) -> dict[str, Any]:
     """The niceness asked for the simulator and the agents, the one each got, and whether every one got it."""
     m = plan.config.mission
-    got = {
+    got: dict[str, Any] = {
         "sim": state.sim.nice if state.sim is not None else None,
         "agents": {k: child.nice for k, child in state.agents.items()},
     }

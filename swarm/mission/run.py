@@ -486,9 +486,9 @@ def _supervise(plan: RunPlan, state: RunState, view: ProgressView, on_tick: Call
             state.reason = f"agents exited with errors: {failed}" if failed else _success_reason(plan.config)
             return
         # without the simulator there is no vehicle; without the cameras the agents would fly blind
-        for name, child in (("simulator", state.sim), ("cameras", state.cameras)):
-            if child is not None and child.poll() is not None:
-                state.status, state.reason = "failed", f"{name} died: {child.last_log_line()}"
+        for name, process in (("simulator", state.sim), ("cameras", state.cameras)):
+            if process is not None and process.poll() is not None:
+                state.status, state.reason = "failed", f"{name} died: {process.last_log_line()}"
                 _land_agents(state)
                 return
         if elapsed > max_time:
