@@ -2,8 +2,9 @@
 # Sets up everything Swarm needs on Debian 12 with Python 3.11 (as root, or with sudo), then runs a job:
 #
 #   ./bootstrap.sh run  [swarm run flags]   fly a simulated swarm in a built-in world, report in runs/
-#   ./bootstrap.sh test                     run the test suite: the lint gates (ruff), the unit tier (on 2
-#                                           workers), then every other tier; each stops the run on its failure
+#   ./bootstrap.sh test                     run the test suite: the lint gates (ruff), the type check (mypy),
+#                                           the unit tier (on 2 workers), then every other tier; each stops the
+#                                           run on its failure
 #   ./bootstrap.sh test [pytest flags]      pytest with these flags (e.g. -m unit -n 2, or one file)
 #   ./bootstrap.sh env                      only set up; prints the environment's path
 #
@@ -74,6 +75,8 @@ case "$job" in
     say "gates: ruff check, ruff format --check"
     "$env_dir/bin/ruff" check --quiet .
     "$env_dir/bin/ruff" format --check --quiet .
+    say "gates: mypy (pyproject.toml: the package, strict on the runtime packages)"
+    "$env_dir/bin/mypy"
     say "unit tier (pytest -m unit -n 2)"
     "$env_dir/bin/python" -m pytest -m unit -n 2 -q
     say "every other tier (pytest -m 'not unit'; the 25 slowest tests are listed at the end)"

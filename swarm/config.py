@@ -14,8 +14,9 @@ from __future__ import annotations
 
 import re
 import tomllib
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, SupportsFloat
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
@@ -24,6 +25,15 @@ from swarm.errors import SwarmError
 # The one 3-vector type of every package: a point or vector, in the world frame (x east, y north, z up) unless named
 # otherwise, in metres, m/s or degrees as its field says.
 Vec3 = tuple[float, float, float]
+
+
+def vec3(values: Iterable[SupportsFloat]) -> Vec3:
+    """The Vec3 of three numbers (a numpy array, a list, a generator), as plain floats; ValueError for any other
+    count."""
+    x, y, z = (float(v) for v in values)
+    return x, y, z
+
+
 PositiveFloat = Annotated[float, Field(gt=0)]
 
 _NAME_RE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")

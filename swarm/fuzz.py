@@ -332,8 +332,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         counts[name][0 if accepted else 1] += 1
     print(f"iterations: {args.iterations} (seed {args.seed})")
     print(f"{'decoder':<16}{'accepted':>10}{'rejected':>10}")
-    for name, (accepted, rejected) in counts.items():
-        print(f"{name:<16}{accepted:>10}{rejected:>10}")
+    for name, (n_accepted, n_rejected) in counts.items():
+        print(f"{name:<16}{n_accepted:>10}{n_rejected:>10}")
     return 0
 
 

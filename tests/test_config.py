@@ -75,3 +75,15 @@ def test_the_default_time_limit_grows_with_the_mission_volume_per_drone() -> Non
     assert three.time_limit_s(6400.0) == pytest.approx(6400.0 * MAX_TIME_S_PER_M3_PER_DRONE / 3)
     given = load_config(overrides={"mission.drones": 1, "mission.max_time_s": 90.0}).mission
     assert given.time_limit_s(6400.0) == 90.0
+
+
+def test_vec3_makes_three_plain_floats_of_any_three_numbers_and_refuses_another_count() -> None:
+    import numpy as np
+
+    from swarm.config import vec3
+
+    made = vec3(np.array([1, 2, 3.5]))
+    assert made == (1.0, 2.0, 3.5) and all(type(c) is float for c in made)
+    assert vec3(c * 2 for c in (1, 2, 3)) == (2.0, 4.0, 6.0)
+    with pytest.raises(ValueError):
+        vec3([1.0, 2.0])

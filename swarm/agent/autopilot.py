@@ -83,12 +83,12 @@ class Autopilot:
 
     async def connect(self, timeout_s: float) -> None:
         silence_mavsdk_logs()
-        self._sdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
+        sdk = self._sdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
         try:
-            await self._call("connect", lambda: self._sdk.add_any_connection(self.url), timeout_s)
+            await self._call("connect", lambda: sdk.add_any_connection(self.url), timeout_s)
         except MavsdkConnectionError as exc:
             raise FlightError(f"cannot open autopilot link {self.url}: {exc}") from None
-        system = await self._sdk.first_autopilot(timeout_s=timeout_s)
+        system = await sdk.first_autopilot(timeout_s=timeout_s)
         if system is None:
             raise FlightError(f"no autopilot heartbeat on {self.url} within {timeout_s:.0f} s")
         self._action, self._offboard, self._tel = ActionAsync(system), OffboardAsync(system), TelemetryAsync(system)
@@ -108,7 +108,8 @@ class Autopilot:
         self.home_world = geo_to_world(self.origin, home.latitude_deg, home.longitude_deg, home.absolute_altitude_m)
         local = (home.local_north_m, home.local_east_m, home.local_down_m)
         self._home_local_ned = local if all(math.isfinite(v) for v in local) else (0.0, 0.0, 0.0)
-        await self._call("set rate", lambda: self._tel.set_rate_position_velocity_ned(20.0))
+        tel = self._tel
+        await self._call("set rate", lambda: tel.set_rate_position_velocity_ned(20.0))
         self._start_streams()
         await self.wait_until(lambda t: t.samples > 0, max(1.0, deadline - time.monotonic()), "position telemetry")
 
@@ -116,13 +117,16 @@ class Autopilot:
 
     def local_to_world(self, ned: Vec3) -> Vec3:
         assert self.home_world is not None
-        rel = ned_to_enu(tuple(a - b for a, b in zip(ned, self._home_local_ned)))  # type: ignore[arg-type]
-        return tuple(h + r for h, r in zip(self.home_world, rel))  # type: ignore[return-value]
+        (n, e, d), (hn, he, hd) = ned, self._home_local_ned
+        rel = ned_to_enu((n - hn, e - he, d - hd))
+        return self.home_world[0] + rel[0], self.home_world[1] + rel[1], self.home_world[2] + rel[2]
 
     def world_to_local(self, p: Vec3) -> Vec3:
         assert self.home_world is not None
-        rel = enu_to_ned(tuple(a - b for a, b in zip(p, self.home_world)))  # type: ignore[arg-type]
-        return tuple(h + r for h, r in zip(self._home_local_ned, rel))  # type: ignore[return-value]
+        (x, y, z), (hx, hy, hz) = p, self.home_world
+        rel = enu_to_ned((x - hx, y - hy, z - hz))
+        local = self._home_local_ned
+        return local[0] + rel[0], local[1] + rel[1], local[2] + rel[2]
 
     @property
     def height_above_home(self) -> float:
@@ -137,7 +141,8 @@ class Autopilot:
 
     async def arm_and_takeoff(self, altitude_m: float) -> None:
         assert self._action is not None
-        await self._call("set takeoff altitude", lambda: self._action.set_takeoff_altitude(altitude_m))
+        action = self._action
+        await self._call("set takeoff altitude", lambda: action.set_takeoff_altitude(altitude_m))
         await self._call("arm", self._action.arm)
         await self._call("takeoff", self._action.takeoff)
 
@@ -146,7 +151,8 @@ class Autopilot:
         assert self._offboard is not None
         n, e, d = self.world_to_local(target_world)
         setpoint = PositionNedYaw(n, e, d, yaw_enu_to_ned_deg(yaw_enu_deg))
-        await self._call("offboard setpoint", lambda: self._offboard.set_position_ned(setpoint))
+        offboard = self._offboard
+        await self._call("offboard setpoint", lambda: offboard.set_position_ned(setpoint))
         if self.offboard_active and self._dropped_out_of_offboard():
             self.offboard_active = False  # setpoints stopped for a while (this process was frozen): enter again
         if not self.offboard_active:

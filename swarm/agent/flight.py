@@ -46,7 +46,7 @@ from swarm.agent.lifecycle import IllegalTransition, transition
 from swarm.agent.separation import MAX_YIELD_S, Cue, Manoeuvre, Separation, step
 from swarm.agent.watchdog import LoopMonitor
 from swarm.bus.phase import Phase
-from swarm.config import AgentSettings, Vec3
+from swarm.config import AgentSettings, Vec3, vec3
 
 LOOKAHEAD_M = 1.0
 SETPOINT_PERIOD_S = 0.1
@@ -271,7 +271,7 @@ class Flight:
             if interrupt is not None and interrupt.is_set():
                 separation = step(separation, Cue.INTERRUPTED, time.monotonic())
                 return False
-            self.heading_to = tuple(float(c) for c in target)
+            self.heading_to = vec3(target)
             position = np.array(self.ap.telemetry.position)
             rival = self._rival(position, target)
             separation = step(separation, self._cue(rival), time.monotonic())
@@ -317,7 +317,7 @@ class Flight:
             if following and travelled < length and np.linalg.norm(carrot - position) < LOOKAHEAD_M:
                 travelled = min(length, travelled + speed * SETPOINT_PERIOD_S)
                 carrot = start + segment * (travelled / length)
-            self._carrot = tuple(float(c) for c in carrot)
+            self._carrot = vec3(carrot)
             await self.ap.set_setpoint(self._carrot, yaw)
             if travelled >= length and np.linalg.norm(target - position) < tolerance:
                 self.heading_to = None
@@ -330,7 +330,7 @@ class Flight:
         between the two (from a step up in front of a door, its top went into the lintel)."""
         if float(np.linalg.norm(np.subtract(self.ap.telemetry.position, left_at))) <= REJOIN_TOLERANCE_M:
             return True
-        self._carrot = tuple(float(c) for c in self.ap.telemetry.position)
+        self._carrot = vec3(self.ap.telemetry.position)
         return await self._fly_segment_to(left_at, stop, interrupt, tolerance=REJOIN_TOLERANCE_M)
 
     def _cue(self, rival: Neighbour | None) -> Cue:
@@ -372,14 +372,14 @@ class Flight:
         peer = self._neighbour(peer_id)
         refuge = here
         if peer is not None:
-            start = tuple(float(v) for v in here)
+            start = vec3(here)
             everyone = self.neighbours()
             others = [n for n in everyone if n.id != peer_id]
             candidates = moves_clear_of(here, off_the_others_ways(refuge_candidates(here, peer), others), everyone)
-            safe = [c for c in candidates if self.is_clear(start, tuple(float(v) for v in c))]
+            safe = [c for c in candidates if self.is_clear(start, vec3(c))]
             refuge = choose_refuge(safe, peer) if safe else here
         self.log("give_way", to=peer_id, refuge=[round(float(v), 2) for v in refuge])
-        self._carrot = tuple(float(v) for v in refuge)
+        self._carrot = vec3(refuge)
         self.heading_to = self._carrot
         end = time.monotonic() + MAX_YIELD_S
         while time.monotonic() < end:
@@ -435,19 +435,18 @@ class Flight:
             for a in np.linspace(0.0, 2 * math.pi, 8, endpoint=False)
         ]
         spots.sort(key=lambda c: float(np.linalg.norm(c - here)))
-        start = tuple(float(v) for v in here)
+        start = vec3(here)
         clear = [
             c
             for c in spots
-            if self.is_clear(start, tuple(float(v) for v in c))
-            and all(np.linalg.norm(c[:2] - o) >= LAND_CLEAR_M for o in others)
+            if self.is_clear(start, vec3(c)) and all(np.linalg.norm(c[:2] - o) >= LAND_CLEAR_M for o in others)
         ]
         if not clear:
             self.log("land_beside", below=[n.id for n in below], spot=None)
             return
         spot = clear[0]
         self.log("land_beside", below=[n.id for n in below], spot=[round(float(v), 2) for v in spot])
-        self._carrot = tuple(float(v) for v in spot)
+        self._carrot = vec3(spot)
         end = time.monotonic() + MAX_YIELD_S
         while time.monotonic() < end:
             await self.ap.set_setpoint(self._carrot, self.ap.telemetry.yaw_deg)

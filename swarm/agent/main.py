@@ -38,7 +38,7 @@ from swarm.aio import wait_event
 from swarm.bus.bridge import AsyncBus
 from swarm.bus.messages import AgentState
 from swarm.bus.phase import AIRBORNE_PHASES, Phase
-from swarm.config import ConfigError, SwarmConfig
+from swarm.config import ConfigError, SwarmConfig, vec3
 from swarm.files import write_model
 from swarm.patches.lattice import Lattice
 from swarm.patches.patch import PatchId
@@ -278,7 +278,7 @@ class Agent:
                 continue
             age = now - p.last_heard
             if age < NEIGHBOUR_FRESH_S and p.phase != Phase.FAILSAFE:
-                position = tuple(float(x + v * age) for x, v in zip(p.position, p.velocity))
+                position = vec3(x + v * age for x, v in zip(p.position, p.velocity))
                 found.append(Neighbour(p.id, position, p.velocity, p.heading_to))
             else:  # no recent heartbeat, or its agent lost its drone (failsafe): it will not give way or move off
                 found.append(Neighbour(p.id, p.position, (0.0, 0.0, 0.0), silent=True))

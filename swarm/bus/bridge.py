@@ -53,6 +53,7 @@ from swarm.errors import BusError
 log = logging.getLogger(__name__)
 
 T = TypeVar("T", bound=WireMessage)
+R = TypeVar("R")
 QueryHandler = Callable[[str, dict[str, str]], "bytes | list[bytes] | None"]
 
 CLOSE_TIMEOUT_S = 5.0
@@ -322,7 +323,7 @@ class AsyncBus:
             return  # the session is going away; dropping the Query finalises it
         try:
             key = str(query.key_expr)
-            data = handler(key, dict(query.parameters))
+            data = handler(key, dict(query.parameters))  # type: ignore[call-overload]  # stub's __iter__ gives a list
             payloads = [data] if isinstance(data, (bytes, bytearray, memoryview)) else data
             if payloads is not None and not (
                 isinstance(payloads, list) and all(isinstance(p, (bytes, bytearray, memoryview)) for p in payloads)
@@ -378,7 +379,7 @@ class AsyncBus:
 
         def on_drop() -> None:  # a Zenoh thread, once the query is finished
             try:
-                loop.call_soon_threadsafe(lambda: done.done() or done.set_result(None))
+                loop.call_soon_threadsafe(_resolve, done, None)
             except RuntimeError:  # the loop is closed
                 pass
 
@@ -514,7 +515,7 @@ class AsyncBus:
 
         def on_done(error: BaseException | None) -> None:
             try:
-                loop.call_soon_threadsafe(lambda: done.done() or done.set_result(error))
+                loop.call_soon_threadsafe(_resolve, done, error)
             except RuntimeError:  # the loop is closed
                 pass
 
@@ -539,6 +540,12 @@ class AsyncBus:
         self._start_close(on_done)
         ended = finished.wait(timeout_s)
         self._closing_ended(ended, errors[0] if errors else None, timeout_s)
+
+
+def _resolve(future: asyncio.Future[R], result: R) -> None:
+    """Set `future`'s result unless it is done already (on the loop's thread)."""
+    if not future.done():
+        future.set_result(result)
 
 
 def _reply_err(query: zenoh.Query, text: bytes) -> None:

@@ -303,7 +303,8 @@ class ExplorationGrid:
         ahead = np.stack([np.cos(headings), np.sin(headings), np.zeros(LOOK_YAWS)], axis=1)
         looks = (eyes[:, None, :] + ahead[None, :, :]).reshape(-1, 3)
         gains = self.view_gain(np.repeat(eyes, LOOK_YAWS, axis=0), looks).reshape(len(eyes), LOOK_YAWS)
-        return headings[np.argmax(gains, axis=1)]
+        best: np.ndarray = headings[np.argmax(gains, axis=1)]
+        return best
 
     def _unknown_direction(self, points: np.ndarray) -> np.ndarray:
         """(N, 3) from each point to the middle of the open unknown cells in its gain cube (0 where none)."""
@@ -354,7 +355,8 @@ class ExplorationGrid:
             return np.zeros(len(eyes))
         looks = np.asarray(points, dtype=float).reshape(-1, 3) - eyes
         rays, solid = self.view.rays()
-        return self._ray_volumes(eyes, np.arctan2(looks[:, 1], looks[:, 0]), rays, solid).sum(axis=1)
+        gains: np.ndarray = self._ray_volumes(eyes, np.arctan2(looks[:, 1], looks[:, 0]), rays, solid).sum(axis=1)
+        return gains
 
     def _ray_volumes(self, eyes: np.ndarray, yaws: np.ndarray, rays: np.ndarray, solid: np.ndarray) -> np.ndarray:
         """(N, rays) unknown volume along each ray from each eye, the rays (at yaw 0) turned by that eye's yaw.
@@ -421,7 +423,8 @@ class ExplorationGrid:
 
     @cached_property
     def _not_occupied(self) -> np.ndarray:
-        return ~self._occupied
+        not_occupied: np.ndarray = ~self._occupied
+        return not_occupied
 
     @cached_property
     def _component_sizes(self) -> np.ndarray:
@@ -484,7 +487,8 @@ class ExplorationGrid:
         samples = eyes[:, None, :] + steps[None, :, None] * rays[:, None, :]
         idx = np.floor((samples - self.origin) / self.resolution).astype(np.int64)
         idx = np.clip(idx, 0, np.array(allowed.shape) - 1)  # both ends are in the grid; guard rounding
-        return allowed[idx[..., 0], idx[..., 1], idx[..., 2]].all(axis=1)
+        within: np.ndarray = allowed[idx[..., 0], idx[..., 1], idx[..., 2]].all(axis=1)
+        return within
 
     def _centre(self, idx: np.ndarray) -> np.ndarray:
         return self.origin + (np.asarray(idx, dtype=float) + 0.5) * self.resolution
@@ -626,7 +630,8 @@ def _ball_offsets(radius_cells: float, strict: bool = False) -> np.ndarray:
     offsets = _cube_offsets(max(math.floor(radius_cells + _EPS), 0))
     length2 = np.sum(offsets**2, axis=1)
     keep = length2 < radius_cells**2 if strict else length2 <= radius_cells**2 + _EPS
-    return offsets[keep][np.argsort(length2[keep], kind="stable")]
+    nearest_first: np.ndarray = offsets[keep][np.argsort(length2[keep], kind="stable")]
+    return nearest_first
 
 
 def _cube_offsets(half: int) -> np.ndarray:
@@ -661,8 +666,8 @@ def _first_hit(mask: np.ndarray, cells: np.ndarray, offsets: np.ndarray) -> np.n
 def _nearest_to_group_mean(cells: np.ndarray, group: np.ndarray, n_groups: int) -> np.ndarray:
     """(n_groups,) row in `cells` of each group's cell nearest to the group's mean."""
     counts = np.bincount(group, minlength=n_groups)
-    mean = np.stack([np.bincount(group, weights=cells[:, a], minlength=n_groups) for a in range(3)], axis=1)
-    mean /= np.maximum(counts, 1)[:, None]
+    sums = np.stack([np.bincount(group, weights=cells[:, a], minlength=n_groups) for a in range(3)], axis=1)
+    mean = sums / np.maximum(counts, 1)[:, None]
     distance2 = np.sum((cells - mean[group]) ** 2, axis=1)
     order = np.lexsort((distance2, group))
     firsts = np.flatnonzero(np.r_[True, np.diff(group[order]) != 0])

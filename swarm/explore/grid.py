@@ -71,7 +71,8 @@ class OccupancyGrid:
         cells = np.floor((np.asarray(points, dtype=float) - self.origin) / self.resolution)
         # NaN/inf points map to -1: outside every grid.
         cells[~np.isfinite(cells)] = -1
-        return cells.astype(np.int64)
+        indices: np.ndarray = cells.astype(np.int64)
+        return indices
 
     def points_are_free(self, points: np.ndarray) -> np.ndarray:
         """(n,) bool: each of the (n, 3) world points lies in a free cell of the grid."""
@@ -85,7 +86,7 @@ class OccupancyGrid:
     def is_free(self, p: ArrayLike) -> bool:
         return bool(self.points_are_free(np.asarray(p, dtype=float).reshape(1, 3))[0])
 
-    def segment_is_free(self, a: Sequence[float], b: Sequence[float]) -> bool:
+    def segment_is_free(self, a: Sequence[float] | np.ndarray, b: Sequence[float] | np.ndarray) -> bool:
         """Every cell the segment a-b passes through is free (and in the grid).
 
         Exact traversal rather than fixed-step sampling: one probe point between each pair of consecutive
@@ -103,8 +104,8 @@ class OccupancyGrid:
         crossings.sort()
         probes_t = [(t0 + t1) * 0.5 for t0, t1 in zip(crossings, crossings[1:]) if t1 - t0 > _CROSSING_MERGE_T]
         if len(probes_t) > _PYTHON_PROBE_LIMIT:
-            t = np.array(probes_t)[:, None]
-            cells = np.floor(np.array(start) + t * np.array(delta)).astype(np.int64)
+            ts = np.array(probes_t)[:, None]
+            cells = np.floor(np.array(start) + ts * np.array(delta)).astype(np.int64)
             if cells.min() < 0 or (cells.max(axis=0) >= self.occupied.shape).any():
                 return False
             return not self.occupied[cells[:, 0], cells[:, 1], cells[:, 2]].any()
@@ -116,7 +117,7 @@ class OccupancyGrid:
                 return False
         return True
 
-    def _cell_coords(self, p: Sequence[float]) -> tuple[float, float, float] | None:
+    def _cell_coords(self, p: Sequence[float] | np.ndarray) -> tuple[float, float, float] | None:
         """`p` in units of cells from the grid origin, as plain floats; None when not finite."""
         ox, oy, oz = self.origin.tolist()
         r = self.resolution
@@ -163,4 +164,5 @@ class OccupancyGrid:
         return OccupancyGrid(self.origin.copy(), self.resolution, blocked, unknown)
 
     def _inside(self, idx: np.ndarray) -> np.ndarray:
-        return np.all((idx >= 0) & (idx < np.asarray(self.shape)), axis=1)
+        inside: np.ndarray = np.all((idx >= 0) & (idx < np.asarray(self.shape)), axis=1)
+        return inside

@@ -197,10 +197,11 @@ def _octile_distance_to(goal_cell: np.ndarray, shape: tuple[int, ...]) -> np.nda
     large = np.maximum(np.maximum(dx, dy), dz)
     small = np.minimum(np.minimum(dx, dy), dz)
     middle = (dx + dy + dz) - large - small
-    return (large - middle) + _SQRT2 * (middle - small) + _SQRT3 * small
+    distance: np.ndarray = (large - middle) + _SQRT2 * (middle - small) + _SQRT3 * small
+    return distance
 
 
-def _trace(parent: array.array, goal_flat: int, shape: tuple[int, ...]) -> list[np.ndarray]:
+def _trace(parent: array.array[int], goal_flat: int, shape: tuple[int, ...]) -> list[np.ndarray]:
     flat = [goal_flat]
     while parent[flat[-1]] >= 0:
         flat.append(parent[flat[-1]])

@@ -320,9 +320,12 @@ def _stream_costs(frames: list[tuple[np.ndarray, np.ndarray]], K: np.ndarray, se
     publisher, subscriber = zenoh.open(configs[0]), zenoh.open(configs[1])
     arrived = threading.Event()
     received: list[float] = []
-    sub = subscriber.declare_subscriber(
-        "bench/image", lambda sample: (received.append(time.perf_counter()), arrived.set())
-    )
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        received.append(time.perf_counter())
+        arrived.set()
+
+    sub = subscriber.declare_subscriber("bench/image", on_sample)
     try:
         for _ in range(100):  # the subscription reaches the publisher
             publisher.put("bench/image", b"warm-up")

@@ -57,12 +57,12 @@ from functools import cached_property
 from typing import Any
 
 import numpy as np
-import open3d as o3d
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
 from swarm.config import SwarmConfig, Vec3
+from swarm.patches.backend import tensor
 from swarm.sim.coverage import ReachableSpace, mission_reachable_space
 from swarm.sim.worlds import World, mission_volume, spawn_points
 
@@ -288,7 +288,7 @@ class Oracle:
             rays = np.empty((len(part), len(dirs), 6), dtype=np.float32)
             rays[:, :, :3] = part[:, None, :]
             rays[:, :, 3:] = dirs[None, :, :]
-            hit = self.world.scene.cast_rays(o3d.core.Tensor(rays.reshape(-1, 6)))["t_hit"].numpy()
+            hit = self.world.scene.cast_rays(tensor(rays.reshape(-1, 6)))["t_hit"].numpy()
             for node, pano in zip(todo[s : s + chunk], hit.reshape(len(part), -1)):
                 self._panos[node] = pano.astype(np.float32)
 
@@ -524,7 +524,8 @@ class Oracle:
         routes: list[list[int]] = [[] for _ in spawns]
         while count < need:
             d = int(np.argmin(free_at))
-            travel = dijkstra(self.graph, directed=False, indices=here[d])[view_node] / speed + dwell
+            # scipy-stubs allow only arrays of indices; one index is fine (and gives one row, 1-D)
+            travel = dijkstra(self.graph, directed=False, indices=here[d])[view_node] / speed + dwell  # type: ignore[call-overload]
             score = np.where(np.isfinite(travel), upper / travel, 0.0)
             order = np.argsort(-score)
             best, best_score = -1, 0.0

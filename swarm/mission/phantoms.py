@@ -42,12 +42,12 @@ def phantom_check(
     """Vertices of `mesh` near the flown paths, and the phantoms among them; None without a map or paths."""
     if not mesh.exists():
         return None
-    vertices = np.asarray(o3d.io.read_triangle_mesh(str(mesh)).vertices)
+    vertices = np.asarray(o3d.io.read_triangle_mesh(mesh).vertices)
     paths = flown_paths(trajectories, lift_m)
     if len(vertices) == 0 or len(paths) == 0:
         return None
     distance, _ = cKDTree(paths).query(vertices, distance_upper_bound=NEAR_M)
-    near = distance < NEAR_M
+    near = np.asarray(distance) < NEAR_M
     off_world = np.zeros(len(vertices), dtype=bool)
     if near.any():
         off_world[near] = world.distance(vertices[near]) > NEAR_M

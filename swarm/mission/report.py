@@ -80,7 +80,7 @@ def build_report(
     explored = seen.explored_fraction
     if status == "complete" and _judged_by_coverage(plan.config) and explored < COVERAGE_TARGET:
         status, state.reason = "incomplete", _why_short(explored, agents)
-    links = state.links.report() if getattr(state, "links", None) is not None else {}
+    links = state.links.report() if state.links is not None else {}
     return MissionReport(
         status=status,
         reason=state.reason,

@@ -459,7 +459,7 @@ def _agents_tmp(plan: RunPlan) -> Path:
 
 
 def _supervise(plan: RunPlan, state: RunState, view: ProgressView, on_tick: Callable[[RunState], None] | None) -> None:
-    max_time = plan.config.mission.max_time_s
+    max_time = mission_time_limit_s(plan.config.mission, plan.world)
     while True:
         restarting = state.faults.restarting if state.faults is not None else set()
         for k, child in state.agents.items():
@@ -487,9 +487,9 @@ def _supervise(plan: RunPlan, state: RunState, view: ProgressView, on_tick: Call
             state.reason = f"agents exited with errors: {failed}" if failed else _success_reason(plan.config)
             return
         # without the simulator there is no vehicle; without the cameras the agents would fly blind
-        for name, child in (("simulator", state.sim), ("cameras", state.cameras)):
-            if child is not None and child.poll() is not None:
-                state.status, state.reason = "failed", f"{name} died: {child.last_log_line()}"
+        for name, process in (("simulator", state.sim), ("cameras", state.cameras)):
+            if process is not None and process.poll() is not None:
+                state.status, state.reason = "failed", f"{name} died: {process.last_log_line()}"
                 _land_agents(state)
                 return
         if elapsed > max_time:

@@ -229,10 +229,10 @@ def _print(console: Console, result: dict[str, Any]) -> None:
         )
     console.print(table)
     s = result["summary"]
-    growth = "n/a" if s["max_rss_growth"] is None else f"{s['max_rss_growth'] * 100:.1f} %"
+    memory_growth = "n/a" if s["max_rss_growth"] is None else f"{s['max_rss_growth'] * 100:.1f} %"
     console.print(
         f"missions {s['missions']}, completed {s['completed']}, patches sealed {s['patches_sealed']}, "
-        f"lost {s['patches_lost']}, max agent memory growth after warm-up {growth} "
+        f"lost {s['patches_lost']}, max agent memory growth after warm-up {memory_growth} "
         f"(limit {MAX_GROWTH:.0%}), max fd growth {s['max_fd_growth']}, peak agent RSS "
         f"{s['max_peak_rss_mb']} MB: {'PASS' if s['passed'] else 'FAIL'}"
     )

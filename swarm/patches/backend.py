@@ -36,6 +36,16 @@ MIN_WEIGHT_DISTANCE_M = 0.3  # caps the inverse-square weight of one observation
 DEFAULT_BLOCK_CAPACITY = 4096  # a 15-frame patch at 0.1 m touches 1-2 k blocks
 
 
+def tensor(array: np.ndarray) -> o3d.core.Tensor:
+    """`o3d.core.Tensor(array)`: a copy on the CPU with the array's dtype."""
+    copy: o3d.core.Tensor = o3c.Tensor(array)  # type: ignore[call-overload]  # the stub drops dtype's, device's defaults
+    return copy
+
+
+# VoxelBlockGrid.integrate's: block keys, depth, intrinsics, extrinsics, depth scale, max depth, truncation
+_IntegrateArgs = tuple[o3d.core.Tensor, o3d.t.geometry.Image, o3d.core.Tensor, o3d.core.Tensor, float, float, float]
+
+
 class TsdfBackend(Protocol):
     lattice: Lattice
 
@@ -77,7 +87,7 @@ class VoxelBlockGridBackend:
         self._vbg = o3d.t.geometry.VoxelBlockGrid(
             ("tsdf", "weight"),
             (o3c.float32, o3c.float32),
-            ((1), (1)),
+            ((1), (1)),  # type: ignore[arg-type]  # open3d's stub misses the implicit conversion to SizeVector
             lattice.voxel_size,
             lattice.block_resolution,
             block_capacity,
@@ -106,11 +116,11 @@ class VoxelBlockGridBackend:
         keys = frame_blocks(depth32, K64, T, self.lattice, max_range)
         if len(keys) == 0:
             return
-        args = (
-            o3c.Tensor(keys),
-            o3d.t.geometry.Image(o3c.Tensor(depth32)),
-            o3c.Tensor(K64),
-            o3c.Tensor(_rigid_inverse(T)),
+        args: _IntegrateArgs = (
+            tensor(keys),
+            o3d.t.geometry.Image(tensor(depth32)),
+            tensor(K64),
+            tensor(_rigid_inverse(T)),
             1.0,
             float(max_range),
             float(self.lattice.truncation_voxels),
@@ -120,7 +130,7 @@ class VoxelBlockGridBackend:
         else:
             self._integrate_weighted(keys, T[:3, 3], args)
 
-    def _integrate_weighted(self, keys: np.ndarray, camera: np.ndarray, args: tuple) -> None:
+    def _integrate_weighted(self, keys: np.ndarray, camera: np.ndarray, args: _IntegrateArgs) -> None:
         hashmap = self._vbg.hashmap()
         key_tensor = args[0]
         hashmap.activate(key_tensor)
@@ -167,7 +177,7 @@ class VoxelBlockGridBackend:
         if hashmap.size() == 0:
             return
         rows = hashmap.active_buf_indices().numpy().astype(np.int64)
-        keys = o3c.Tensor(np.ascontiguousarray(hashmap.key_tensor().numpy()[rows]))
+        keys = tensor(np.ascontiguousarray(hashmap.key_tensor().numpy()[rows]))
         tsdf, weight = self._views()
         tsdf[rows] = 0.0  # erased slots are reused as they are: clear them first
         weight[rows] = 0.0

@@ -33,7 +33,7 @@ UNKNOWN, FREE, OCCUPIED = 0, 1, 2
 _EPS = 1e-9
 _INT32_SAFE_WEIGHT = (2**31 - 1) // 127  # while every W stays below this, S = sum(w * q) fits int32
 
-Bounds = tuple[Sequence[float], Sequence[float]]
+Bounds = tuple[Sequence[float] | np.ndarray, Sequence[float] | np.ndarray]
 
 
 class FusedMap:
@@ -225,8 +225,8 @@ class FusedMap:
     def occupancy_grid(
         self,
         resolution: float,
-        lo: Sequence[float] | None = None,
-        hi: Sequence[float] | None = None,
+        lo: Sequence[float] | np.ndarray | None = None,
+        hi: Sequence[float] | np.ndarray | None = None,
         min_known: float = 1.0,
     ) -> tuple[np.ndarray, np.ndarray]:
         """(corner of cell (0,0,0), uint8 (nx,ny,nz) states) of a coarse grid over [lo, hi) (default: the bounds).
@@ -249,11 +249,13 @@ class FusedMap:
         aligned = self._aligned_cells(resolution, lo_)
         if aligned is not None:
             f, offset = aligned
-            return lo_.copy(), self._occupancy_aligned(f, offset, tuple(int(s) for s in shape), min_known)
+            grid_shape = (int(shape[0]), int(shape[1]), int(shape[2]))
+            return lo_.copy(), self._occupancy_aligned(f, offset, grid_shape, min_known)
         v, o, r = self.lattice.voxel_size, self.lattice.origin_array, self.lattice.block_resolution
 
         def cell_of(index: np.ndarray, axis: int) -> np.ndarray:
-            return np.floor((o[axis] + index * v - lo_[axis]) / resolution + _EPS).astype(np.int64)
+            cells: np.ndarray = np.floor((o[axis] + index * v - lo_[axis]) / resolution + _EPS).astype(np.int64)
+            return cells
 
         # voxels per cell along each axis
         totals = []
@@ -363,7 +365,7 @@ def _reduce_cells(voxels: np.ndarray, combine: np.ufunc, r: int, f: int) -> np.n
     current = voxels
     for axis, shape in zip((4, 3, 2), shapes):
         split = current.reshape(shape)
-        index = [slice(None)] * 5
+        index: list[slice | int] = [slice(None)] * 5
         index[axis] = 0
         acc = split[tuple(index)].copy()
         for i in range(1, f):

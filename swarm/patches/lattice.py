@@ -24,13 +24,18 @@ from dataclasses import dataclass
 from typing import get_args
 
 import numpy as np
+import numpy.typing as npt
 
 from swarm.config import MappingSettings, Vec3, WeightLaw
 
 WEIGHT_LAWS: tuple[str, ...] = get_args(WeightLaw)
 
 _WEIGHT_UNIT = {"constant": 1.0, "inverse_square": 1.0 / 256.0, "dropoff": 1.0 / 16.0}
-_WEIGHT_DTYPE = {"constant": np.dtype(np.uint8), "inverse_square": np.dtype(np.uint16), "dropoff": np.dtype(np.uint16)}
+_WEIGHT_DTYPE: dict[str, np.dtype[np.uint8 | np.uint16]] = {
+    "constant": np.dtype(np.uint8),
+    "inverse_square": np.dtype(np.uint16),
+    "dropoff": np.dtype(np.uint16),
+}
 
 
 @dataclass(frozen=True)
@@ -84,12 +89,12 @@ class Lattice:
         return _WEIGHT_UNIT[self.weight_law]
 
     @property
-    def weight_dtype(self) -> np.dtype:
+    def weight_dtype(self) -> np.dtype[np.uint8 | np.uint16]:
         """The dtype of quantised weights on the wire."""
         return _WEIGHT_DTYPE[self.weight_law]
 
     @property
-    def origin_array(self) -> np.ndarray:
+    def origin_array(self) -> npt.NDArray[np.float64]:
         return np.array(self.origin, dtype=np.float64)
 
     def weight_units(self, weight: float) -> int:
@@ -120,7 +125,7 @@ class Lattice:
         p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         return np.floor((p - self.origin_array) / self.block_size).astype(np.int64)
 
-    def local_offsets(self) -> np.ndarray:
+    def local_offsets(self) -> npt.NDArray[np.int64]:
         """(R^3, 3) int64 (x, y, z) offsets of a block's voxels, in storage order."""
         r = np.arange(self.block_resolution)
         z, y, x = np.meshgrid(r, r, r, indexing="ij")

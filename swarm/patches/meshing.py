@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import open3d as o3d
 
+from swarm.patches.backend import tensor
 from swarm.patches.lattice import Lattice
 from swarm.patches.patch import TsdfArrays
 
@@ -22,14 +23,14 @@ def extract_mesh(lattice: Lattice, arrays: TsdfArrays, weight_threshold: float) 
     vbg = o3d.t.geometry.VoxelBlockGrid(
         ("tsdf", "weight"),
         (o3c.float32, o3c.float32),
-        ((1), (1)),
+        ((1), (1)),  # type: ignore[arg-type]  # open3d's stub misses the implicit conversion to SizeVector
         lattice.voxel_size,
         lattice.block_resolution,
         len(arrays.keys),
         o3c.Device("CPU:0"),
     )
     hashmap = vbg.hashmap()
-    keys = o3c.Tensor(np.ascontiguousarray(arrays.keys, dtype=np.int32))
+    keys = tensor(np.ascontiguousarray(arrays.keys, dtype=np.int32))
     hashmap.activate(keys)
     buf, _ = hashmap.find(keys)
     rows = buf.numpy().astype(np.int64)
@@ -57,5 +58,5 @@ def write_ply(path: str | Path, vertices: np.ndarray, triangles: np.ndarray) -> 
         Path(path).write_text(_EMPTY_PLY)
         return
     mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(vertices), o3d.utility.Vector3iVector(triangles))
-    if not o3d.io.write_triangle_mesh(str(path), mesh, write_ascii=False):
+    if not o3d.io.write_triangle_mesh(Path(path), mesh, write_ascii=False):
         raise OSError(f"cannot write mesh to {path}")

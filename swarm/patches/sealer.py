@@ -54,6 +54,7 @@ class PatchSealer:
         if self._first is None:
             self._first = (self.frame_index, float(t), pose)
         else:
+            assert self._last is not None  # set with _first
             self._travelled += float(np.linalg.norm(pose[:3, 3] - self._last[2][:3, 3]))
         self._last = (self.frame_index, float(t), pose)
         self.frame_index += 1

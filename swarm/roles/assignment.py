@@ -20,6 +20,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 from scipy.spatial import cKDTree
 
 from swarm.config import Vec3
@@ -47,14 +48,15 @@ def _order_key(c: Candidate) -> tuple[float, int, tuple[float, ...], tuple[float
     return (-c.gain, c.owner, tuple(c.viewpoint), tuple(c.point))
 
 
-def _array(vectors: Sequence[Vec3] | np.ndarray) -> np.ndarray:
+def _array(vectors: Sequence[Vec3] | np.ndarray) -> npt.NDArray[np.float64]:
     """(N, 3) floats, also for an empty input, so the vectorised code needs no special cases."""
     return np.asarray(vectors, dtype=float).reshape(-1, 3)
 
 
 def _pairwise(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(N_a, N_b) Euclidean distances."""
-    return np.linalg.norm(a[:, None, :] - b[None, :, :], axis=2)
+    distances: np.ndarray = np.linalg.norm(a[:, None, :] - b[None, :, :], axis=2)
+    return distances
 
 
 def _utilities(gain: np.ndarray, d_self: np.ndarray, d_tot: np.ndarray, n_others: int, lam: float) -> np.ndarray:
@@ -86,7 +88,8 @@ def schedule_gain(gain: np.ndarray, points: np.ndarray, assigned: Vec3, sigma: f
     if not sigma > 0.0:
         raise ValueError(f"sigma must be > 0, got {sigma}")
     sq = np.sum((_array(points) - np.asarray(assigned, dtype=float)) ** 2, axis=1)
-    return np.asarray(gain, dtype=float) * -np.expm1(-sq / (2.0 * sigma * sigma))
+    scheduled: np.ndarray = np.asarray(gain, dtype=float) * -np.expm1(-sq / (2.0 * sigma * sigma))
+    return scheduled
 
 
 def _near_any(points: np.ndarray, centres: np.ndarray, radius: float) -> np.ndarray:
@@ -148,7 +151,8 @@ def _overlapped_block(a: np.ndarray, b: np.ndarray, eps: float) -> np.ndarray:
     on = (band & (np.abs(dx) <= eps)).any(axis=1)
     left = (band & (dx < -eps)).any(axis=1)
     right = (band & (dx > eps)).any(axis=1)
-    return on | (left & right)
+    overlapped: np.ndarray = on | (left & right)
+    return overlapped
 
 
 def overlapped(points_a: np.ndarray, points_b: np.ndarray, eps: float = 0.5) -> np.ndarray:
@@ -200,7 +204,8 @@ def _bonus(
 
 
 def _within(views: np.ndarray, point: Vec3, radius: float) -> np.ndarray:
-    return np.linalg.norm(views - np.asarray(point, dtype=float), axis=1) <= radius
+    within: np.ndarray = np.linalg.norm(views - np.asarray(point, dtype=float), axis=1) <= radius
+    return within
 
 
 def assign_targets(
@@ -260,7 +265,7 @@ def assign_targets(
     while waiting.any() and free.any():
         u = _utilities(work[None, :], dist, d_tot, len(members) - 1, lam) * factor
         u = np.where(allowed & waiting[:, None] & free[None, :], u, -np.inf)
-        row, best = np.unravel_index(int(np.argmax(u)), u.shape)  # row-major: ties go to the lower id first
+        row, best = map(int, np.unravel_index(int(np.argmax(u)), u.shape))  # row-major: ties go to the lower id first
         if not np.isfinite(u[row, best]):
             break  # the members still waiting cannot reach anything left
         result[members[row]] = pool[best]

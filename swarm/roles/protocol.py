@@ -152,8 +152,9 @@ class ExplorationCore:
 
     # -- messages in ------------------------------------------------------------------------------------------
 
-    def on_report(self, now: float, sender: int, report: FrontierReport, leader: int | None) -> Effects:
-        """A member's report (`sender` from its key): kept for the leader's next decision; an arrival wakes it."""
+    def on_report(self, now: float, sender: int | None, report: FrontierReport, leader: int | None) -> Effects:
+        """A member's report (`sender` from its key, None if it names no drone): kept for the leader's next
+        decision; an arrival wakes it."""
         effects = Effects()
         if sender != report.id or report.id == self.id:
             return effects
@@ -161,7 +162,9 @@ class ExplorationCore:
         effects.wake = report.arrived and leader == self.id
         return effects
 
-    def on_assignment(self, now: float, sender: int, assignment: TargetAssignment, leader: int | None) -> Effects:
+    def on_assignment(
+        self, now: float, sender: int | None, assignment: TargetAssignment, leader: int | None
+    ) -> Effects:
         effects = Effects()
         if sender != assignment.leader or assignment.leader == self.id:
             return effects

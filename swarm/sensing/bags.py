@@ -38,7 +38,7 @@ class BagRecorder:
             raise SensorInputError(f"bag {path} already exists")
         path.parent.mkdir(parents=True, exist_ok=True)
         self.path = path
-        self._writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
+        self._writer: Writer | None = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
         self._writer.open()
         self._connections: dict[str, Any] = {}
         self._lock = threading.Lock()

@@ -4,6 +4,7 @@ drone saw. Topics are picked by type when the bag has one of each (`bag_streams`
 
 from __future__ import annotations
 
+import functools
 import threading
 import time
 from pathlib import Path
@@ -43,7 +44,7 @@ class BagReplaySource(StreamInbox):
             if self._stop.wait(max(0.0, due - time.monotonic())):
                 return
             if kind == "pose":
-                self.deliver(kind, msgtype, lambda r, m=msgtype: self.frames.on_pose(r, m), raw)
+                self.deliver(kind, msgtype, functools.partial(self.frames.on_pose, msgtype=msgtype), raw)
             else:
                 self.deliver(kind, msgtype, handlers[kind], raw)
         self.finished.set()

@@ -21,9 +21,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import open3d as o3d
 
 from swarm.config import CameraSettings, Vec3
+from swarm.patches.backend import tensor
 from swarm.sensing.frames import DepthFrame
 from swarm.sim.worlds import World
 
@@ -52,7 +52,7 @@ class DepthCamera:
         self.world = world
         self.settings = settings
         self.intrinsics = intrinsics(settings)
-        self._K = o3d.core.Tensor(self.intrinsics)
+        self._K = tensor(self.intrinsics)
         self._scene = world.scene  # build the BVH now, not on the first frame
         self._rng = np.random.default_rng(seed)
 
@@ -75,7 +75,7 @@ class DepthCamera:
         """(H, W) float32 z-depth in metres seen from T_world_cam; 0 where invalid."""
         s = self.settings
         T_cam_world = np.linalg.inv(np.asarray(T_world_cam, dtype=np.float64))
-        rays = self._scene.create_rays_pinhole(self._K, o3d.core.Tensor(T_cam_world), s.width, s.height)
+        rays = self._scene.create_rays_pinhole(self._K, tensor(T_cam_world), s.width, s.height)
         # Ray directions have camera-z == 1, so the hit parameter is the z-depth.
         z = self._scene.cast_rays(rays)["t_hit"].numpy()
         z[~np.isfinite(z)] = 0.0

@@ -153,9 +153,9 @@ class CameraDriver:
             seen = (drones >= s.min_range_m) & (drones <= s.max_range_m) & ((depth <= 0) | (drones < depth))
             depth[seen] = drones[seen]
         self.render_s += time.perf_counter() - started
-        s = self.streams[vehicle_id]
-        publisher.put(s.info_topic, m.camera_info_message(pose.t, self.intrinsics))
-        publisher.put(s.depth_topic, m.image_message(pose.t, depth))
+        stream = self.streams[vehicle_id]
+        publisher.put(stream.info_topic, m.camera_info_message(pose.t, self.intrinsics))
+        publisher.put(stream.depth_topic, m.image_message(pose.t, depth))
         self.published[vehicle_id] += 1
 
 

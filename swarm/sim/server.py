@@ -16,6 +16,7 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -209,7 +210,7 @@ class SimServer:
                 last = now
                 with self._lock:
                     for key, _ in ready:
-                        _drain(key.fileobj, key.data, now)
+                        _drain(cast(socket.socket, key.fileobj), key.data, now)
                     if now >= next_step:
                         lag = int((now - next_step) / dt)
                         if lag > MAX_CATCHUP_STEPS:

@@ -17,6 +17,7 @@ import math
 import socket
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
@@ -513,7 +514,8 @@ class SimVehicle:
         component = getattr(msg, "target_component", 0)
         return target in (0, self.id) and component in (0, COMPONENT_ID)
 
-    _handlers: dict[str, Callable[[SimVehicle, mavlink.MAVLink_message], None]] = {
+    # Keyed by message type, each handler takes that type's MAVLink_message subclass (hence Any).
+    _handlers: dict[str, Callable[[SimVehicle, Any], None]] = {
         "COMMAND_LONG": _on_command_long,
         "COMMAND_INT": _on_command_int,
         "SET_POSITION_TARGET_LOCAL_NED": _on_local_setpoint,

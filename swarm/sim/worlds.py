@@ -21,6 +21,7 @@ import open3d as o3d
 
 from swarm.config import Box, MissionSettings, Vec3
 from swarm.errors import WorldError
+from swarm.patches.backend import tensor
 from swarm.sim import buildings, layouts
 
 MESH_EXTENSIONS = (".ply", ".obj", ".stl")
@@ -48,9 +49,7 @@ class World:
         """The Open3D ray-casting scene of the mesh (built once), also for sensors that cast rays."""
         if self._scene is None:
             scene = o3d.t.geometry.RaycastingScene()
-            scene.add_triangles(
-                o3d.core.Tensor(self.vertices.astype(np.float32)), o3d.core.Tensor(self.triangles.astype(np.uint32))
-            )
+            scene.add_triangles(tensor(self.vertices.astype(np.float32)), tensor(self.triangles.astype(np.uint32)))
             self._scene = scene
         return self._scene
 
@@ -134,7 +133,7 @@ class World:
             o3d.utility.Vector3dVector(self.vertices), o3d.utility.Vector3iVector(self.triangles)
         )
         mesh.compute_triangle_normals()  # STL stores them
-        if not o3d.io.write_triangle_mesh(str(path), mesh):
+        if not o3d.io.write_triangle_mesh(path, mesh):
             raise WorldError(f"cannot write world mesh to {path}")
 
 
@@ -143,7 +142,7 @@ def _as_points(points: np.ndarray) -> np.ndarray:
 
 
 def _tensor(a: np.ndarray) -> o3d.core.Tensor:
-    return o3d.core.Tensor(np.ascontiguousarray(a, dtype=np.float32))
+    return tensor(np.ascontiguousarray(a, dtype=np.float32))
 
 
 def _threads(points: np.ndarray) -> int:
@@ -218,7 +217,7 @@ def load_world(spec: str) -> World:
     if path.suffix.lower() == ".ply" and head != b"ply":
         raise WorldError(f"world file {path} is not a PLY file")  # checked here: the PLY reader prints to stderr
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
-        mesh = o3d.io.read_triangle_mesh(str(path))
+        mesh = o3d.io.read_triangle_mesh(path)
     mesh.remove_duplicated_vertices()  # STL stores three vertices per triangle
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     triangles = np.asarray(mesh.triangles, dtype=np.int32)
