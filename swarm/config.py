@@ -434,7 +434,7 @@ class MappingSettings(_Section):
 
 class SyncSettings(_Section):
     """Map sharing between agents (`swarm.sync`): push on seal in chunks, digests in heartbeats, pull from the
-    nearest holder. Defaults follow Hardouin's proposal (research notes 2.3.9), shortened for indoor speeds."""
+    nearest holder. Defaults follow Hardouin's proposal (PhD thesis, UPJV, 2022), shortened for indoor speeds."""
 
     chunk_bytes: int = Field(
         8192, ge=512, le=1 << 20, description="patches travel in chunks of at most this many payload bytes"
@@ -486,7 +486,7 @@ Strategy = Literal["coordinated", "uncoordinated", "frontier-only", "scripted"]
 class ExploreSettings(_Section):
     """Autonomous exploration (`swarm.explore`, `swarm.roles`): frontiers, goal assignment, planning.
 
-    Mahdoui's rules (research notes 2.3-2.8) adapted to 3D and to drones ten times faster than the thesis's:
+    Mahdoui's rules (PhD thesis, UTC Compiègne, 2018) adapted to 3D and to drones ten times faster than the thesis's:
     the loop period r and the explorer timeout tau are scaled from the cruise speed and the camera range."""
 
     strategy: Strategy = Field(

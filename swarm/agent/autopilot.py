@@ -1,7 +1,7 @@
 """One drone's autopilot, reached through the MAVSDK 4 asyncio API.
 
-Works the same against the project's simulated vehicles and a real PX4. Three rules from the MAVSDK probe
-(research/mavsdk-4-and-simulated-vehicle.md) shape this module:
+Works the same against the project's simulated vehicles and a real PX4. Three rules, found by probing MAVSDK 4
+against the simulated vehicle, shape this module:
 
 - every plugin call runs in the default executor and may block for seconds in C, so calls are never cancelled:
   `_call` waits with a timeout and, if the call is still running, keeps its task and raises; `close()` waits for

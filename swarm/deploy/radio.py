@@ -6,7 +6,7 @@ The radio is therefore found by the address the compose file gave it (`ip -j add
 is impaired, on egress: a packet between two agents crosses exactly one impaired interface, the sender's, so
 `loss` is the loss of every link in each direction, as `LinkProfile.loss` is in the netns swarm.
 
-What is applied (the netns swarm's lessons, research/zenoh-netns-link-loss.md, section 2):
+What is applied (what the netns swarm measured, `swarm.netem.topology`):
 - GSO off (`gso_max_segs 1 gso_max_size 1500`): with a veth's default offloads TCP leaves as ~47 kB
   super-packets, and one lost "packet" would be 30 segments.
 - netem on IPv4 only, under a `prio` root with a u32 filter: ARP is not impaired. The netns swarm makes ARP

@@ -1,8 +1,9 @@
 """Frontiers for 3D exploration: where known free space meets unknown space, and where to look at it from.
 
-After Mahdoui's frontier rules (research notes 2.2-2.4), adapted to a 3D grid and to drones that plan through
-known free space only. The input is the coarse state grid of the fused map (`FusedMap.occupancy_grid`):
-UNKNOWN, FREE or OCCUPIED per cell, cell (i, j, k) spanning `origin + [i, i+1) x [j, j+1) x [k, k+1) * res`.
+After Mahdoui's frontier rules (Mahdoui 2018, docs/architecture.md "References"), adapted to a 3D grid and to drones
+that plan through known free space only. The input is the coarse state grid of the fused map
+(`FusedMap.occupancy_grid`): UNKNOWN, FREE or OCCUPIED per cell, cell (i, j, k) spanning
+`origin + [i, i+1) x [j, j+1) x [k, k+1) * res`.
 
 - safe cell: a cell where the drone's reported position may be. It and the
   ceil((body_height_m - clearance_m) / res) cells above it (the airframe stands above its position) are known

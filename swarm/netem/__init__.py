@@ -10,7 +10,7 @@ node or on every link: the ground on which link-loss experiments run.
         print(net.rules())
         net.restore_all()
 
-How (measured in research/zenoh-netns-link-loss.md; this kernel has no sch_netem, so no `tc netem`):
+How (each choice measured; this kernel has no sch_netem, so no `tc netem`):
 - topology.py: one network namespace per node (eth0 = its radio, 10.<x>.<y>.<10+k>/24) joined by veths to a
   bridge in a hub namespace. GSO is off on eth0, or loss would hit 64 kB super-packets; ARP entries are static,
   or lost ARP would add bursty extra loss. A process runs on node k's radio via `net.exec_argv(k, argv)`; the

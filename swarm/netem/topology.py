@@ -22,7 +22,7 @@ Names and addresses:
   is their normal state); only `swarm netem down` (or `SwarmNetwork.down()` on an attached instance) removes
   them. `kept_namespaces()` lists them by tag, which is how `swarm netem down --all` finds orphans.
 
-Traps (measured in research/zenoh-netns-link-loss.md, section 2):
+Traps (each one measured on this ground):
 - GSO is turned off on each node's eth0 (`gso_max_segs 1 gso_max_size 1500`); with veth's default offloads a
   TCP flow reaches nftables as ~47 kB super-packets, and one "lost packet" would be 30 segments.
 - Neighbour (ARP) entries are static: each node knows every other node's MAC (`02:<tag>:00:00:<k>`) permanently.

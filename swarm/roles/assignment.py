@@ -1,4 +1,5 @@
-"""The cluster leader's frontier processing and goal assignment (Mahdoui 2018; research notes 2.4-2.7).
+"""The cluster leader's frontier processing and goal assignment (A. Mahdoui, "Communicating multi-UAV
+system for cooperative SLAM-based exploration", PhD thesis, UTC Compiègne, 2018).
 
 Pure functions over `Candidate`s, so the agent, the harness and the tests share one implementation and the
 leader's decision can be replayed from what it received. Each loop the leader turns every member's reported
@@ -10,7 +11,7 @@ what to do then is the caller's business.
 
 Deviations from the thesis, all from working in 3D with viewpoints: distances are Euclidean in 3D, to the
 viewpoint a drone flies to; scheduling is isotropic in 3D and applies to every remaining candidate (r_min = 0,
-r_max = inf, notes section 6 #24); the scan-line overlap test uses a (y, z) band instead of a y row.
+r_max = inf); the scan-line overlap test uses a (y, z) band instead of a y row.
 """
 
 from __future__ import annotations
@@ -156,12 +157,12 @@ def _overlapped_block(a: np.ndarray, b: np.ndarray, eps: float) -> np.ndarray:
 
 
 def overlapped(points_a: np.ndarray, points_b: np.ndarray, eps: float = 0.5) -> np.ndarray:
-    """Frontier-only strategy (no shared maps): bool mask of a's points that lie inside or on the boundary of
-    b's known region, which b's frontier points outline. Mahdoui's concave scan-line test (Alg. 3.4, with the
-    notes' fixes) in 3D: among b's points within eps of p in y and z (strictly, as the thesis's row band), p is
-    overlapped when one is within eps in x too (on the outline), or when some lie more than eps to p's left in x
-    and some more than eps to its right (inside it). Assumes no obstacles inside b's region (notes section 6 #18).
-    Note the first branch also removes a frontier point that a and b share (notes section 6 #17)."""
+    """Frontier-only strategy (no shared maps): bool mask of a's points that lie inside or on the boundary of b's known
+    region, which b's frontier points outline. Mahdoui's concave scan-line test (Alg. 3.4, with the fixes its
+    pseudo-code needs) in 3D: among b's points within eps of p in y and z (strictly, as the thesis's row band), p is
+    overlapped when one is within eps in x too (on the outline), or when some lie more than eps to p's left in x and
+    some more than eps to its right (inside it). Assumes no obstacles inside b's region. Note the first branch also
+    removes a frontier point that a and b share."""
     a, b = _array(points_a), _array(points_b)
     out = np.zeros(len(a), dtype=bool)
     if len(b) == 0:
@@ -173,7 +174,7 @@ def overlapped(points_a: np.ndarray, points_b: np.ndarray, eps: float = 0.5) -> 
 
 def remove_overlapped(sets: Mapping[int, Sequence[Candidate]], eps: float = 0.5) -> list[Candidate]:
     """Alg. 3.2 for n_c >= 2 without maps: the union of all sets minus, for each ordered pair (a, b), a != b,
-    a's candidates whose frontier points b's frontier points overlap (the union over pairs is the notes' reading
+    a's candidates whose frontier points b's frontier points overlap (the union over pairs is our reading
     of the thesis's intersection for more than two drones). Sorted as `merge_candidates`."""
     points = {k: _array([c.point for c in cands]) for k, cands in sets.items()}
     kept: list[Candidate] = []

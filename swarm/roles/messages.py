@@ -1,6 +1,6 @@
 """The exploration messages: explorers report frontier candidates to their leader, the leader assigns targets.
 
-Mahdoui's stage 2 and stage 3 (research notes 1.5). Both are reliable (drop when congested) and sent once per
+Mahdoui's stage 2 and stage 3 (`swarm.roles.assignment`). Both are reliable (drop when congested) and sent once per
 loop; a lost one is replaced by the next loop's. Everything is validated as hostile input: arrays have fixed
 shapes, finite values and bounded lengths, and an assignment names each drone at most once.
 """

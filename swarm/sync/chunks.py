@@ -1,6 +1,6 @@
 """Patches in chunks: splitting a patch's wire bytes into small messages, and putting them back together.
 
-Measured here (research notes on Zenoh under loss): a 200 kB reliable message stalls a TCP link at 30 % loss and
+Measured with Zenoh 1.10 under nftables loss: a 200 kB reliable message stalls a TCP link at 30 % loss and
 never arrives over UDP, so a patch (50-80 kB at 0.1 m) never travels as one message. Every push and every pull
 reply is a stream of `PatchChunk`s of at most `chunk_bytes` payload each. A chunk names its patch, its index and
 the patch's total size and CRC-32, so the `Reassembler` can mix chunks of the same patch from different senders
