@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from swarm.agent.autopilot import Autopilot
-from swarm.agent.flight import Flight, carried_lead, distance_to_segment
+from swarm.agent.flight import Flight, distance_to_segment
 from swarm.config import gcs_port
 from swarm.sim.worlds import load_world
 from tests.sim.support import free_port_block, running_sim, sim_config
@@ -114,13 +114,3 @@ def test_a_new_path_straight_on_does_not_brake_the_drone() -> None:
     assert speeds[0] > 0.6 * cruise  # it was flying
     # with the new carrot at the drone, the drone braked to 0.34 m/s before going on
     assert min(speeds) > 0.6 * cruise
-
-
-def test_a_new_carrot_keeps_the_old_ones_lead_in_the_new_direction() -> None:
-    here = (0.0, 0.0, 1.5)
-    assert carried_lead(here, None, (5.0, 0.0, 1.5)) == 0.0
-    assert carried_lead(here, (0.8, 0.0, 1.5), (5.0, 0.0, 1.5)) == pytest.approx(0.8)  # straight on
-    assert carried_lead(here, (0.8, 0.0, 1.5), (5.0, 5.0, 1.5)) == pytest.approx(0.8 / np.sqrt(2))  # 45 degrees
-    assert carried_lead(here, (0.8, 0.0, 1.5), (-5.0, 0.0, 1.5)) == 0.0  # a U-turn starts at the drone
-    assert carried_lead(here, (0.8, 0.0, 1.5), (0.3, 0.0, 1.5)) == pytest.approx(0.3)  # within the segment
-    assert carried_lead(here, (2.0, 0.0, 1.5), (5.0, 0.0, 1.5)) == pytest.approx(1.0)  # within the look-ahead

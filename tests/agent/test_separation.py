@@ -16,77 +16,17 @@ import numpy as np
 import pytest
 
 from swarm.agent.autopilot import Autopilot
-from swarm.agent.flight import (
-    REFUGE_CLEAR_M,
-    STEP_ASIDE_M,
-    Flight,
-    Neighbour,
-    choose_refuge,
-    distance_to_segment,
-    distance_to_track,
-    moves_clear_of,
-    off_the_others_ways,
-    refuge_candidates,
-    resume_from,
-)
+from swarm.agent.flight import STEP_ASIDE_M, Flight, Neighbour
 from swarm.bus.phase import Phase
 from swarm.config import Vec3, gcs_port
 from swarm.sim.worlds import load_world
+from tests.agent.mesh_clearance import clear_in
 from tests.sim.support import free_port_block, running_sim, sim_config
 
 pytestmark = pytest.mark.timeout(150)
 
 WEST, EAST = (1.0, 2.0, 0.0), (3.6, 2.0, 0.0)  # the box's open strip south of its wall stub
 ALTITUDE = 1.5
-
-
-def test_refuge_candidates_step_up_down_away_and_to_either_side_of_the_way() -> None:
-    here = np.array([2.0, 2.0, 1.5])
-    s = STEP_ASIDE_M
-    peer = Neighbour(1, (1.0, 2.0, 1.5), (1.0, 0.0, 0.0))  # coming at us along +x
-    offsets = [tuple(np.round(c - here, 6)) for c in refuge_candidates(here, peer)]
-    near = [(0.0, 0.0, s), (0.0, 0.0, -s), (s, 0.0, 0.0), (0.0, s, 0.0), (0.0, -s, 0.0)]
-    assert offsets == near + [tuple(2 * v for v in o) for o in near]
-    below = Neighbour(1, (2.0, 2.0, 2.0), (0.0, 0.0, 0.0))  # above us: we step down first
-    assert tuple(np.round(refuge_candidates(here, below)[0] - here, 6)) == (0.0, 0.0, -s)
-    # a peer holding still on its way to a point beyond us: the sides of that segment, not of its velocity
-    holding = Neighbour(1, (2.0, 1.0, 1.5), (0.0, 0.0, 0.0), heading_to=(2.0, 4.0, 1.5))
-    sides = [tuple(np.round(c - here, 6)) for c in refuge_candidates(here, holding)][3:5]
-    assert sorted(sides) == sorted([(s, 0.0, 0.0), (-s, 0.0, 0.0)])
-
-
-def test_the_refuge_is_the_nearest_step_well_off_the_other_drones_way() -> None:
-    here = np.array([2.0, 2.0, 1.5])
-    s = STEP_ASIDE_M
-    # A peer holding still, heading for a point just past us: stepping up by s is only s off its segment, enough
-    # (>= REFUGE_CLEAR_M) when s is; a side step is as good, and up comes first.
-    holding = Neighbour(1, (2.0, 1.0, 1.5), (0.0, 0.0, 0.0), heading_to=(2.0, 3.0, 1.5))
-    refuge = choose_refuge(refuge_candidates(here, holding), holding)
-    assert distance_to_track(refuge, holding) >= REFUGE_CLEAR_M
-    assert np.linalg.norm(refuge - here) == pytest.approx(s if s >= REFUGE_CLEAR_M else 2 * s)
-    # With only candidates on its way (the map forbids the others), the one farthest off it.
-    on_the_way = [here + [0.0, s, 0.0], here + [0.0, 0.0, 0.3]]
-    assert np.allclose(choose_refuge(on_the_way, holding), here + [0.0, 0.0, 0.3])
-    # A peer hovering with nowhere to go: the first candidate (vertical), whatever the distances.
-    hovering = Neighbour(1, (1.0, 2.0, 1.5), (0.0, 0.0, 0.0))
-    assert np.allclose(choose_refuge(refuge_candidates(here, hovering), hovering), here + [0.0, 0.0, s])
-
-
-def test_distance_to_segment_is_the_distance_to_its_nearest_point() -> None:
-    a, b = np.array([0.0, 0.0, 0.0]), np.array([2.0, 0.0, 0.0])
-    assert distance_to_segment(np.array([1.0, 0.5, 0.0]), a, b) == pytest.approx(0.5)
-    assert distance_to_segment(np.array([3.0, 0.0, 0.0]), a, b) == pytest.approx(1.0)
-    assert distance_to_segment(np.array([0.0, 0.0, 1.0]), a, a) == pytest.approx(1.0)  # a point segment
-
-
-def test_distance_to_track_is_measured_to_the_covered_segment() -> None:
-    peer = Neighbour(1, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0))  # covers x 0..3 m in the 3 s horizon
-    assert distance_to_track(np.array([1.5, 2.0, 0.0]), peer) == pytest.approx(2.0)
-    assert distance_to_track(np.array([-1.0, 0.0, 0.0]), peer) == pytest.approx(1.0)  # behind it
-    assert distance_to_track(np.array([5.0, 0.0, 0.0]), peer) == pytest.approx(2.0)  # beyond the horizon
-    # with a segment to fly, that segment, whatever the velocity
-    flying = Neighbour(1, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0), heading_to=(0.0, 5.0, 0.0))
-    assert distance_to_track(np.array([1.0, 4.0, 0.0]), flying) == pytest.approx(1.0)
 
 
 @pytest.mark.sim
@@ -113,19 +53,6 @@ def test_a_silent_drone_is_an_obstacle_held_for_only_when_our_segment_would_touc
     flying = [n._replace(silent=False, heading_to=(2.0, 3.0, 1.5)) for n in silent]
     flight.neighbours = lambda: flying
     assert flight._rival(here, here) == flying[0]  # the same drone alive and on its way, a lower id: give way
-
-
-def clear_in(world):
-    """`Flight.is_clear` from the world mesh: every point of a-b (every 5 cm) at least 0.6 m up and its airframe
-    0.5 m from every surface."""
-
-    def is_clear(a, b) -> bool:
-        a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
-        t = np.linspace(0.0, 1.0, max(2, int(np.linalg.norm(b - a) / 0.05) + 1))[:, None]
-        points = a + t * (b - a)
-        return bool((points[:, 2] >= 0.6).all() and (world.distance(points + [0.0, 0.0, 0.22]) > 0.5).all())
-
-    return is_clear
 
 
 async def _encounter(separation_m: float, hover_in_the_way: bool = False) -> tuple[dict, list[Flight], list[bool]]:
@@ -268,29 +195,6 @@ def test_a_drone_coming_down_onto_one_on_the_ground_lands_beside_it() -> None:
     assert math.hypot(x - 2.3, y - 2.0) > 0.8
 
 
-def test_after_stepping_aside_a_drone_rejoins_its_segment_unless_the_way_on_is_clear() -> None:
-    # box world: a wall stub at x = 4 from y = 3 to the north wall; the segment passes 0.7 m south of its end
-    is_clear = clear_in(load_world("box"))
-    left_at, target = (3.0, 2.3, 1.2), (5.0, 2.3, 1.2)
-    assert is_clear(left_at, target)
-    north, south = (3.3, 3.2, 1.2), (3.0, 1.6, 1.2)  # refuges beside the stub's end, and away from it
-    assert is_clear(left_at, north) and not is_clear(north, target)  # straight on would clip the stub's end
-    assert resume_from(north, left_at, target, is_clear) == left_at
-    assert resume_from(south, left_at, target, is_clear) == south
-
-
-def test_a_refuge_in_a_third_drones_way_is_not_taken() -> None:
-    # drone 3 in a doorway gives way to drone 2 behind it; drone 1 flies west along the corridor in front of it
-    here = np.array([21.1, 9.3, 1.5])
-    behind = Neighbour(2, (21.1, 8.2, 1.3), (0.0, 0.8, 0.0), heading_to=(21.1, 11.0, 1.3))
-    corridor = Neighbour(1, (23.0, 9.6, 1.5), (-1.2, 0.0, 0.0), heading_to=(15.0, 9.6, 1.5))
-    candidates = refuge_candidates(here, behind)
-    kept = off_the_others_ways(candidates, [corridor])
-    assert kept and len(kept) < len(candidates)
-    assert all(distance_to_track(c, corridor) >= REFUGE_CLEAR_M for c in kept)
-    assert off_the_others_ways(candidates, []) == candidates
-
-
 @pytest.mark.sim
 def test_the_drone_with_the_right_of_way_holds_for_one_about_to_cross_its_way() -> None:
     # drone 1 flies west along a corridor; drone 3 comes out of a doorway 0.8 m ahead, still 0.7 m off its line
@@ -308,17 +212,6 @@ def test_the_drone_with_the_right_of_way_holds_for_one_about_to_cross_its_way() 
     assert flight._rival(here, target) is None  # 0.7 m off our line and staying there: carry on
     flight.neighbours = lambda: [leaving_the_door]
     assert flight._rival(here, target) == leaving_the_door  # it will be on our line in half a second: hold
-
-
-def test_a_refuge_is_not_reached_through_a_drone() -> None:
-    # drone 2 hovers 0.8 m above drone 1's way; the step down would pass through drone 1
-    here = np.array([26.3, 10.9, 2.1])
-    below = Neighbour(1, (26.2, 10.9, 1.3), (0.0, 0.5, 0.0), heading_to=(26.2, 12.5, 1.3))
-    candidates = refuge_candidates(here, below)
-    kept = moves_clear_of(here, candidates, [below])
-    assert all(c[2] > 1.3 for c in kept)  # nothing down through it
-    assert any(c[2] < 1.3 for c in candidates)
-    assert len(moves_clear_of(here, candidates, [])) == len(candidates)
 
 
 async def _step_up_and_rejoin() -> tuple[Vec3, list[Vec3], list[Vec3]]:
