@@ -10,10 +10,9 @@ problem, instead of the reader quietly using a default.
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import TypeVar
 
 from pydantic import BaseModel, ConfigDict, ValidationError
 
@@ -38,10 +37,6 @@ def write_atomic(path: Path, data: bytes) -> None:
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")  # hidden: globs like *.patch never see it
     tmp.write_bytes(data)
     os.replace(tmp, path)
-
-
-def write_json_atomic(path: Path, value: Any, indent: int | None = None) -> None:
-    write_atomic(path, json.dumps(value, indent=indent).encode())
 
 
 def write_model(path: Path, model: FileModel, indent: int | None = 2) -> None:
