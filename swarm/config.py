@@ -285,6 +285,13 @@ class BusSettings(_Section):
     multicast_scouting: bool = False
     lease_ms: int = Field(1000, ge=200, le=60000, description="lost-peer detection time")
     keep_alive: int = Field(4, ge=1, le=20)
+    data_queue_batches: int = Field(
+        16,
+        ge=1,
+        le=16,
+        description="Zenoh's transmit queue for data (patch chunks, pull replies), in 64 kB batches per link: a "
+        "burst beyond it is dropped after 1 ms (Zenoh's default, 2, dropped a healed partition's pull replies)",
+    )
     shared_memory: bool = False
     base_port: int = Field(DEFAULT_BUS_BASE_PORT, ge=1024, le=65000, description="loopback ports for swarm run")
     tls_dir: Path | None = Field(

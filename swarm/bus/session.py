@@ -7,6 +7,10 @@ Choices (each measured with Zenoh 1.10 on loopback and in network namespaces, on
   it must be inserted as a whole object ("connect/retry/period_init_ms" is an unknown key).
 - router mode (multi-hop relaying) also autoconnects to routers found by scouting, which Zenoh does not do
   by default.
+- the data priority's transmit queue holds 16 batches (1 MB per link), not Zenoh's 2: a pull reply is a burst
+  of chunks written at once (4 requests of 4 patches: about 800 kB after a partition heals), and with
+  CongestionControl.DROP whatever does not fit waits 1 ms and is dropped. Heartbeats (data_high) have their
+  own queue, so a deep data queue does not delay them. Allocation is lazy: the memory is used only in bursts.
 - shared memory is off unless enabled: all network namespaces share /dev/shm, and large payloads would
   bypass an emulated radio link.
 - with both TCP and UDP endpoints, two links per peer are allowed (`transport/unicast/max_links=2`):
@@ -64,6 +68,7 @@ def _settings(bus: BusSettings) -> dict[str, Any]:
         "transport/shared_memory/enabled": bus.shared_memory,
         "transport/link/tx/lease": bus.lease_ms,
         "transport/link/tx/keep_alive": bus.keep_alive,
+        "transport/link/tx/queue/size/data": bus.data_queue_batches,
     }
     if bus.listen:
         settings["listen/endpoints"] = bus.listen

@@ -129,7 +129,9 @@ def test_a_cut_splits_the_swarm_into_two_clusters_and_the_heal_merges_them_and_t
     [heal] = report["convergence_after_heal_s"]
     assert heal["heal_t"] == pytest.approx(heal_t, abs=0.6)
     assert heal["members"] == [1, 2, 3] and heal["patches"] > 0
-    assert heal["s"] is not None and heal["s"] < 10.0, heal
+    # about 3 s: the links come back (lease and connect retry) and the pull replies arrive whole; before the data
+    # queue held a pull's burst (BusSettings.data_queue_batches), dropped replies made this 6-15 s
+    assert heal["s"] is not None and heal["s"] < 6.0, heal
     assert report["converged"]
     # Zenoh logs a routing error when it re-establishes a healed link inconsistently (see RADIO_PROTOCOLS).
     zenoh_errors = [
