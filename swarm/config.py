@@ -358,6 +358,13 @@ class SensorStreamSettings(_Section):
         le=1.0,
         description="an image this much newer than the newest pose takes that pose; newer ones wait for the next",
     )
+    max_pose_wait_s: float = Field(
+        1.0,
+        gt=0.0,
+        le=10.0,
+        description="an image waits for the pose after its stamp until an image this much newer arrives, then is "
+        "dropped ('no pose in time')",
+    )
 
     def under_vehicle(self, vehicle_id: int) -> SensorStreamSettings:
         """These settings with every topic under /drone<k>: the simulator's layout, one camera and one odometry

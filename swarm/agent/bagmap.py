@@ -86,7 +86,9 @@ def _map_one(
 ) -> dict[str, Any]:
     stream = config.camera.stream
     frames = FrameAssembler(
-        camera_mount(config.camera), PoseBuffer(max_gap_s=stream.max_gap_s, max_hold_s=stream.max_hold_s)
+        camera_mount(config.camera),
+        PoseBuffer(max_gap_s=stream.max_gap_s, max_hold_s=stream.max_hold_s),
+        max_wait_s=stream.max_pose_wait_s,
     )
     mapper = Mapper(config.mapping, producer, 1, bounds, known_weight=config.mapping.known_weight)
     messages, sealed = 0, []

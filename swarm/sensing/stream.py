@@ -2,10 +2,12 @@
 
 `FrameAssembler` is sans-I/O (as `PullScheduler` is for patch sync): whatever carries the messages (rclpy, a
 Zenoh subscription, a bag) hands it their CDR bytes or decoded messages, and it hands back `DepthFrame`s with the
-camera pose at each image's stamp. An image that arrives before the pose sample after its stamp waits (at most
-`max_pending` images) for it. Every message it cannot use is counted under its reason (`dropped`) and never
-reaches the map: a malformed message, an image before any camera info, an image whose size differs from the
-camera info's, a stamp with no pose (stale, too new, across a gap).
+camera pose at each image's stamp. An image that arrives before the pose sample after its stamp waits for it,
+while the images behind it span at most `max_wait_s` of stamps (a time, so the same at any camera rate; a stalled
+pose stream holds at most that much of the camera's stream) and at most `max_pending` images (memory). Every
+message it cannot use is counted under its reason (`dropped`) and never reaches the map: a malformed message, an
+image before any camera info, an image whose size differs from the camera info's, a stamp with no pose (stale,
+too new, across a gap, or none in time).
 """
 
 from __future__ import annotations
@@ -39,9 +41,14 @@ from swarm.sensing.poses import Miss, PoseBuffer
 
 
 class FrameAssembler:
-    def __init__(self, mount: np.ndarray, poses: PoseBuffer | None = None, max_pending: int = 4) -> None:
+    def __init__(
+        self, mount: np.ndarray, poses: PoseBuffer | None = None, max_wait_s: float = 1.0, max_pending: int = 64
+    ) -> None:
+        if not (max_wait_s > 0 and max_pending >= 1):
+            raise ValueError(f"bad frame assembler: max_wait_s {max_wait_s}, max_pending {max_pending}")
         self.mount = np.asarray(mount, dtype=np.float64)
         self.poses = poses if poses is not None else PoseBuffer()  # an empty buffer is falsy
+        self.max_wait_s = max_wait_s
         self.max_pending = max_pending
         self.intrinsics: Intrinsics | None = None
         self._K: np.ndarray | None = None
@@ -85,7 +92,7 @@ class FrameAssembler:
             self.dropped["image size differs from camera info"] += 1
             return
         self._pending.append((stamp, depth))
-        while len(self._pending) > self.max_pending:
+        while len(self._pending) > self.max_pending or stamp - self._pending[0][0] > self.max_wait_s:
             self._pending.popleft()
             self.dropped["no pose in time"] += 1
         self._resolve()
@@ -125,7 +132,11 @@ class StreamInbox:
         self.settings = settings
         self.record = record
         self.recorder: BagRecorder | None = None
-        self.frames = FrameAssembler(mount, PoseBuffer(max_gap_s=settings.max_gap_s, max_hold_s=settings.max_hold_s))
+        self.frames = FrameAssembler(
+            mount,
+            PoseBuffer(max_gap_s=settings.max_gap_s, max_hold_s=settings.max_hold_s),
+            max_wait_s=settings.max_pose_wait_s,
+        )
         self._lock = threading.Lock()
         self._new = threading.Condition(self._lock)
         self._latest: DepthFrame | None = None

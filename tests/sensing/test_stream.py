@@ -39,7 +39,7 @@ def test_an_image_waits_for_the_pose_after_its_stamp_and_gets_the_interpolated_p
 
 
 def test_unusable_input_is_counted_by_reason_and_never_becomes_a_frame() -> None:
-    frames = FrameAssembler(np.eye(4), PoseBuffer(max_gap_s=0.2, max_hold_s=0.0), max_pending=2)
+    frames = FrameAssembler(np.eye(4), PoseBuffer(max_gap_s=0.2, max_hold_s=0.0), max_wait_s=0.15)
     frames.on_image(m.image_message(1.0, DEPTH))  # no camera info yet
     frames.on_camera_info(b"\x00\x01\x00\x00junk")
     frames.on_camera_info(m.camera_info_message(0.0, m.Intrinsics(16, 12, K)))
@@ -51,7 +51,7 @@ def test_unusable_input_is_counted_by_reason_and_never_becomes_a_frame() -> None
     frames.on_image(m.image_message(1.0, DEPTH))  # before the first pose: the stream was starting
     frames.on_pose(_pose(3.0, 0.0))
     frames.on_image(m.image_message(2.5, DEPTH))  # between poses 1 s apart
-    for t in (4.0, 4.1, 4.2):  # no pose comes: the oldest waiting image is let go
+    for t in (4.0, 4.1, 4.2):  # no pose comes: the image waiting more than 0.15 s of stamps is let go
         frames.on_image(m.image_message(t, DEPTH))
     assert frames.take() == []
     assert dict(frames.dropped) == {
@@ -68,3 +68,26 @@ def test_unusable_input_is_counted_by_reason_and_never_becomes_a_frame() -> None
     frames.on_pose(_pose(4.05, 0.0))
     frames.on_pose(_pose(4.15, 0.0))
     assert [f.t for f in frames.take()] == pytest.approx([4.1])  # 4.2 still waits for a later pose
+
+
+def test_an_image_waits_for_its_pose_a_time_not_a_count_of_images() -> None:
+    """At 30 Hz as at 10 Hz, an image waits for the pose after its stamp while the stream behind it spans at most
+    max_wait_s; max_pending bounds the memory of a faster stream."""
+    for rate_hz in (10.0, 30.0):
+        frames = FrameAssembler(np.eye(4), PoseBuffer(max_gap_s=2.0, max_hold_s=0.0), max_wait_s=0.5)
+        frames.on_camera_info(m.camera_info_message(0.0, m.Intrinsics(16, 12, K)))
+        frames.on_pose(_pose(0.0, 0.0))
+        stamps = [0.01 + i / rate_hz for i in range(int(0.5 * rate_hz))]
+        for t in stamps:
+            frames.on_image(m.image_message(t, DEPTH))
+        assert dict(frames.dropped) == {}, rate_hz  # all waiting: the stamps span less than 0.5 s
+        frames.on_image(m.image_message(stamps[0] + 0.5 + 0.5 / rate_hz, DEPTH))  # the first waited too long
+        assert dict(frames.dropped) == {"no pose in time": 1}, rate_hz
+        frames.on_pose(_pose(2.0, 1.0))
+        assert len(frames.take()) == len(stamps)
+    frames = FrameAssembler(np.eye(4), PoseBuffer(), max_wait_s=10.0, max_pending=3)
+    frames.on_camera_info(m.camera_info_message(0.0, m.Intrinsics(16, 12, K)))
+    frames.on_pose(_pose(0.0, 0.0))
+    for t in (0.1, 0.2, 0.3, 0.4):
+        frames.on_image(m.image_message(t, DEPTH))
+    assert dict(frames.dropped) == {"no pose in time": 1}
