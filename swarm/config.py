@@ -20,7 +20,7 @@ from typing import Annotated, Any, Literal, SupportsFloat
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from swarm.errors import SwarmError
+from swarm.errors import SwarmError, validation_problem
 
 # The one 3-vector type of every package: a point or vector, in the world frame (x east, y north, z up) unless named
 # otherwise, in metres, m/s or degrees as its field says.
@@ -626,18 +626,6 @@ class SwarmConfig(_Section):
         return self
 
 
-def _format_error(err: ValidationError) -> str:
-    first = err.errors()[0]
-    where = ".".join(str(p) for p in first["loc"]) or "config"
-    msg = first["msg"].removeprefix("Value error, ")
-    if first["type"] == "extra_forbidden":
-        msg = "unknown setting"
-    given = first.get("input")
-    if first["type"] != "missing" and not isinstance(given, dict) and given is not None:
-        return f"{where}: {msg} (got {given!r})"
-    return f"{where}: {msg}"
-
-
 def parse_override(text: str) -> tuple[str, Any]:
     """Parse one `section.field=value` override; the value is read as TOML, else taken as a string."""
     key, sep, raw = text.partition("=")
@@ -682,7 +670,7 @@ def load_config(path: Path | None = None, overrides: dict[str, Any] | None = Non
     try:
         return SwarmConfig.model_validate(tree)
     except ValidationError as exc:
-        raise ConfigError(_format_error(exc)) from None
+        raise ConfigError(validation_problem(exc, unknown="unknown setting", nowhere="config")) from None
 
 
 def dump_config(config: SwarmConfig) -> dict[str, Any]:

@@ -16,7 +16,7 @@ from typing import TypeVar
 
 from pydantic import BaseModel, ConfigDict, ValidationError
 
-from swarm.errors import SwarmError
+from swarm.errors import SwarmError, validation_problem
 
 
 class FileFormatError(SwarmError):
@@ -54,14 +54,4 @@ def read_model(path: Path, model: type[M]) -> M:
     try:
         return model.model_validate_json(data)
     except ValidationError as exc:
-        raise FileFormatError(f"{path}: not a valid {model.__name__}: {first_error(exc)}") from None
-
-
-def first_error(exc: ValidationError) -> str:
-    """The first problem pydantic found, as one line: where in the file, and what."""
-    err = exc.errors(include_url=False)[0]
-    where = ".".join(str(part) for part in err["loc"])
-    message = " ".join(str(err["msg"]).split())
-    if err["type"] == "json_invalid":
-        return f"not JSON ({message})"
-    return f"{where}: {message}" if where else message
+        raise FileFormatError(f"{path}: not a valid {model.__name__}: {validation_problem(exc)}") from None

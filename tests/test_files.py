@@ -27,7 +27,7 @@ def test_a_model_written_is_read_back_equal(tmp_path: Path) -> None:
     [
         ('{"names": []}', "count: Field required"),
         ('{"count": "three", "names": []}', "count: Input should be a valid integer"),
-        ('{"count": 1, "names": [], "extra": 0}', "extra: Extra inputs are not permitted"),
+        ('{"count": 1, "names": [], "extra": 0}', "extra: unknown field"),
         ('{"count": 1, "names": [', "not JSON"),
         ("", "not JSON"),
     ],

@@ -22,6 +22,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, ValidationError
 from pydantic_core import core_schema
 
+from swarm.errors import validation_problem
+
 SCHEMA_VERSION = 1
 DEFAULT_MAX_BYTES = 1 << 20
 # Bounds the element count of any msgpack array or map: the unpacker allocates for the count it reads before
@@ -220,8 +222,6 @@ def decode(data: bytes, model: type[T], max_bytes: int = DEFAULT_MAX_BYTES) -> T
     try:
         return model.model_validate(fields)
     except ValidationError as exc:
-        first = exc.errors(include_url=False, include_input=False)[0]
-        where = ".".join(str(p) for p in first["loc"])
-        raise DecodeError("invalid", f"{where}: {first['msg']}"[:200]) from None
+        raise DecodeError("invalid", validation_problem(exc, echo_input=False)[:200]) from None
     except Exception as exc:
         raise DecodeError("invalid", f"{type(exc).__name__}: {exc}"[:200]) from None

@@ -37,7 +37,7 @@ from pydantic import ValidationError
 
 from swarm.config import Box, ConfigError, SwarmConfig, dump_config, vehicle_port
 from swarm.deploy import yamltext
-from swarm.errors import SwarmError
+from swarm.errors import SwarmError, validation_problem
 from swarm.sim.worlds import is_mesh_file, load_world, mission_time_limit_s, mission_volume, spawn_points
 
 RADIO_SUBNET = ipaddress.ip_network("10.77.1.0/24")
@@ -239,9 +239,7 @@ def _revalidate(name: str, config: SwarmConfig) -> SwarmConfig:
     try:
         return SwarmConfig.model_validate(dump_config(config))
     except ValidationError as exc:
-        first = exc.errors()[0]
-        where = ".".join(str(p) for p in first["loc"])
-        raise ConfigError(f"the generated {name}.toml does not validate: {where}: {first['msg']}") from None
+        raise ConfigError(f"the generated {name}.toml does not validate: {validation_problem(exc)}") from None
 
 
 def _service(image: str, build_context: Path | None) -> dict[str, Any]:

@@ -49,6 +49,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from swarm.config import ConfigError, read_toml
+from swarm.errors import validation_problem
 from swarm.netem.profile import LinkProfile
 
 Pair = tuple[int, int]
@@ -167,29 +168,7 @@ def load_scenario(path: str | Path) -> Scenario:
     try:
         return Scenario.model_validate(tree)
     except ValidationError as exc:
-        raise ConfigError(f"{path}: {_first_problem(exc)}") from None
-
-
-def _first_problem(err: ValidationError) -> str:
-    first = err.errors()[0]
-    msg = first["msg"].removeprefix("Value error, ")
-    if first["type"] == "extra_forbidden":
-        msg = "unknown field"
-    given = first.get("input")
-    if first["type"] != "missing" and not isinstance(given, dict) and given is not None:
-        msg += f" (got {given!r})"
-    return f"{_location(first['loc'])}: {msg}"
-
-
-def _location(loc: tuple[int | str, ...]) -> str:
-    """A pydantic error location as a person reads it in the file: ("event", 1, "loss") -> "event[1].loss"."""
-    text = ""
-    for part in loc:
-        if isinstance(part, int):
-            text += f"[{part}]"
-        else:
-            text += f".{part}" if text else part
-    return text or "scenario"
+        raise ConfigError(f"{path}: {validation_problem(exc, nowhere='scenario')}") from None
 
 
 def resolve_links(link: str, drones: int) -> list[Pair]:

@@ -34,6 +34,7 @@ from swarm.bus.holdings import (  # noqa: F401  (the wire model and its bounds, 
     _Key,
     _Producer,
 )
+from swarm.errors import validation_problem
 from swarm.patches.patch import PatchId
 
 
@@ -210,9 +211,7 @@ def _validated(data: Any) -> DigestWire:
     try:
         return DigestWire.model_validate(data)
     except ValidationError as exc:
-        first = exc.errors(include_url=False, include_input=False)[0]
-        where = ".".join(str(p) for p in first["loc"])
-        raise ValueError(f"invalid digest: {where}: {first['msg']}"[:300]) from None
+        raise ValueError(f"invalid digest: {validation_problem(exc, echo_input=False)}"[:300]) from None
 
 
 def _to_dict(wire: DigestWire) -> dict[str, Any]:

@@ -60,7 +60,7 @@ def test_a_report_missing_an_agent_key_is_one_line(tmp_path: Path) -> None:
     del data["agents"][0]["patches_held"]
     path = tmp_path / "report.json"
     path.write_text(json.dumps(data))
-    with pytest.raises(FileFormatError, match=r"agents\.0\.patches_held: Field required"):
+    with pytest.raises(FileFormatError, match=r"agents\[0\]\.patches_held: Field required"):
         read_report(path)
 
 
@@ -106,5 +106,5 @@ def test_a_map_node_status_round_trips_and_a_bad_one_is_one_line(tmp_path: Path)
     data = status.model_dump()
     data["sealed"][0]["bytes"] = "big"
     path.write_text(json.dumps(data))
-    with pytest.raises(FileFormatError, match=r"not a valid MapNodeStatus: sealed\.0\.bytes"):
+    with pytest.raises(FileFormatError, match=r"not a valid MapNodeStatus: sealed\[0\]\.bytes"):
         read_model(path, MapNodeStatus)

@@ -31,7 +31,7 @@ def test_a_vehicle_without_its_landed_state_is_one_line(tmp_path: Path) -> None:
     del data["vehicles"][0]["landed_state"]
     path = tmp_path / "sim.json"
     path.write_text(json.dumps(data))
-    with pytest.raises(FileFormatError, match=r"not a valid SimStatus: vehicles\.0\.landed_state: Field required"):
+    with pytest.raises(FileFormatError, match=r"not a valid SimStatus: vehicles\[0\]\.landed_state: Field required"):
         read_model(path, SimStatus)
 
 
