@@ -1,0 +1,30 @@
+"""The whole-map baseline (what sending the whole fused map every exploration loop would cost) is measured every
+few loops; the loops in between count at sizes interpolated between the measurements."""
+
+from __future__ import annotations
+
+import pytest
+
+from swarm.agent.mapping import interpolated_bytes
+
+pytestmark = pytest.mark.unit
+
+
+def test_loops_between_measurements_count_on_the_line_between_them() -> None:
+    assert interpolated_bytes(0, 500, 5) == 100 + 200 + 300 + 400 + 500
+    assert interpolated_bytes(1000, 1000, 4) == 4000  # a map that stopped growing counts its size every loop
+    assert interpolated_bytes(200, 700, 1) == 700  # measured every loop: the measurement itself
+
+
+def test_no_loop_is_no_bytes() -> None:
+    assert interpolated_bytes(300, 900, 0) == 0
+
+
+def test_a_growing_map_sampled_every_five_loops_is_close_to_measuring_every_loop() -> None:
+    sizes = [int(1000 * k**1.5) for k in range(1, 31)]  # a map growing faster than linearly, one size per loop
+    every_loop = sum(sizes)
+    sampled, previous = 0, 0
+    for end in range(5, 31, 5):
+        sampled += interpolated_bytes(previous, sizes[end - 1], 5)
+        previous = sizes[end - 1]
+    assert abs(sampled - every_loop) / every_loop < 0.05
