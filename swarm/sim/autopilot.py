@@ -242,8 +242,11 @@ class SimulatedPx4:
     def step(self, dt: float, now: float) -> None:
         before = self.body.position.copy()
         if self.mode == FlightMode.OFFBOARD and now - self._setpoint_time > self.params["COM_OF_LOSS_T"]:
-            decision = offboard_loss_action(self.params.__getitem__, self.mode, self.rc_present)
-            self._fail_safe(decision, "no offboard signal")
+            if self.armed:
+                decision = offboard_loss_action(self.params.__getitem__, self.mode, self.rc_present)
+                self._fail_safe(decision, "no offboard signal")
+            else:
+                self._enter_hold()  # on the ground, disarmed: nothing to fail safe, the mode just lapses
         self._check_datalink(now)
         if self.armed:
             target_p, target_v, yaw, yaw_rate = self._guidance()
@@ -340,6 +343,7 @@ class SimulatedPx4:
         elif decision.action == Action.LAND:
             self.land()
         elif decision.action in (Action.TERMINATE, Action.DISARM):
+            self._enter_hold()  # out of OFFBOARD, so the loss is not taken again
             self._disarm()  # motors off: the vehicle falls
 
     def _notice(self, severity: int, text: str) -> None:

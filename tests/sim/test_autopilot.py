@@ -216,6 +216,16 @@ def test_offboard_loss_set_to_land_lands(ap: SimulatedPx4) -> None:
     assert ap.landed_state == LandedState.ON_GROUND
 
 
+def test_offboard_loss_set_to_disarm_falls_once(ap: SimulatedPx4) -> None:
+    ap.params.set("COM_OBL_RC_ACT", 7)
+    clock = Clock(ap)
+    fly_offboard_then_stop(ap, clock, (HOME[0], HOME[1], HOME[2] + 1.5))
+    assert not ap.armed and ap.mode == FlightMode.HOLD
+    clock.run(3.0)
+    assert ap.at_ground
+    assert sum("Failsafe" in text for _, text in ap.notices) == 1
+
+
 def test_datalink_loss_takes_nav_dll_act_only_when_set(ap: SimulatedPx4) -> None:
     clock = Clock(ap)
     ap.params.set("COM_OBL_RC_ACT", 5)
