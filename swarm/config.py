@@ -224,6 +224,13 @@ class AgentSettings(_Section):
         "earlier runs (other epochs) before it asks its peers",
     )
     mavsdk_threads: int = Field(8, ge=2, le=64)
+    px4_params: Literal["set", "check", "off"] = Field(
+        "check",
+        description="the PX4 parameters that decide what the vehicle does when this agent dies or a link is lost "
+        "(swarm/agent/px4_params.py), read before take-off: 'check' refuses to take off when an agent death would "
+        "make the vehicle climb or return (PX4's defaults do: Return at 60 m); 'set' writes safe indoor values "
+        "(Hold) and reads them back; 'off' leaves them alone. swarm run uses 'set' for its simulated vehicles",
+    )
 
     @field_validator("autopilot")
     @classmethod

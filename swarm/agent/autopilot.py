@@ -16,6 +16,7 @@ world frame (z-up) through the home position, which the autopilot reports both g
 from __future__ import annotations
 
 import asyncio
+import functools
 import math
 import time
 from collections.abc import AsyncIterator, Awaitable, Callable
@@ -26,6 +27,7 @@ import mavsdk
 from mavsdk.asyncio import ComponentType, Configuration, Mavsdk, MavsdkConnectionError
 from mavsdk.asyncio.plugins.action import ActionAsync, ActionError
 from mavsdk.asyncio.plugins.offboard import OffboardAsync, OffboardError
+from mavsdk.asyncio.plugins.param import ParamAsync, ParamError
 from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 from mavsdk.plugins.offboard import PositionNedYaw
 
@@ -74,6 +76,8 @@ class Autopilot:
         self._action: ActionAsync | None = None
         self._offboard: OffboardAsync | None = None
         self._tel: TelemetryAsync | None = None
+        self._param: ParamAsync | None = None
+        self.on_status_text: Callable[[str, str], None] | None = None  # (severity, text) of each STATUSTEXT
         self._stragglers: set[asyncio.Task[Any]] = set()
         self._streams: list[asyncio.Task[None]] = []
         self.offboard_active = False
@@ -92,6 +96,7 @@ class Autopilot:
         if system is None:
             raise FlightError(f"no autopilot heartbeat on {self.url} within {timeout_s:.0f} s")
         self._action, self._offboard, self._tel = ActionAsync(system), OffboardAsync(system), TelemetryAsync(system)
+        self._param = ParamAsync(system)
 
     async def wait_healthy(self, timeout_s: float) -> None:
         """Wait until the autopilot reports healthy, armable and a home position; then start the streams."""
@@ -146,6 +151,21 @@ class Autopilot:
         await self._call("arm", self._action.arm)
         await self._call("takeoff", self._action.takeoff)
 
+    async def read_params(self, ints: tuple[str, ...], floats: tuple[str, ...]) -> dict[str, float]:
+        """Read parameters over the MAVLink parameter protocol (MAVSDK's param plugin), ints and floats by name."""
+        assert self._param is not None
+        param, values = self._param, {}
+        for name in ints:
+            values[name] = float(await self._call(f"read {name}", functools.partial(param.get_param_int, name)))
+        for name in floats:
+            values[name] = float(await self._call(f"read {name}", functools.partial(param.get_param_float, name)))
+        return values
+
+    async def set_param_int(self, name: str, value: int) -> None:
+        assert self._param is not None
+        param = self._param
+        await self._call(f"write {name}", lambda: param.set_param_int(name, value))
+
     async def set_setpoint(self, target_world: Vec3, yaw_enu_deg: float) -> None:
         """Command a world-frame position; starts offboard mode on first use."""
         assert self._offboard is not None
@@ -196,7 +216,7 @@ class Autopilot:
             raise FlightError(f"{what}: no answer from the autopilot within {timeout_s or self.command_timeout_s:g} s")
         try:
             return task.result()
-        except (ActionError, OffboardError) as exc:
+        except (ActionError, OffboardError, ParamError) as exc:
             raise FlightError(f"{what} refused: {exc}") from None
 
     def _start_streams(self) -> None:
@@ -222,12 +242,17 @@ class Autopilot:
         def on_landed(state: Any) -> None:
             cache.landed_state = state.name
 
+        def on_status_text(status: Any) -> None:
+            if self.on_status_text is not None:
+                self.on_status_text(status.type.name, status.text)
+
         for stream, handler in (
             (tel.subscribe_position_velocity_ned, on_position),
             (tel.subscribe_attitude_euler, on_attitude),
             (tel.subscribe_flight_mode, on_mode),
             (tel.subscribe_armed, on_armed),
             (tel.subscribe_landed_state, on_landed),
+            (tel.subscribe_status_text, on_status_text),
         ):
             self._streams.append(asyncio.create_task(_consume(stream(), handler)))
 

@@ -43,6 +43,7 @@ import numpy as np
 
 from swarm.agent.autopilot import Autopilot, FlightError
 from swarm.agent.lifecycle import IllegalTransition, transition
+from swarm.agent.px4_params import FLOAT_PARAMS, INT_PARAMS, safe_writes, unsafe
 from swarm.agent.separation import MAX_YIELD_S, Cue, Manoeuvre, Separation, step
 from swarm.agent.watchdog import LoopMonitor
 from swarm.bus.phase import Phase
@@ -109,6 +110,7 @@ class Flight:
         self.ap = autopilot
         self.settings = settings
         self.log = log
+        autopilot.on_status_text = lambda severity, text: log("statustext", severity=severity, text=text)
         self.phase = Phase.CONNECTING
         self.distance_m = 0.0
         self.airborne = False
@@ -157,6 +159,7 @@ class Flight:
         try:
             await self.ap.connect(s.connect_timeout_s)
             await self.ap.wait_healthy(s.health_timeout_s)
+            await self._px4_params()
             self._set_phase(Phase.READY)
             if s.start_delay_s > 0:
                 await self._wait(s.start_delay_s, stop)
@@ -195,6 +198,33 @@ class Flight:
         deadline = time.monotonic() + 15.0 + altitude / 0.3
         while not self.ap.height_above_home >= 0.9 * altitude:  # written so that an unknown (NaN) height waits
             await self._tick(stop, deadline, "take-off altitude")
+
+    async def _px4_params(self) -> None:
+        """agent.px4_params: what the vehicle does when this agent dies must not be a climb (swarm.agent.px4_params);
+        'set' makes it Hold, 'check' refuses to fly (FlightError on the ground: phase failed, exit 1)."""
+        mode = self.settings.px4_params
+        if mode == "off":
+            return
+        values = await self.ap.read_params(INT_PARAMS, FLOAT_PARAMS)
+        self.log("px4_params", mode=mode, values=values)
+        if mode == "set":
+            writes = safe_writes(values)
+            for name, value in writes.items():
+                await self.ap.set_param_int(name, value)
+            values = await self.ap.read_params(INT_PARAMS, FLOAT_PARAMS)
+            read_back = {name: int(values[name]) for name in writes}
+            self.log("px4_params_set", written=writes, read_back=read_back)
+            if read_back != writes:
+                raise FlightError(f"PX4 parameters written {writes} but read back {read_back}")
+        findings = unsafe(values)
+        for f in findings:
+            self.log("px4_param_unsafe", param=f.param, value=f.value, reason=f.reason)
+        if findings:
+            names = ", ".join(f"{f.param}={f.value:g}" for f in findings)
+            raise FlightError(
+                f"refusing to take off: if this agent died the vehicle would Return, climbing ({names}); "
+                "change them or set agent.px4_params = 'set'"
+            )
 
     async def _already_flying(self) -> bool:
         """Armed and in the air: this process was restarted mid-mission (waits briefly for the landed state)."""

@@ -194,6 +194,8 @@ def plan(
             "autopilot": f"udpout://{sim_address()}:{vehicle_port(base.sim, k)}",
             "out_dir": f"{RESULTS_DIR}/agents",
         }
+        if "px4_params" not in base.agent.model_fields_set:
+            agent_update["px4_params"] = "set"  # the simulator's vehicles, as swarm run
         if k in routes:
             route = routes[k]
             agent_update |= {

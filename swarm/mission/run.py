@@ -395,6 +395,8 @@ def _start_swarm(plan: RunPlan, state: RunState) -> None:
             "out_dir": plan.out / "agents",
             "state_dir": plan.out / "agents" / "state" / f"agent-{k}",
         }
+        if "px4_params" not in config.agent.model_fields_set:
+            update["px4_params"] = "set"  # simulated vehicles: a killed agent's drone holds (docs/architecture.md)
         if k in routes:
             route = routes[k]
             update |= {

@@ -16,6 +16,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from swarm.config import Vec3
 from swarm.sim import kinematics
+from swarm.sim.failsafe import Action, Decision, datalink_loss_action, offboard_loss_action
 from swarm.sim.kinematics import Body, Limits
 from swarm.sim.px4 import FlightMode, LandedState, Params
 
@@ -24,7 +25,9 @@ DENIED = mavlink.MAV_RESULT_DENIED
 REJECTED = mavlink.MAV_RESULT_TEMPORARILY_REJECTED  # what PX4 answers to a mode it cannot enter now
 
 GROUND_EPS_M = 0.02  # this close to the home height counts as touching the ground
-OFFBOARD_ENTRY_S = 1.0  # PX4 enters OFFBOARD only with a setpoint this fresh
+# PX4 enters OFFBOARD only while setpoints stream at >= 2 Hz (docs/en/flight_modes/offboard.md: "proof of life"
+# at 2 Hz): a setpoint within the last 0.5 s
+OFFBOARD_ENTRY_S = 0.5
 ARRIVED_M = 0.1
 _HOLD_MODES = (FlightMode.HOLD, FlightMode.POSCTL, FlightMode.MANUAL)
 
@@ -82,6 +85,10 @@ class SimulatedPx4:
         self._commanding_up = False
         self._limits_key: tuple | None = None
         self._limits = self._make_limits(False)
+        self.rc_present = False  # the simulated vehicles have no RC transmitter
+        self._gcs_heartbeat_time: float | None = None
+        self._datalink_lost = False
+        self.notices: list[tuple[int, str]] = []  # (MAV_SEVERITY, text) for STATUSTEXT, drained by the vehicle
 
     # --- state -------------------------------------------------------------------------------------------------
 
@@ -186,7 +193,11 @@ class SimulatedPx4:
         if mode == self.mode:
             return ACCEPTED
         if mode == FlightMode.OFFBOARD:
-            if now - self._setpoint_time > OFFBOARD_ENTRY_S:
+            age = now - self._setpoint_time
+            if age > OFFBOARD_ENTRY_S:
+                # PX4 answers TEMPORARILY_REJECTED to a mode it cannot enter (Commander.cpp, DO_SET_MODE)
+                why = "no setpoint yet" if math.isinf(age) else f"last setpoint {age:.1f} s ago"
+                self._notice(mavlink.MAV_SEVERITY_CRITICAL, f"Offboard refused: setpoints must stream at 2 Hz, {why}")
                 return REJECTED
             self._set_mode(mode)
             return ACCEPTED
@@ -219,12 +230,24 @@ class SimulatedPx4:
         self._setpoint = setpoint
         self._setpoint_time = now
 
+    def gcs_heartbeat(self, now: float) -> None:
+        """A ground station's HEARTBEAT arrived (MAVSDK sends one a second as a GCS): the data link is up."""
+        self._gcs_heartbeat_time = now
+        if self._datalink_lost:
+            self._datalink_lost = False
+            self._notice(mavlink.MAV_SEVERITY_INFO, "Data link regained")
+
     # --- physics -----------------------------------------------------------------------------------------------
 
     def step(self, dt: float, now: float) -> None:
         before = self.body.position.copy()
         if self.mode == FlightMode.OFFBOARD and now - self._setpoint_time > self.params["COM_OF_LOSS_T"]:
-            self._enter_hold()  # offboard loss failsafe, as PX4 without RC
+            if self.armed:
+                decision = offboard_loss_action(self.params.__getitem__, self.mode, self.rc_present)
+                self._fail_safe(decision, "no offboard signal")
+            else:
+                self._enter_hold()  # on the ground, disarmed: nothing to fail safe, the mode just lapses
+        self._check_datalink(now)
         if self.armed:
             target_p, target_v, yaw, yaw_rate = self._guidance()
             limits = self.limits(offboard=self.mode == FlightMode.OFFBOARD)
@@ -294,6 +317,37 @@ class SimulatedPx4:
         delay = self.params["COM_DISARM_LAND" if self._flown_since_arm else "COM_DISARM_PRFLT"]
         if delay > 0 and now - self._ground_since >= delay:
             self._disarm()
+
+    # --- failsafes ---------------------------------------------------------------------------------------------
+
+    def _check_datalink(self, now: float) -> None:
+        """PX4's data-link loss: no GCS heartbeat for COM_DL_LOSS_T after one was heard; NAV_DLL_ACT, if set."""
+        if self._gcs_heartbeat_time is None or self._datalink_lost:
+            return
+        if now - self._gcs_heartbeat_time <= self.params["COM_DL_LOSS_T"]:
+            return
+        self._datalink_lost = True
+        decision = datalink_loss_action(self.params.__getitem__)
+        if decision.action == Action.NONE or not (self.armed and self.airborne):
+            self._notice(mavlink.MAV_SEVERITY_WARNING, f"Data link lost ({decision.reason}: no action)")
+            return
+        self._fail_safe(decision, "no connection to the ground station")
+
+    def _fail_safe(self, decision: Decision, cause: str) -> None:
+        """Take a failsafe action and announce it, as PX4 does ("Failsafe activated: ...")."""
+        self._notice(mavlink.MAV_SEVERITY_CRITICAL, f"Failsafe: {cause}, {decision.action.value} ({decision.reason})")
+        if decision.action == Action.HOLD:
+            self._enter_hold()
+        elif decision.action == Action.RETURN:
+            self.return_to_launch()
+        elif decision.action == Action.LAND:
+            self.land()
+        elif decision.action in (Action.TERMINATE, Action.DISARM):
+            self._enter_hold()  # out of OFFBOARD, so the loss is not taken again
+            self._disarm()  # motors off: the vehicle falls
+
+    def _notice(self, severity: int, text: str) -> None:
+        self.notices.append((severity, text))
 
     # --- helpers -----------------------------------------------------------------------------------------------
 

@@ -78,9 +78,17 @@ class Params:
             "MPC_ACC_HOR": Param(sim.max_accel_m_s2),
             "MPC_LAND_SPEED": Param(sim.land_speed_m_s),
             "MPC_YAWRAUTO_MAX": Param(90.0),
-            "RTL_RETURN_ALT": Param(sim.takeoff_alt_m),
+            # Failsafe parameters with PX4's defaults (src/modules/commander/commander_params.c,
+            # src/modules/navigator/rtl_params.c); what the simulator does with them: swarm/sim/failsafe.py
+            "RTL_RETURN_ALT": Param(60.0),
             "COM_OF_LOSS_T": Param(sim.offboard_timeout_s),
-            "COM_DISARM_LAND": Param(1.0),
+            "COM_OBL_RC_ACT": Param(0, INT32),  # offboard loss: 0 Position mode
+            "NAV_RCL_ACT": Param(2, INT32),  # RC loss: 2 Return
+            "NAV_DLL_ACT": Param(0, INT32),  # data-link (GCS heartbeat) loss: 0 disabled
+            "COM_DL_LOSS_T": Param(10, INT32),  # s
+            "COM_RC_IN_MODE": Param(3, INT32),  # 3 RC or joystick, first kept; 4 stick input disabled
+            "COM_RCL_EXCEPT": Param(0, INT32),  # RC-loss exemptions: bit 0 Mission, 1 Hold/auto, 2 Offboard
+            "COM_DISARM_LAND": Param(2.0),
             "COM_DISARM_PRFLT": Param(10.0),
             "MAV_SYS_ID": Param(sysid, INT32),
             "MAV_TYPE": Param(mavlink.MAV_TYPE_QUADROTOR, INT32),
@@ -106,6 +114,12 @@ class Params:
 
     def get(self, name: str) -> Param:
         return self._table[name]
+
+    def set(self, name: str, value: float) -> None:
+        """Set a known parameter from its value (in-process callers; the wire goes through set_wire)."""
+        param = self._table[name]
+        param.value = int(value) if param.type == INT32 else float(value)
+        self.version += 1
 
     def set_wire(self, name: str, wire_value: float) -> bool:
         """Set from a PARAM_SET value (ints travel bytewise in the float, as PX4 does); False if unknown."""

@@ -399,7 +399,8 @@ def _print_endpoints(endpoints: list[dict], volume: str, config: SwarmConfig) ->
     for ep in endpoints:
         print(
             f"vehicle {ep['id']}: MAVLink udp {ep['host']}:{ep['vehicle_port']} -> {ep['host']}:{ep['gcs_port']}"
-            f"  (agent: swarm agent --id {ep['id']} --autopilot {ep['connect_url']} --set '{volume}')"
+            f"  (agent: swarm agent --id {ep['id']} --autopilot {ep['connect_url']} --set agent.px4_params=set"
+            f" --set '{volume}')"  # px4_params: with PX4's defaults a dead agent's drone would Return
         )
     if config.sim.sensor_listen:
         print(

@@ -4,7 +4,8 @@ streams telemetry, enough for MAVSDK (in PX4 mode) and pymavlink ground stations
 What MAVSDK relies on: a HEARTBEAT from component 1 with autopilot PX4 and PX4 custom modes; SYS_STATUS health
 bits including PREARM_CHECK (is_armable); HOME_POSITION; EXTENDED_SYS_STATE (landed state); the new state
 announced BEFORE each COMMAND_ACK; an ACK for every command (unknown ones UNSUPPORTED); a PARAM_VALUE echo for
-every PARAM_SET; OFFBOARD refused without a setpoint in the last second.
+every PARAM_SET; OFFBOARD refused without a setpoint in the last 0.5 s. Failsafes and refusals are announced in
+STATUSTEXT (chunked past 50 characters, as MAVLink 2 allows); a GCS HEARTBEAT keeps the data link up.
 
 The flight logic lives in autopilot.py; this module only translates MAVLink to and from it. Local NED is relative
 to the vehicle's home; global positions are the mission origin plus the world position (swarm.geo).
@@ -34,6 +35,7 @@ COMPONENT_ID = 1
 FORCE_MAGIC = 21196  # ARM_DISARM param2 that forces (dis)arming, as PX4
 UNSUPPORTED = mavlink.MAV_RESULT_UNSUPPORTED
 INT32_MAX = 2**31 - 1
+STATUSTEXT_CHUNK = 50  # characters in one STATUSTEXT
 _SENSORS = (
     mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO
     | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
@@ -144,6 +146,7 @@ class SimVehicle:
         self.last_gcs_message: float | None = None
         self._now = now
         self._last_state = self._state()
+        self._statustext_id = 0
         telemetry, heartbeat = 1.0 / sim.telemetry_hz, 1.0 / sim.heartbeat_hz
         self._senders: dict[int, Callable[[], None]] = {
             mavlink.MAVLINK_MSG_ID_HEARTBEAT: self._send_heartbeat,
@@ -194,6 +197,8 @@ class SimVehicle:
                 continue
             self.last_gcs_message = now
             self.downlink.peer = addr
+            if msg.get_type() == "HEARTBEAT" and getattr(msg, "type", None) == mavlink.MAV_TYPE_GCS:
+                self.autopilot.gcs_heartbeat(now)  # PX4 counts GCS heartbeats for the data link (COM_DL_LOSS_T)
             handler = self._handlers.get(msg.get_type())
             if handler is None:
                 continue
@@ -206,6 +211,7 @@ class SimVehicle:
         """Advance the physics by dt; announce a state change (arm, mode, landed) at once."""
         self._now = now
         self.autopilot.step(dt, now)
+        self._send_notices()
         self._announce_state_change()
 
     def tick(self, now: float) -> None:
@@ -248,7 +254,27 @@ class SimVehicle:
             self._send_heartbeat()
             self._send_extended_sys_state()
 
+    def _send_notices(self) -> None:
+        notices, self.autopilot.notices = self.autopilot.notices, []
+        for severity, text in notices:
+            _log.info("vehicle %d: %s", self.id, text)
+            self._send_statustext(severity, text)
+
+    def _send_statustext(self, severity: int, text: str) -> None:
+        """One STATUSTEXT, or several chunks with one id when longer than 50 characters (MAVLink 2)."""
+        data = text.encode("ascii", "replace")
+        if len(data) <= STATUSTEXT_CHUNK:
+            self.mav.statustext_send(severity, data)
+            return
+        self._statustext_id = self._statustext_id % 65535 + 1
+        chunks = [data[i : i + STATUSTEXT_CHUNK] for i in range(0, len(data), STATUSTEXT_CHUNK)]
+        if len(chunks[-1]) == STATUSTEXT_CHUNK:
+            chunks.append(b"")  # the text ends with a NUL: a full last chunk needs an empty one after it
+        for seq, chunk in enumerate(chunks):
+            self.mav.statustext_send(severity, chunk, self._statustext_id, seq)
+
     def _ack(self, cmd: _Command, result: int) -> None:
+        self._send_notices()  # a refusal's reason before its ACK, as PX4's mavlink_log comes before the ACK
         self._announce_state_change()  # MAVSDK reads armed/mode right after the ACK: state must arrive first
         self.mav.command_ack_send(cmd.command, result, 0, 0, cmd.src[0], cmd.src[1])
 

@@ -28,6 +28,17 @@ class FakeAutopilot:
         self.commands: list[str] = []
         self.visited: list[Vec3] = []  # every setpoint, in order
         self.on_command: dict[str, Callable[[], None]] = {}
+        self.on_status_text: Callable[[str, str], None] | None = None
+        # the failsafe parameters, holding on an agent's death (PX4's defaults would Return: agent.px4_params)
+        self.params: dict[str, float] = {
+            "COM_OBL_RC_ACT": 5,
+            "NAV_RCL_ACT": 1,
+            "NAV_DLL_ACT": 0,
+            "COM_RCL_EXCEPT": 0,
+            "COM_RC_IN_MODE": 3,
+            "RTL_RETURN_ALT": 60.0,
+            "COM_OF_LOSS_T": 1.0,
+        }
 
     def _command(self, name: str) -> None:
         self.commands.append(name)
@@ -52,6 +63,14 @@ class FakeAutopilot:
 
     async def wait_healthy(self, timeout_s: float) -> None:
         self._command("wait_healthy")
+
+    async def read_params(self, ints: tuple[str, ...], floats: tuple[str, ...]) -> dict[str, float]:
+        self._command("read_params")
+        return {name: self.params[name] for name in (*ints, *floats)}
+
+    async def set_param_int(self, name: str, value: int) -> None:
+        self._command("set_param_int")
+        self.params[name] = value
 
     async def arm_and_takeoff(self, altitude_m: float) -> None:
         self._command("arm_and_takeoff")

@@ -50,6 +50,8 @@ def test_telemetry_loss_holds_then_lands_and_a_late_hold_is_landed_again(tmp_pat
                 "--set",
                 "agent.hover_s=60",
                 "--set",
+                "agent.px4_params=set",  # the simulator has PX4's defaults: the agent makes offboard loss a Hold
+                "--set",
                 "agent.altitude_m=2.5",
                 "--set",
                 "explore.strategy=scripted",

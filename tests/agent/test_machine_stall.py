@@ -50,6 +50,8 @@ def test_a_stall_of_simulator_and_agent_together_is_not_taken_for_a_lost_link(tm
             "--set",
             "agent.hover_s=12",
             "--set",
+            "agent.px4_params=set",  # the simulator has PX4's defaults: the agent makes offboard loss a Hold
+            "--set",
             "agent.altitude_m=2.0",
             "--set",
             "explore.strategy=scripted",

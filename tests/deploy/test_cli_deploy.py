@@ -60,6 +60,11 @@ def test_compose_takes_config_flags(tmp_path: Path) -> None:
     assert done.returncode == 0, done.stderr
     assert (tmp_path / "d" / "config" / "agent-4.toml").exists()
     assert 'name = "lab"' in (tmp_path / "d" / "config" / "agent-1.toml").read_text()
+    # the simulator's vehicles: the agents make offboard loss a Hold unless told otherwise
+    assert 'px4_params = "set"' in (tmp_path / "d" / "config" / "agent-1.toml").read_text()
+    done = swarm(tmp_path, "deploy", "compose", "--world", "box", "--out", "e", "--set", "agent.px4_params=check")
+    assert done.returncode == 0, done.stderr
+    assert 'px4_params = "check"' in (tmp_path / "e" / "config" / "agent-1.toml").read_text()
 
 
 @pytest.mark.parametrize(

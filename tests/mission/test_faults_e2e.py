@@ -13,7 +13,7 @@ from swarm.config import load_config
 from swarm.files import read_model
 from swarm.mission.report import held_patch_ids, read_summary, sealed_patch_ids
 from swarm.mission.run import run_mission
-from swarm.sim.status import SimControl
+from swarm.sim.status import SimControl, SimStatus
 from tests.helpers import SwarmPorts, log_events, processes_mentioning
 
 pytestmark = [pytest.mark.timeout(300), pytest.mark.mission]
@@ -92,6 +92,10 @@ def test_drones_lost_to_a_kill_and_to_telemetry_loss_leave_the_rest_to_finish(
     assert report["explored_fraction"] >= 0.95, "the lost drones' area was not explored by the others"
     agents = {a["id"]: a for a in report["agents"]}
     assert agents[3]["exit_code"] == -signal.SIGKILL
+    # the killed agent's drone holds where it was (swarm run's agents write PX4's Hold on offboard loss,
+    # agent.px4_params = "set"): with PX4's defaults it would Return, climbing to 60 m through the ceiling
+    killed = next(v for v in read_model(out / "sim.json", SimStatus).vehicles if v.id == 3)
+    assert killed.mode == "HOLD" and killed.armed and 0.3 < killed.position[2] - killed.home[2] < 3.0, killed
     assert agents[2]["exit_code"] == 3 and agents[2]["landed"], agents[2]  # failsafe: hold, land, exit 3
     assert any(e["event"] == "failsafe" for e in log_events(out / "logs" / "agent-2.log"))
     assert agents[1]["exit_code"] == 0 and agents[1]["landed"]

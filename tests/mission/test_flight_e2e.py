@@ -160,6 +160,8 @@ def test_killed_agent_is_seen_leaving_within_3_s_and_sigterm_lands(tmp_path: Pat
                         "--set",
                         "agent.hover_s=120",
                         "--set",
+                        "agent.px4_params=set",
+                        "--set",
                         "explore.strategy=scripted",
                         "--set",
                         volume,

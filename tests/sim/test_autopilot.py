@@ -129,7 +129,7 @@ def test_disarmed_in_air_falls_to_the_floor(ap: SimulatedPx4) -> None:
     assert ap.position[2] == HOME[2] and ap.landed_state == LandedState.ON_GROUND
 
 
-def test_landing_disarms_about_a_second_after_touchdown(ap: SimulatedPx4, sim: SimSettings) -> None:
+def test_landing_disarms_com_disarm_land_after_touchdown(ap: SimulatedPx4, sim: SimSettings) -> None:
     clock = Clock(ap)
     ap.arm(clock.now)
     ap.takeoff()
@@ -144,7 +144,7 @@ def test_landing_disarms_about_a_second_after_touchdown(ap: SimulatedPx4, sim: S
     assert max(descent) == pytest.approx(sim.land_speed_m_s, abs=1e-6)
     assert ap.armed
     waited = clock.run_until(lambda: not ap.armed, timeout=5)
-    assert waited == pytest.approx(1.0, abs=2 * DT)
+    assert waited == pytest.approx(2.0, abs=2 * DT)  # PX4's default COM_DISARM_LAND
     assert ap.mode == FlightMode.HOLD and ap.position[2] == HOME[2]
 
 
@@ -155,32 +155,93 @@ def test_armed_without_taking_off_disarms_after_the_preflight_delay(ap: Simulate
     assert waited == pytest.approx(10.0, abs=2 * DT)
 
 
-def test_offboard_needs_a_fresh_setpoint(ap: SimulatedPx4) -> None:
+def test_offboard_needs_a_setpoint_stream_of_2_hz(ap: SimulatedPx4) -> None:
     clock = Clock(ap)
     assert ap.set_mode(FlightMode.OFFBOARD, clock.now) == REJECTED
+    assert "no setpoint yet" in ap.notices[-1][1]
     ap.set_setpoint(Setpoint(np.array(HOME), np.full(3, np.nan)), clock.now)
-    clock.run(1.5)
-    assert ap.set_mode(FlightMode.OFFBOARD, clock.now) == REJECTED  # too old
+    clock.run(0.6)
+    assert ap.set_mode(FlightMode.OFFBOARD, clock.now) == REJECTED  # older than 0.5 s: below 2 Hz
+    assert "Offboard refused" in ap.notices[-1][1] and "0.6 s ago" in ap.notices[-1][1]
     ap.set_setpoint(Setpoint(np.array(HOME), np.full(3, np.nan)), clock.now)
+    clock.run(0.4)
     assert ap.set_mode(FlightMode.OFFBOARD, clock.now) == ACCEPTED
 
 
-def test_offboard_loss_holds_position(ap: SimulatedPx4, sim: SimSettings) -> None:
-    clock = Clock(ap)
+def fly_offboard_then_stop(ap: SimulatedPx4, clock: Clock, target: tuple[float, float, float]) -> float:
+    """Arm, fly offboard towards target for 2 s, stop the setpoints; the seconds until the vehicle left OFFBOARD."""
     ap.arm(clock.now)
-    target = (HOME[0] + 10.0, HOME[1], HOME[2] + 1.5)
     offboard_to(ap, clock, target)
-    stream = keep_streaming(ap, clock, target)
-    clock.run(2.0, each=stream)
-    last_setpoint = clock.now
-    waited = clock.run_until(lambda: ap.mode != FlightMode.OFFBOARD, timeout=5)
+    clock.run(2.0, each=keep_streaming(ap, clock, target))
+    return clock.run_until(lambda: ap.mode != FlightMode.OFFBOARD, timeout=5)
+
+
+def test_offboard_loss_with_px4_defaults_returns_climbing_to_rtl_return_alt(ap: SimulatedPx4) -> None:
+    target = (HOME[0] + 10.0, HOME[1], HOME[2] + 1.5)
+    waited = fly_offboard_then_stop(ap, clock := Clock(ap), target)
+    assert waited == pytest.approx(ap.params["COM_OF_LOSS_T"], abs=2 * DT)
+    assert ap.mode == FlightMode.RTL
+    assert any("Failsafe: no offboard signal, Return" in text for _, text in ap.notices)
+    clock.run(10.0)
+    assert ap.height > 10.0  # climbing towards RTL_RETURN_ALT (60 m): through any indoor ceiling
+
+
+def test_offboard_loss_set_to_hold_holds_position(ap: SimulatedPx4, sim: SimSettings) -> None:
+    ap.params.set("COM_OBL_RC_ACT", 5)
+    target = (HOME[0] + 10.0, HOME[1], HOME[2] + 1.5)
+    clock = Clock(ap)
+    waited = fly_offboard_then_stop(ap, clock, target)
     assert ap.mode == FlightMode.HOLD
     assert waited == pytest.approx(sim.offboard_timeout_s, abs=2 * DT)
     where = ap.position.copy()
     clock.run(5.0)
     assert ap.position[0] < target[0] - 2.0  # stopped short of the old target
     assert np.linalg.norm(ap.position - where) < 1.5  # braked near where the link was lost
-    assert clock.now - last_setpoint > 5
+    assert ap.height < 2.5
+
+
+@pytest.mark.parametrize(("name", "value"), [("NAV_RCL_ACT", 1), ("COM_RCL_EXCEPT", 4), ("COM_RC_IN_MODE", 4)])
+def test_offboard_loss_holds_if_rc_loss_is_hold_exempt_or_unexpected(ap: SimulatedPx4, name: str, value: int) -> None:
+    ap.params.set(name, value)
+    fly_offboard_then_stop(ap, Clock(ap), (HOME[0] + 10.0, HOME[1], HOME[2] + 1.5))
+    assert ap.mode == FlightMode.HOLD
+
+
+def test_offboard_loss_set_to_land_lands(ap: SimulatedPx4) -> None:
+    ap.params.set("COM_OBL_RC_ACT", 4)
+    clock = Clock(ap)
+    fly_offboard_then_stop(ap, clock, (HOME[0], HOME[1], HOME[2] + 1.5))
+    assert ap.mode == FlightMode.LAND
+    clock.run_until(lambda: not ap.armed, timeout=15)
+    assert ap.landed_state == LandedState.ON_GROUND
+
+
+def test_offboard_loss_set_to_disarm_falls_once(ap: SimulatedPx4) -> None:
+    ap.params.set("COM_OBL_RC_ACT", 7)
+    clock = Clock(ap)
+    fly_offboard_then_stop(ap, clock, (HOME[0], HOME[1], HOME[2] + 1.5))
+    assert not ap.armed and ap.mode == FlightMode.HOLD
+    clock.run(3.0)
+    assert ap.at_ground
+    assert sum("Failsafe" in text for _, text in ap.notices) == 1
+
+
+def test_datalink_loss_takes_nav_dll_act_only_when_set(ap: SimulatedPx4) -> None:
+    clock = Clock(ap)
+    ap.params.set("COM_OBL_RC_ACT", 5)
+    ap.arm(clock.now)
+    ap.takeoff()
+    ap.gcs_heartbeat(clock.now)
+    clock.run_until(lambda: ap.mode == FlightMode.HOLD, timeout=10)
+    clock.run(ap.params["COM_DL_LOSS_T"] + 1.0)
+    assert ap.mode == FlightMode.HOLD  # NAV_DLL_ACT = 0: disabled
+    assert "Data link lost" in ap.notices[-1][1]
+    ap.gcs_heartbeat(clock.now)
+    ap.params.set("NAV_DLL_ACT", 3)  # Land
+    lost_after = clock.run_until(lambda: ap.mode != FlightMode.HOLD, timeout=15)
+    assert ap.mode == FlightMode.LAND
+    assert lost_after == pytest.approx(ap.params["COM_DL_LOSS_T"], abs=2 * DT)
+    assert "no connection to the ground station, Land" in ap.notices[-1][1]
 
 
 def test_velocity_setpoint_and_yaw(ap: SimulatedPx4) -> None:
@@ -204,7 +265,9 @@ def test_return_to_launch_lands_at_home(ap: SimulatedPx4) -> None:
     target = (HOME[0] + 5.0, HOME[1] + 5.0, HOME[2] + 1.0)
     offboard_to(ap, clock, target)
     clock.run(6.0, each=keep_streaming(ap, clock, target))
+    ap.params.set("RTL_RETURN_ALT", 3.0)
     assert ap.return_to_launch() == ACCEPTED
+    clock.run_until(lambda: ap.height > 2.9, timeout=10)  # climbs to RTL_RETURN_ALT first
     clock.run_until(lambda: not ap.armed, timeout=40)
     assert np.linalg.norm(ap.position - HOME) < 0.25
 

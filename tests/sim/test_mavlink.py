@@ -123,8 +123,21 @@ def test_offboard_setpoints_and_offboard_loss(port_base: int, box_world: World) 
     config = sim_config(port_base, **{"sim.offboard_timeout_s": 0.5})
     with running_sim(config, box_world) as server, gcs(gcs_port(config.sim, 1)) as gs:
         gs.heartbeat()
+        hold_on_loss = struct.unpack("<f", struct.pack("<i", 5))[0]  # COM_OBL_RC_ACT = 5 (Hold), INT32 bytewise
+        gs.conn.mav.param_set_send(1, 1, b"COM_OBL_RC_ACT", hold_on_loss, mavlink.MAV_PARAM_TYPE_INT32)
+        gs.recv_until(lambda m: m.param_id == "COM_OBL_RC_ACT", 2, "PARAM_VALUE echo", "PARAM_VALUE")
         set_mode = (mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 6)
-        assert gs.command(*set_mode).result == mavlink.MAV_RESULT_TEMPORARILY_REJECTED  # no setpoint yet
+        gs.conn.mav.command_long_send(1, 1, *set_mode[:1], 0, *set_mode[1:], 0, 0, 0, 0, 0)
+        chunks = []  # the reason comes before the ACK, in chunks of 50 characters with one id
+        while True:
+            msg = gs.recv_until(lambda m: True, 3, "STATUSTEXT then ACK", ["STATUSTEXT", "COMMAND_ACK"])
+            if msg.get_type() == "COMMAND_ACK":
+                break
+            chunks.append(msg)
+        assert msg.result == mavlink.MAV_RESULT_TEMPORARILY_REJECTED  # no setpoint yet: what PX4 answers
+        assert len(chunks) == 2 and chunks[0].id == chunks[1].id != 0 and [c.chunk_seq for c in chunks] == [0, 1]
+        text = "".join(c.text for c in chunks)
+        assert text == "Offboard refused: setpoints must stream at 2 Hz, no setpoint yet"
         mask = (
             mavlink.POSITION_TARGET_TYPEMASK_VX_IGNORE
             | mavlink.POSITION_TARGET_TYPEMASK_VY_IGNORE
@@ -155,7 +168,7 @@ def test_offboard_setpoints_and_offboard_loss(port_base: int, box_world: World) 
         assert position == pytest.approx([home[0] + 0.5, home[1] + 1.0, home[2] + 1.2], abs=0.06)  # NED -> world
         attitude = gs.recv_until(lambda m: True, 2, "ATTITUDE", "ATTITUDE")
         assert attitude.yaw == pytest.approx(math.pi / 2, abs=0.05)
-        # no more setpoints: PX4 falls back to Hold
+        # no more setpoints: COM_OBL_RC_ACT = 5, Hold
         hb = gs.recv_until(lambda m: m.custom_mode != OFFBOARD, 3, "offboard loss", "HEARTBEAT")
         assert hb.custom_mode == HOLD and _armed(hb)
 

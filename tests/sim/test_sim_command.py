@@ -54,7 +54,7 @@ def test_sim_command_prints_endpoints_and_stops_on_sigint(port_base: int) -> Non
         # the agent's command line carries the mission volume: an agent loads no world
         assert lines[0] == (
             f"vehicle 1: MAVLink udp 127.0.0.1:{port_base} -> 127.0.0.1:{gbase}"
-            f"  (agent: swarm agent --id 1 --autopilot udpin://0.0.0.0:{gbase} "
+            f"  (agent: swarm agent --id 1 --autopilot udpin://0.0.0.0:{gbase} --set agent.px4_params=set "
             "--set 'mission.volume={min=[0, 0, -0.2],max=[8, 6, 3.1995]}')"
         )
         assert lines[1].startswith(f"vehicle 2: MAVLink udp 127.0.0.1:{port_base + 1} -> 127.0.0.1:{gbase + 1}")

@@ -1,0 +1,90 @@
+"""PX4's failsafe decisions for the simulated vehicle, as pure functions: parameters and state in, action out.
+
+Sources (PX4-Autopilot): `src/modules/commander/commander_params.c` (COM_OBL_RC_ACT, NAV_RCL_ACT, NAV_DLL_ACT,
+COM_RCL_EXCEPT, COM_RC_IN_MODE, COM_DL_LOSS_T) and `src/modules/commander/failsafe/failsafe.cpp`
+(`fromOffboardLossActParam`, `fromNavDllOrRclActParam`, the RC-loss exceptions), and the failsafe pages of the
+PX4 user guide (`docs/en/config/safety.md`).
+
+Offboard loss, the rule the simulator follows:
+1. COM_OBL_RC_ACT names the action: 3 Return, 4 Land, 5 Hold, 6 Terminate, 7 Disarm are taken as they are.
+2. 0 Position, 1 Altitude and 2 Manual (Stabilized) are modes flown with the sticks. With an RC the vehicle
+   flies that mode (sticks centred: it holds). Without one, PX4 since PR #26289 (backported in #26391) applies
+   the RC-loss failsafe NAV_RCL_ACT instead: 1 Hold, 2 Return (the default), 3 Land, 5 Terminate, 6 Disarm.
+3. The RC-loss failsafe is not taken when COM_RC_IN_MODE = 4 (stick input disabled: PX4 never declares RC loss)
+   or when COM_RCL_EXCEPT exempts the current mode (bit 0 Mission, bit 1 Hold / auto modes, bit 2 Offboard), nor
+   when NAV_RCL_ACT is 0 (disabled in older PX4). Our reading of what PX4 flies then: the stick mode cannot run
+   without sticks, and PX4's failsafe framework falls back from it (Position -> Altitude -> Stabilized -> Hold)
+   to the first mode that can run, which for a vehicle with a position estimate is Hold.
+
+Data-link loss: no GCS HEARTBEAT for COM_DL_LOSS_T seconds triggers NAV_DLL_ACT (0 disabled, the default).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from enum import Enum
+
+from swarm.sim.px4 import FlightMode
+
+
+class Action(Enum):
+    NONE = "none"
+    HOLD = "Hold"
+    RETURN = "Return"
+    LAND = "Land"
+    TERMINATE = "Terminate"
+    DISARM = "Disarm"
+
+
+@dataclass(frozen=True)
+class Decision:
+    action: Action
+    reason: str  # why this action, for the STATUSTEXT
+
+
+# COM_OBL_RC_ACT values (commander_params.c)
+OBL_POSITION, OBL_ALTITUDE, OBL_MANUAL = 0, 1, 2
+_OBL_ACTIONS = {3: Action.RETURN, 4: Action.LAND, 5: Action.HOLD, 6: Action.TERMINATE, 7: Action.DISARM}
+_OBL_NAMES = {OBL_POSITION: "Position", OBL_ALTITUDE: "Altitude", OBL_MANUAL: "Manual"}
+# NAV_RCL_ACT and NAV_DLL_ACT values (commander_params.c); 0 is "disabled"
+_LINK_ACTIONS = {1: Action.HOLD, 2: Action.RETURN, 3: Action.LAND, 5: Action.TERMINATE, 6: Action.DISARM}
+RC_IN_MODE_DISABLED = 4  # COM_RC_IN_MODE: stick input disabled, no RC checks
+RCL_EXCEPT_MISSION, RCL_EXCEPT_HOLD, RCL_EXCEPT_OFFBOARD = 1, 2, 4  # COM_RCL_EXCEPT bits 0, 1, 2
+
+ParamReader = Callable[[str], float]
+
+
+def rc_loss_exempt(param: ParamReader, mode: FlightMode) -> bool:
+    """Whether COM_RCL_EXCEPT exempts `mode` from the RC-loss failsafe."""
+    bits = int(param("COM_RCL_EXCEPT"))
+    if mode == FlightMode.OFFBOARD:
+        return bool(bits & RCL_EXCEPT_OFFBOARD)
+    if mode in (FlightMode.HOLD, FlightMode.TAKEOFF, FlightMode.LAND, FlightMode.RTL):
+        return bool(bits & RCL_EXCEPT_HOLD)  # "Auto modes" in current PX4, "Hold" in older releases
+    return False
+
+
+def offboard_loss_action(param: ParamReader, mode: FlightMode, rc_present: bool) -> Decision:
+    """What PX4 does when offboard setpoints stop for COM_OF_LOSS_T while in `mode` (OFFBOARD in practice)."""
+    obl = int(param("COM_OBL_RC_ACT"))
+    if obl in _OBL_ACTIONS:
+        return Decision(_OBL_ACTIONS[obl], f"COM_OBL_RC_ACT={obl}")
+    stick_mode = _OBL_NAMES.get(obl, f"unknown COM_OBL_RC_ACT={obl}, Position")
+    if rc_present:
+        return Decision(Action.HOLD, f"COM_OBL_RC_ACT={obl} ({stick_mode} mode, sticks centred)")
+    if int(param("COM_RC_IN_MODE")) == RC_IN_MODE_DISABLED:
+        return Decision(Action.HOLD, f"{stick_mode} mode needs sticks, COM_RC_IN_MODE=4: fall back to Hold")
+    if rc_loss_exempt(param, mode):
+        return Decision(Action.HOLD, f"{stick_mode} mode needs sticks, COM_RCL_EXCEPT exempts {mode.name}: Hold")
+    rcl = int(param("NAV_RCL_ACT"))
+    action = _LINK_ACTIONS.get(rcl)
+    if action is None:
+        return Decision(Action.HOLD, f"{stick_mode} mode needs sticks, no RC, NAV_RCL_ACT={rcl} disabled: Hold")
+    return Decision(action, f"{stick_mode} mode needs sticks, no RC: NAV_RCL_ACT={rcl}")
+
+
+def datalink_loss_action(param: ParamReader) -> Decision:
+    """What PX4 does when the GCS heartbeat has been missing for COM_DL_LOSS_T (NONE: NAV_DLL_ACT disabled)."""
+    dll = int(param("NAV_DLL_ACT"))
+    return Decision(_LINK_ACTIONS.get(dll, Action.NONE), f"NAV_DLL_ACT={dll}")
