@@ -32,6 +32,9 @@ def sim_config(base_port: int, **overrides: Any) -> SwarmConfig:
         "sim.gcs_base_port": base_port + PORT_BLOCK // 2,
         "mission.world": "box",
         "mission.drones": 1,
+        # the simulated vehicle starts with PX4's defaults, where an agent death is a Return: an agent flown
+        # in-process against it writes the safe values first, as every agent of swarm run does
+        "agent.px4_params": "set",
     }
     values.update(overrides)
     return load_config(overrides=values)
