@@ -1,15 +1,11 @@
 """The PX4 parameters that decide what a vehicle does when its agent dies or a link is lost, and which values
 are safe indoors. Pure: values in, findings and writes out (the reading and writing is in flight.py).
 
-An agent that dies stops its offboard setpoints and its GCS heartbeats. What PX4 then does
-(src/modules/commander/commander_params.c, src/modules/commander/failsafe/failsafe.cpp):
-- after COM_OF_LOSS_T, COM_OBL_RC_ACT: 3 is Return. 0-2 (Position, Altitude, Manual) are stick modes: without
-  an RC, current PX4 (PR #26289) takes the RC-loss action NAV_RCL_ACT instead (2, the default, is Return) unless
-  COM_RC_IN_MODE is 4 (no sticks expected) or COM_RCL_EXCEPT has the Offboard bit (4);
-- after COM_DL_LOSS_T without a GCS heartbeat, NAV_DLL_ACT (2 is Return).
-Return climbs to RTL_RETURN_ALT (60 m by default) before flying home: through the ceiling indoors. With PX4's
-defaults and no RC, an agent death is a Return. The agent cannot tell whether an RC is connected, so it assumes
-none (the worst case: with one, a stick mode holds with centred sticks).
+An agent that dies stops its offboard setpoints and its GCS heartbeats. What PX4 then does is
+`swarm.agent.px4_failsafe` (the same rules the simulated vehicle follows): with PX4's defaults and no RC, an
+offboard loss is a Return, which climbs to RTL_RETURN_ALT (60 m by default) before flying home: through the
+ceiling indoors. The agent cannot tell whether an RC is connected, so it assumes none (the worst case: with one,
+a stick mode holds with centred sticks).
 """
 
 from __future__ import annotations
@@ -17,17 +13,15 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 
+from swarm.agent.px4_failsafe import Action, datalink_loss_action, offboard_loss_action
+
 INT_PARAMS = ("COM_OBL_RC_ACT", "NAV_RCL_ACT", "NAV_DLL_ACT", "COM_RCL_EXCEPT", "COM_RC_IN_MODE")
 FLOAT_PARAMS = ("RTL_RETURN_ALT", "COM_OF_LOSS_T")
 
 OBL_HOLD = 5  # COM_OBL_RC_ACT: Hold mode
 LINK_HOLD = 1  # NAV_RCL_ACT / NAV_DLL_ACT: Hold mode
-RETURN_OBL = 3  # COM_OBL_RC_ACT: Return mode
-RETURN_LINK = 2  # NAV_RCL_ACT / NAV_DLL_ACT: Return mode
 STICK_MODES = {0: "Position", 1: "Altitude", 2: "Manual"}
 KNOWN_OBL = set(range(8))
-RC_IN_MODE_NONE = 4
-RCL_EXCEPT_OFFBOARD = 4
 
 
 @dataclass(frozen=True)
@@ -45,22 +39,20 @@ def unsafe(values: Mapping[str, float]) -> list[Finding]:
     loss = f"after COM_OF_LOSS_T={values['COM_OF_LOSS_T']:g} s without setpoints"
     found: list[Finding] = []
     obl = int(values["COM_OBL_RC_ACT"])
-    if obl == RETURN_OBL:
-        found.append(Finding("COM_OBL_RC_ACT", obl, f"offboard loss action is Return {loss}: {climb}"))
-    elif obl not in KNOWN_OBL:
+    offboard = offboard_loss_action(values.__getitem__, "OFFBOARD", rc_present=False)
+    if obl not in KNOWN_OBL:
         found.append(Finding("COM_OBL_RC_ACT", obl, "unknown offboard loss action"))
-    elif obl in STICK_MODES:
+    elif offboard.action == Action.RETURN and offboard.param == "COM_OBL_RC_ACT":
+        found.append(Finding("COM_OBL_RC_ACT", obl, f"offboard loss action is Return {loss}: {climb}"))
+    elif offboard.action == Action.RETURN:  # a stick mode without an RC: the RC-loss action decided
         rcl = int(values["NAV_RCL_ACT"])
-        no_rc_expected = int(values["COM_RC_IN_MODE"]) == RC_IN_MODE_NONE
-        exempt = bool(int(values["COM_RCL_EXCEPT"]) & RCL_EXCEPT_OFFBOARD)
-        if rcl == RETURN_LINK and not no_rc_expected and not exempt:
-            reason = (
-                f"COM_OBL_RC_ACT={obl} ({STICK_MODES[obl]} mode) needs sticks; without an RC the RC-loss action "
-                f"applies {loss}: NAV_RCL_ACT=2 is Return: {climb} (or set COM_RCL_EXCEPT bit 2, Offboard)"
-            )
-            found.append(Finding("NAV_RCL_ACT", rcl, reason))
-    dll = int(values["NAV_DLL_ACT"])
-    if dll == RETURN_LINK:
+        reason = (
+            f"COM_OBL_RC_ACT={obl} ({STICK_MODES[obl]} mode) needs sticks; without an RC the RC-loss action "
+            f"applies {loss}: NAV_RCL_ACT={rcl} is Return: {climb} (or set COM_RCL_EXCEPT bit 2, Offboard)"
+        )
+        found.append(Finding(offboard.param, rcl, reason))
+    if datalink_loss_action(values.__getitem__).action == Action.RETURN:
+        dll = int(values["NAV_DLL_ACT"])
         found.append(Finding("NAV_DLL_ACT", dll, f"data-link loss action is Return (no GCS heartbeat): {climb}"))
     return found
 
@@ -68,6 +60,6 @@ def unsafe(values: Mapping[str, float]) -> list[Finding]:
 def safe_writes(values: Mapping[str, float]) -> dict[str, int]:
     """What 'set' writes: offboard loss and RC loss hold, and a data-link loss that would Return holds too."""
     writes = {"COM_OBL_RC_ACT": OBL_HOLD, "NAV_RCL_ACT": LINK_HOLD}
-    if int(values["NAV_DLL_ACT"]) == RETURN_LINK:
+    if datalink_loss_action(values.__getitem__).action == Action.RETURN:
         writes["NAV_DLL_ACT"] = LINK_HOLD  # disabled (0) and Land stay as they are
     return writes

@@ -14,9 +14,9 @@ from enum import Enum
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
+from swarm.agent.px4_failsafe import Action, Decision, datalink_loss_action, offboard_loss_action
 from swarm.config import Vec3
 from swarm.sim import kinematics
-from swarm.sim.failsafe import Action, Decision, datalink_loss_action, offboard_loss_action
 from swarm.sim.kinematics import Body, Limits
 from swarm.sim.px4 import FlightMode, LandedState, Params
 
@@ -243,7 +243,7 @@ class SimulatedPx4:
         before = self.body.position.copy()
         if self.mode == FlightMode.OFFBOARD and now - self._setpoint_time > self.params["COM_OF_LOSS_T"]:
             if self.armed:
-                decision = offboard_loss_action(self.params.__getitem__, self.mode, self.rc_present)
+                decision = offboard_loss_action(self.params.__getitem__, self.mode.name, self.rc_present)
                 self._fail_safe(decision, "no offboard signal")
             else:
                 self._enter_hold()  # on the ground, disarmed: nothing to fail safe, the mode just lapses

@@ -79,7 +79,7 @@ class Params:
             "MPC_LAND_SPEED": Param(sim.land_speed_m_s),
             "MPC_YAWRAUTO_MAX": Param(90.0),
             # Failsafe parameters with PX4's defaults (src/modules/commander/commander_params.c,
-            # src/modules/navigator/rtl_params.c); what the simulator does with them: swarm/sim/failsafe.py
+            # src/modules/navigator/rtl_params.c); what the simulator does with them: swarm/agent/px4_failsafe.py
             "RTL_RETURN_ALT": Param(60.0),
             "COM_OF_LOSS_T": Param(sim.offboard_timeout_s),
             "COM_OBL_RC_ACT": Param(0, INT32),  # offboard loss: 0 Position mode

@@ -1,9 +1,9 @@
-"""PX4's failsafe rules as the simulator decides them (swarm/sim/failsafe.py): one test per rule, no sockets."""
+"""PX4's failsafe rules as the simulator decides them (swarm/agent/px4_failsafe.py): one test per rule, no sockets."""
 
 import pytest
 
+from swarm.agent.px4_failsafe import Action, datalink_loss_action, offboard_loss_action
 from swarm.config import SimSettings
-from swarm.sim.failsafe import Action, datalink_loss_action, offboard_loss_action
 from swarm.sim.px4 import FlightMode, Params
 
 
@@ -13,7 +13,7 @@ def params() -> Params:
 
 
 def decide(params: Params, mode: FlightMode = FlightMode.OFFBOARD, rc: bool = False) -> Action:
-    return offboard_loss_action(params.__getitem__, mode, rc).action
+    return offboard_loss_action(params.__getitem__, mode.name, rc).action
 
 
 def test_px4_defaults() -> None:

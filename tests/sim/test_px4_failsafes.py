@@ -1,6 +1,6 @@
 """PX4's failsafes on the simulated vehicle, driven by a real MAVSDK client over UDP loopback: what happens to a
 drone when the process flying it in offboard dies (its setpoints and GCS heartbeats stop), for the parameter
-values that matter (swarm/sim/failsafe.py). The client's death is `Mavsdk.destroy()`, after every call ended.
+values that matter (swarm/agent/px4_failsafe.py). The client's death is `Mavsdk.destroy()`, after every call ended.
 """
 
 from __future__ import annotations

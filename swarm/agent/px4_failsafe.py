@@ -1,11 +1,13 @@
-"""PX4's failsafe decisions for the simulated vehicle, as pure functions: parameters and state in, action out.
+"""PX4's failsafe decisions, as pure functions: parameters and state in, action out. One model of PX4's rules
+serves both sides: the simulated vehicle takes these actions (swarm/sim/autopilot.py), and the agent refuses to
+fly where its own death would be a Return (swarm/agent/px4_params.py), so the two can never disagree.
 
 Sources (PX4-Autopilot): `src/modules/commander/commander_params.c` (COM_OBL_RC_ACT, NAV_RCL_ACT, NAV_DLL_ACT,
 COM_RCL_EXCEPT, COM_RC_IN_MODE, COM_DL_LOSS_T) and `src/modules/commander/failsafe/failsafe.cpp`
 (`fromOffboardLossActParam`, `fromNavDllOrRclActParam`, the RC-loss exceptions), and the failsafe pages of the
 PX4 user guide (`docs/en/config/safety.md`).
 
-Offboard loss, the rule the simulator follows:
+Offboard loss:
 1. COM_OBL_RC_ACT names the action: 3 Return, 4 Land, 5 Hold, 6 Terminate, 7 Disarm are taken as they are.
 2. 0 Position, 1 Altitude and 2 Manual (Stabilized) are modes flown with the sticks. With an RC the vehicle
    flies that mode (sticks centred: it holds). Without one, PX4 since PR #26289 (backported in #26391) applies
@@ -25,8 +27,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from enum import Enum
 
-from swarm.sim.px4 import FlightMode
-
 
 class Action(Enum):
     NONE = "none"
@@ -40,6 +40,7 @@ class Action(Enum):
 @dataclass(frozen=True)
 class Decision:
     action: Action
+    param: str  # the parameter whose value decided it
     reason: str  # why this action, for the STATUSTEXT
 
 
@@ -53,38 +54,42 @@ RC_IN_MODE_DISABLED = 4  # COM_RC_IN_MODE: stick input disabled, no RC checks
 RCL_EXCEPT_MISSION, RCL_EXCEPT_HOLD, RCL_EXCEPT_OFFBOARD = 1, 2, 4  # COM_RCL_EXCEPT bits 0, 1, 2
 
 ParamReader = Callable[[str], float]
+AUTO_MODES = ("HOLD", "TAKEOFF", "LAND", "RTL")  # PX4 flight mode names, as the simulator's FlightMode spells them
 
 
-def rc_loss_exempt(param: ParamReader, mode: FlightMode) -> bool:
-    """Whether COM_RCL_EXCEPT exempts `mode` from the RC-loss failsafe."""
+def rc_loss_exempt(param: ParamReader, mode: str) -> bool:
+    """Whether COM_RCL_EXCEPT exempts `mode` (a PX4 flight mode name: OFFBOARD, HOLD, ...) from RC-loss failsafe."""
     bits = int(param("COM_RCL_EXCEPT"))
-    if mode == FlightMode.OFFBOARD:
+    if mode == "OFFBOARD":
         return bool(bits & RCL_EXCEPT_OFFBOARD)
-    if mode in (FlightMode.HOLD, FlightMode.TAKEOFF, FlightMode.LAND, FlightMode.RTL):
+    if mode in AUTO_MODES:
         return bool(bits & RCL_EXCEPT_HOLD)  # "Auto modes" in current PX4, "Hold" in older releases
     return False
 
 
-def offboard_loss_action(param: ParamReader, mode: FlightMode, rc_present: bool) -> Decision:
+def offboard_loss_action(param: ParamReader, mode: str, rc_present: bool) -> Decision:
     """What PX4 does when offboard setpoints stop for COM_OF_LOSS_T while in `mode` (OFFBOARD in practice)."""
     obl = int(param("COM_OBL_RC_ACT"))
     if obl in _OBL_ACTIONS:
-        return Decision(_OBL_ACTIONS[obl], f"COM_OBL_RC_ACT={obl}")
+        return Decision(_OBL_ACTIONS[obl], "COM_OBL_RC_ACT", f"COM_OBL_RC_ACT={obl}")
     stick_mode = _OBL_NAMES.get(obl, f"unknown COM_OBL_RC_ACT={obl}, Position")
     if rc_present:
-        return Decision(Action.HOLD, f"COM_OBL_RC_ACT={obl} ({stick_mode} mode, sticks centred)")
+        return Decision(Action.HOLD, "COM_OBL_RC_ACT", f"COM_OBL_RC_ACT={obl} ({stick_mode} mode, sticks centred)")
     if int(param("COM_RC_IN_MODE")) == RC_IN_MODE_DISABLED:
-        return Decision(Action.HOLD, f"{stick_mode} mode needs sticks, COM_RC_IN_MODE=4: fall back to Hold")
+        reason = f"{stick_mode} mode needs sticks, COM_RC_IN_MODE=4: fall back to Hold"
+        return Decision(Action.HOLD, "COM_RC_IN_MODE", reason)
     if rc_loss_exempt(param, mode):
-        return Decision(Action.HOLD, f"{stick_mode} mode needs sticks, COM_RCL_EXCEPT exempts {mode.name}: Hold")
+        reason = f"{stick_mode} mode needs sticks, COM_RCL_EXCEPT exempts {mode}: Hold"
+        return Decision(Action.HOLD, "COM_RCL_EXCEPT", reason)
     rcl = int(param("NAV_RCL_ACT"))
     action = _LINK_ACTIONS.get(rcl)
     if action is None:
-        return Decision(Action.HOLD, f"{stick_mode} mode needs sticks, no RC, NAV_RCL_ACT={rcl} disabled: Hold")
-    return Decision(action, f"{stick_mode} mode needs sticks, no RC: NAV_RCL_ACT={rcl}")
+        reason = f"{stick_mode} mode needs sticks, no RC, NAV_RCL_ACT={rcl} disabled: Hold"
+        return Decision(Action.HOLD, "NAV_RCL_ACT", reason)
+    return Decision(action, "NAV_RCL_ACT", f"{stick_mode} mode needs sticks, no RC: NAV_RCL_ACT={rcl}")
 
 
 def datalink_loss_action(param: ParamReader) -> Decision:
     """What PX4 does when the GCS heartbeat has been missing for COM_DL_LOSS_T (NONE: NAV_DLL_ACT disabled)."""
     dll = int(param("NAV_DLL_ACT"))
-    return Decision(_LINK_ACTIONS.get(dll, Action.NONE), f"NAV_DLL_ACT={dll}")
+    return Decision(_LINK_ACTIONS.get(dll, Action.NONE), "NAV_DLL_ACT", f"NAV_DLL_ACT={dll}")
