@@ -12,6 +12,8 @@ from __future__ import annotations
 import signal
 import subprocess
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -53,6 +55,20 @@ def start_agent(config: SwarmConfig, log: Path, mode: str, *extra: str) -> subpr
     )
 
 
+@contextmanager
+def agent_on_sim(tmp_path: Path, mode: str, *extra: str) -> Iterator[tuple[SimServer, subprocess.Popen, Path]]:
+    """A simulated vehicle with PX4's defaults and one agent process (agent.px4_params = `mode`) flying it:
+    (simulator, agent, agent log). The agent is killed afterwards, also when the test fails."""
+    config = sim_config(free_port_block())
+    log = tmp_path / "agent.log"
+    with running_sim(config, load_world("box")) as server:
+        agent = start_agent(config, log, mode, *extra)
+        try:
+            yield server, agent, log
+        finally:
+            kill_all([agent])
+
+
 def params(server: SimServer) -> dict[str, float]:
     p = server.vehicles[1].params
     return {name: p[name] for name in PX4_DEFAULTS}
@@ -64,14 +80,8 @@ def height(server: SimServer) -> float:
 
 
 def test_check_with_px4_defaults_refuses_to_take_off_and_names_the_parameter(tmp_path: Path) -> None:
-    config = sim_config(free_port_block())
-    log = tmp_path / "agent.log"
-    with running_sim(config, load_world("box")) as server:
-        agent = start_agent(config, log, "check")
-        try:
-            assert agent.wait(timeout=60) == 1
-        finally:
-            kill_all([agent])
+    with agent_on_sim(tmp_path, "check") as (server, agent, log):
+        assert agent.wait(timeout=60) == 1
         events = log_events(log)
         unsafe = [e for e in events if e["event"] == "px4_param_unsafe"]
         assert [(e["param"], e["value"]) for e in unsafe] == [("NAV_RCL_ACT", 2)], log.read_text()
@@ -85,59 +95,45 @@ def test_check_with_px4_defaults_refuses_to_take_off_and_names_the_parameter(tmp
 
 
 def test_set_writes_hold_values_a_frozen_or_killed_agents_drone_holds(tmp_path: Path) -> None:
-    config = sim_config(free_port_block())
-    log = tmp_path / "agent.log"
-    with running_sim(config, load_world("box")) as server:
-        route = "agent.waypoints=[[5.5, 3.0, 1.5], [2.5, 3.0, 1.5]]"  # flown in offboard
-        agent = start_agent(config, log, "set", "--set", route)
+    route = "agent.waypoints=[[5.5, 3.0, 1.5], [2.5, 3.0, 1.5]]"  # flown in offboard
+    with agent_on_sim(tmp_path, "set", "--set", route) as (server, agent, log):
+        wait_until(lambda: any(e.get("phase") == Phase.FLYING for e in log_events(log)), 60, "flying")
+        assert params(server) == {**PX4_DEFAULTS, "COM_OBL_RC_ACT": 5, "NAV_RCL_ACT": 1}  # simulator truth
+        [written] = [e for e in log_events(log) if e["event"] == "px4_params_set"]
+        assert written["read_back"] == written["written"] == {"COM_OBL_RC_ACT": 5, "NAV_RCL_ACT": 1}
+        # frozen, the agent sends no setpoints: the vehicle holds and says so; woken, the agent logs it
+        agent.send_signal(signal.SIGSTOP)
         try:
-            wait_until(lambda: any(e.get("phase") == Phase.FLYING for e in log_events(log)), 60, "flying")
-            assert params(server) == {**PX4_DEFAULTS, "COM_OBL_RC_ACT": 5, "NAV_RCL_ACT": 1}  # simulator truth
-            [written] = [e for e in log_events(log) if e["event"] == "px4_params_set"]
-            assert written["read_back"] == written["written"] == {"COM_OBL_RC_ACT": 5, "NAV_RCL_ACT": 1}
-            # frozen, the agent sends no setpoints: the vehicle holds and says so; woken, the agent logs it
-            agent.send_signal(signal.SIGSTOP)
-            try:
-                wait_until(lambda: server.status()["vehicles"][0]["mode"] == "HOLD", 5, "offboard loss while frozen")
-            finally:
-                agent.send_signal(signal.SIGCONT)
-            wait_until(
-                lambda: any(
-                    e["event"] == "statustext" and e["text"].startswith("Failsafe: no offboard signal, Hold")
-                    for e in log_events(log)
-                ),
-                10,
-                "the failsafe STATUSTEXT in the agent's log",
-            )
-            wait_until(lambda: any(e.get("phase") == Phase.HOVERING for e in log_events(log)), 60, "hovering")
-            assert server.status()["vehicles"][0]["mode"] == "OFFBOARD"  # it flew on after waking
-            agent.kill()
-            agent.wait(timeout=10)
-            wait_until(lambda: server.status()["vehicles"][0]["mode"] != "OFFBOARD", 5, "offboard loss")
-            assert server.status()["vehicles"][0]["mode"] == "HOLD"
-            held_at = height(server)
-            time.sleep(2.0)  # an observation window: the drone must still hover there, not climb
-            assert abs(height(server) - held_at) < 0.15 and held_at < 1.8
-            assert server.status()["vehicles"][0]["mode"] == "HOLD"
+            wait_until(lambda: server.status()["vehicles"][0]["mode"] == "HOLD", 5, "offboard loss while frozen")
         finally:
-            kill_all([agent])
+            agent.send_signal(signal.SIGCONT)
+        wait_until(
+            lambda: any(
+                e["event"] == "statustext" and e["text"].startswith("Failsafe: no offboard signal, Hold")
+                for e in log_events(log)
+            ),
+            10,
+            "the failsafe STATUSTEXT in the agent's log",
+        )
+        wait_until(lambda: any(e.get("phase") == Phase.HOVERING for e in log_events(log)), 60, "hovering")
+        assert server.status()["vehicles"][0]["mode"] == "OFFBOARD"  # it flew on after waking
+        agent.kill()
+        agent.wait(timeout=10)
+        wait_until(lambda: server.status()["vehicles"][0]["mode"] != "OFFBOARD", 5, "offboard loss")
+        assert server.status()["vehicles"][0]["mode"] == "HOLD"
+        held_at = height(server)
+        time.sleep(2.0)  # an observation window: the drone must still hover there, not climb
+        assert abs(height(server) - held_at) < 0.15 and held_at < 1.8
+        assert server.status()["vehicles"][0]["mode"] == "HOLD"
 
 
 def test_off_leaves_the_parameters_and_flies(tmp_path: Path) -> None:
-    config = sim_config(free_port_block())
-    log = tmp_path / "agent.log"
-    with running_sim(config, load_world("box")) as server:
-        agent = start_agent(config, log, "off")
-        try:
-            wait_until(lambda: any(e.get("phase") == Phase.HOVERING for e in log_events(log)), 60, "hovering")
-            events = log_events(log)
-            assert not any(e["event"].startswith("px4_param") for e in events), log.read_text()
-            assert params(server) == PX4_DEFAULTS
-            assert height(server) > 1.2
-        finally:
-            agent.terminate()  # SIGTERM: the agent lands the drone before it exits
-            try:
-                assert agent.wait(timeout=40) == 0
-            finally:
-                kill_all([agent])
+    with agent_on_sim(tmp_path, "off") as (server, agent, log):
+        wait_until(lambda: any(e.get("phase") == Phase.HOVERING for e in log_events(log)), 60, "hovering")
+        events = log_events(log)
+        assert not any(e["event"].startswith("px4_param") for e in events), log.read_text()
+        assert params(server) == PX4_DEFAULTS
+        assert height(server) > 1.2
+        agent.terminate()  # SIGTERM: the agent lands the drone before it exits
+        assert agent.wait(timeout=40) == 0
         assert not server.status()["vehicles"][0]["armed"]
