@@ -50,6 +50,7 @@ def agent_summary_data(agent_id: int = 1, **overrides: Any) -> dict[str, Any]:
         "mavsdk_released": True,
         "sync": sync_stats(),
         "heartbeats_on_wrong_key": 0,
+        "bus_route_refreshes": 0,
         "give_way": 0,
         "timeline": [[float(i), 100 * i, 200 * i] for i in range(5)],
         **SCRIPTED_EXPLORATION,

@@ -55,6 +55,10 @@ EXIT_OK, EXIT_FLIGHT_FAILED, EXIT_FAILSAFE = 0, 1, 3
 LINGER_POLL_S = 0.2
 MIN_HEARTBEAT_GAP_S = 0.05
 TIMELINE_PERIOD_S = 1.0
+# A peer whose token is alive and heartbeats silent this long (heartbeats come at 5 Hz or more) is one we have
+# gone deaf to: our subscriptions are declared again, at most every ROUTE_REFRESH_GAP_S (swarm.roles.membership).
+DEAF_AFTER_S = 1.5
+ROUTE_REFRESH_GAP_S = 2.0
 NEIGHBOUR_FRESH_S = 1.0  # a peer heard longer ago than this is not extrapolated: it is taken to hover there
 
 
@@ -78,6 +82,7 @@ class Agent:
         self.log = EventLog(self.id)
         self.lattice = Lattice.from_settings(config.mapping)
         self.peers = PeerTable(self.id, timeout_s=config.agent.peer_timeout_s, on_change=self._on_membership)
+        self.route_refreshes = 0  # times the bus's subscriptions were declared again for a peer we were deaf to
         self.peer_events: list[dict[str, Any]] = []
         self.stop = asyncio.Event()
         self.started = time.time()
@@ -329,8 +334,14 @@ class Agent:
 
     async def _upkeep(self, bus: AsyncBus) -> None:
         next_sample = 0.0
+        refreshed_at = -ROUTE_REFRESH_GAP_S
         while True:
             self.peers.expire()
+            deaf = self.peers.deaf(DEAF_AFTER_S)
+            if deaf and time.monotonic() - refreshed_at >= ROUTE_REFRESH_GAP_S:
+                refreshed_at = time.monotonic()
+                self.route_refreshes += 1
+                self.log("bus_routes_refreshed", deaf_to=deaf, declarations=bus.refresh_routes())
             now = time.time() - self.started
             if now >= next_sample:
                 self.timeline.append([round(now, 2), bus.counters.bytes_sent, bus.counters.bytes_received])
@@ -410,6 +421,7 @@ class Agent:
                 "mavsdk_released": released,
                 "sync": self.sync.stats(),
                 "heartbeats_on_wrong_key": self.keys_mismatch,
+                "bus_route_refreshes": self.route_refreshes,
                 "give_way": self.flight.yields,
                 "timeline": self.timeline,
                 **(self.exploration.summary() if self.exploration is not None else SCRIPTED_EXPLORATION),

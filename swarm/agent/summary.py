@@ -80,6 +80,7 @@ class AgentSummary(FileModel):
     mavsdk_released: bool
     sync: SyncStats
     heartbeats_on_wrong_key: int
+    bus_route_refreshes: int  # subscriptions declared again for a peer heard by token only (swarm.roles)
     give_way: int
     timeline: list[tuple[float, int, int]]  # (t since start, bytes sent, bytes received), once a second
     # exploration (`ExplorationTask.summary`; a scripted agent: zeros and None)

@@ -27,6 +27,11 @@ queryables are declared with ``allowed_origin=REMOTE``, as subscribers are, so a
 patch X" is not answered by itself. Zenoh 1.10 ignores (and deprecates) a congestion control given to a
 reply: replies follow the query's QoS, and `get` sends with CongestionControl.DROP as puts do. A query or
 reply lost to congestion makes the querier time out; the sync protocol retries.
+
+`refresh_routes` undeclares every subscriber and queryable and declares it again, for a session that has gone
+deaf to a peer whose token it still sees (`swarm.roles.membership`): the new declarations make every router
+recompute its routes to us. The old one must go first: a session declares a key expression to the network once,
+however many subscribers it has on it, so a second subscriber declared alongside changes no route.
 """
 
 from __future__ import annotations
@@ -39,6 +44,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any, TypeVar
 
 import zenoh
@@ -121,6 +127,16 @@ class _ReliableWriter:
         self._thread.join(drain_s + 1.0)
 
 
+@dataclass
+class _Declared:
+    """A subscriber or queryable, with how to declare it again (`AsyncBus.refresh_routes`)."""
+
+    entity: Any
+    declare: Callable[[], Any]
+    what: str
+    routed: bool  # data subscribers and queryables: re-declared by refresh_routes (liveliness is not)
+
+
 class AsyncBus:
     """A Zenoh session bound to an event loop. Open with `await AsyncBus.open(...)` or `async with`.
 
@@ -137,7 +153,7 @@ class AsyncBus:
         self._lock = threading.Lock()  # the entity tables; never taken in Zenoh callbacks
         self._pending_lock = threading.Lock()
         self._publishers: dict[tuple[str, bool], zenoh.Publisher] = {}
-        self._subscribers: list[Any] = []
+        self._subscribers: list[_Declared] = []
         self._tokens: dict[str, zenoh.LivelinessToken] = {}
         self._writer: _ReliableWriter | None = None
         self._pending_bytes = 0
@@ -243,7 +259,9 @@ class AsyncBus:
 
         # REMOTE: a session would otherwise receive its own publications, which are not traffic.
         self._declare(
-            lambda: self.session.declare_subscriber(key_expr, on_sample, allowed_origin=zenoh.Locality.REMOTE), key_expr
+            lambda: self.session.declare_subscriber(key_expr, on_sample, allowed_origin=zenoh.Locality.REMOTE),
+            key_expr,
+            routed=True,
         )
 
     def _deliver(self, kind: str, nbytes: int, handler: Callable[[str, Any], None], key: str, msg: Any) -> None:
@@ -313,6 +331,7 @@ class AsyncBus:
             ),
             key_expr,
             "declare a queryable on",
+            routed=True,
         )
 
     def _answer(self, kind: str, key_expr: str, handler: QueryHandler, query: zenoh.Query) -> None:
@@ -457,16 +476,33 @@ class AsyncBus:
         except Exception as exc:
             raise BusError(f"cannot {what}: {zenoh_error_text(exc)}") from None
 
-    def _declare(self, declare: Callable[[], Any], key_expr: str, what: str = "subscribe to") -> None:
-        subscriber = self._call(declare, f"{what} {key_expr}")
+    def _declare(
+        self, declare: Callable[[], Any], key_expr: str, what: str = "subscribe to", routed: bool = False
+    ) -> None:
+        entity = self._call(declare, f"{what} {key_expr}")
         with self._lock:
-            self._subscribers.append(subscriber)
+            self._subscribers.append(_Declared(entity, declare, f"{what} {key_expr}", routed))
+
+    def refresh_routes(self) -> int:
+        """Undeclare every data subscriber and queryable and declare it again. Messages arriving in between
+        (a few milliseconds) are missed: heartbeats are repeated and patches pulled, so nothing is lost for
+        good. Returns how many were re-declared; raises BusError if the bus is closed or Zenoh refuses."""
+        with self._lock:
+            routed = [d for d in self._subscribers if d.routed]
+        for declared in routed:  # all first: two subscribers on one key expression are one declaration
+            try:
+                declared.entity.undeclare()
+            except Exception as exc:
+                log.warning("undeclare during a route refresh failed: %s", zenoh_error_text(exc))
+        for declared in routed:
+            declared.entity = self._call(declared.declare, declared.what)
+        return len(routed)
 
     def _teardown(self) -> None:
         if self._writer is not None:
             self._writer.stop(_WRITER_DRAIN_S)
         with self._lock:
-            entities = [*self._subscribers, *self._tokens.values(), *self._publishers.values()]
+            entities = [*(d.entity for d in self._subscribers), *self._tokens.values(), *self._publishers.values()]
             self._subscribers.clear()
             self._tokens.clear()
             self._publishers.clear()

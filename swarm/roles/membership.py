@@ -9,6 +9,11 @@ A peer whose heartbeat says it is down for good (`RETIRED_PHASES` of `swarm.bus.
 handed to the autopilot's failsafe) stays present (it still serves and pulls patches while it lingers) but
 leaves the cluster: it no longer decides, so as the lowest id it would leave its explorers waiting for
 assignments that never come.
+
+A peer whose token is alive but whose heartbeats do not arrive is one this agent has gone deaf to: its session
+reaches ours (liveliness is routed) but its publications are not routed to our subscriptions. Zenoh 1.10 routers
+can be left in that state after a link is re-established (measured: about half the times a router is frozen past
+its lease); `deaf` names such peers so the agent can re-declare its subscriptions, which repairs the routes.
 """
 
 from __future__ import annotations
@@ -47,6 +52,10 @@ class PeerTable:
     clock: Callable[[], float] = time.monotonic
     peers: dict[int, Peer] = field(default_factory=dict)
     ever_seen: set[int] = field(default_factory=set)
+    # liveliness and heartbeats by id, kept when a peer leaves on silence: a live token with no heartbeat
+    # since is what `deaf` looks for
+    tokens_since: dict[int, float] = field(default_factory=dict)
+    last_heartbeat: dict[int, float] = field(default_factory=dict)
 
     def heard(
         self,
@@ -61,7 +70,7 @@ class PeerTable:
         if peer_id == self.own_id:
             return
         peer = self._known(peer_id, "heartbeat")
-        peer.last_heard = self.clock()
+        peer.last_heard = self.last_heartbeat[peer_id] = self.clock()
         peer.position, peer.velocity, peer.heading_to = position, velocity, heading_to
         peer.phase, peer.epoch = phase, epoch
         peer.heartbeats += 1
@@ -69,6 +78,7 @@ class PeerTable:
     def token_appeared(self, peer_id: int) -> None:
         if peer_id == self.own_id:
             return
+        self.tokens_since.setdefault(peer_id, self.clock())
         self._known(peer_id, "token").token_alive = True
 
     def _known(self, peer_id: int, cause: str) -> Peer:
@@ -81,6 +91,7 @@ class PeerTable:
         return peer
 
     def token_vanished(self, peer_id: int) -> None:
+        self.tokens_since.pop(peer_id, None)
         if self.peers.pop(peer_id, None) is not None:
             self._emit("left", peer_id, "token")
 
@@ -92,6 +103,14 @@ class PeerTable:
             del self.peers[peer_id]
             self._emit("left", peer_id, "silent")
         return gone
+
+    def deaf(self, after_s: float) -> list[int]:
+        """Peers whose token has been alive, and whose heartbeats silent, for longer than `after_s` (whether or
+        not they have left on silence since)."""
+        now = self.clock()
+        return sorted(
+            k for k, since in self.tokens_since.items() if now - max(since, self.last_heartbeat.get(k, since)) > after_s
+        )
 
     @property
     def cluster(self) -> list[int]:

@@ -42,7 +42,14 @@ async def bus_pair(mission: str) -> AsyncIterator[tuple[AsyncBus, AsyncBus]]:
 class PeerProcess:
     """A running `tests.bus.peer_process`; its stdout JSON events collect in `events`."""
 
-    def __init__(self, mission: str, agent_id: int, endpoint: str) -> None:
+    def __init__(
+        self,
+        mission: str,
+        agent_id: int,
+        endpoint: str | list[str],
+        listen: str | None = None,
+        repair_routes: bool = False,
+    ) -> None:
         self.agent_id = agent_id
         self.events: list[dict[str, Any]] = []
         self.stderr: list[str] = []
@@ -55,8 +62,9 @@ class PeerProcess:
                 mission,
                 "--id",
                 str(agent_id),
-                "--connect",
-                endpoint,
+                *(arg for e in ([endpoint] if isinstance(endpoint, str) else endpoint) for arg in ("--connect", e)),
+                *(["--listen", listen] if listen else []),
+                *(["--repair-routes"] if repair_routes else []),
             ],
             cwd=REPO_ROOT,
             stdout=subprocess.PIPE,
@@ -112,12 +120,15 @@ class PeerProcess:
 
 
 @pytest.fixture
-def peer_process(mission: str) -> Iterator[Callable[[int, str], PeerProcess]]:
-    """Start peer processes of this test's mission; all are stopped (or killed) afterwards."""
+def peer_process(mission: str) -> Iterator[Callable[..., PeerProcess]]:
+    """Start peer processes of this test's mission (`start(id, endpoint or endpoints, listen=None,
+    repair_routes=False)`); all are stopped (or killed) afterwards."""
     started: list[PeerProcess] = []
 
-    def start(agent_id: int, endpoint: str) -> PeerProcess:
-        peer = PeerProcess(mission, agent_id, endpoint)
+    def start(
+        agent_id: int, endpoint: str | list[str], listen: str | None = None, repair_routes: bool = False
+    ) -> PeerProcess:
+        peer = PeerProcess(mission, agent_id, endpoint, listen, repair_routes)
         started.append(peer)
         return peer
 

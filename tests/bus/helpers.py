@@ -53,9 +53,12 @@ async def open_listening_bus(mission: str, attempts: int = 5, **settings: Any) -
     raise AssertionError(f"no free loopback port after {attempts} attempts")
 
 
-async def open_connecting_bus(mission: str, endpoint: str, **settings: Any) -> AsyncBus:
-    # Port 0: the OS picks a free one; nobody needs to connect to this side.
-    bus = BusSettings(listen=["tcp/127.0.0.1:0"], connect=[endpoint], lease_ms=LEASE_MS, **settings)
+async def open_connecting_bus(
+    mission: str, endpoint: str | list[str], listen: str = "tcp/127.0.0.1:0", **settings: Any
+) -> AsyncBus:
+    """A bus dialing `endpoint` (or each of a list); by default it listens on a port nobody needs to know."""
+    connect = [endpoint] if isinstance(endpoint, str) else endpoint
+    bus = BusSettings(listen=[listen], connect=connect, lease_ms=LEASE_MS, **settings)
     return await AsyncBus.open(bus, mission)
 
 

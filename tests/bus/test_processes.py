@@ -9,13 +9,14 @@ import sys
 import threading
 import time
 from collections.abc import AsyncIterator, Callable
+from functools import partial
 
 import pytest
 
 from swarm.bus.bridge import AsyncBus
 from swarm.bus.messages import AgentState
 from tests.bus.conftest import REPO_ROOT, PeerProcess
-from tests.bus.helpers import make_state, open_listening_bus, wait_until
+from tests.bus.helpers import free_tcp_port, make_state, open_listening_bus, wait_until
 
 pytestmark = [pytest.mark.timeout(60), pytest.mark.bus]
 
@@ -144,6 +145,55 @@ async def test_frozen_peer_leaves_on_lease_expiry_and_rejoins(
 
     await until_peer(peer, lambda: len(events) == 3, 5.0, "the peer to reconnect")
     assert events[2][0] == "join"
+
+
+async def test_a_router_frozen_past_its_lease_hears_every_router_again(
+    listener: tuple[AsyncBus, str], peer_process: Callable[..., PeerProcess]
+) -> None:
+    """Three routers as `swarm run` wires them (each dials the lower ids): 3 is frozen past the lease twice, and
+    after each thaw it must hear both others again. Zenoh 1.10.2 leaves the thawed router deaf to one of them in
+    about half the thaws (their tokens and its own heartbeats still get through; 1.9 does not, but keeps a
+    killed router's token for ever), so router 3 repairs its routes as an agent does (`--repair-routes`)."""
+    bus, endpoint = listener
+    heard: dict[int, int] = {}  # the latest seq this process (router 1) heard from each peer
+    bus.subscribe(bus.keys.all_states, AgentState, lambda key, msg: heard.__setitem__(msg.id, msg.seq))
+    bus.declare_token(bus.keys.alive(1))
+    endpoint_2 = f"tcp/127.0.0.1:{free_tcp_port()}"
+    peer_process(2, endpoint, listen=endpoint_2)
+    frozen = peer_process(3, [endpoint, endpoint_2], repair_routes=True)
+    seq = 0
+
+    def publish_and(condition: Callable[[], bool]) -> Callable[[], bool]:
+        def step() -> bool:
+            nonlocal seq
+            seq += 1
+            bus.publish(bus.keys.state(1), make_state(1, seq))
+            return condition()
+
+        return step
+
+    def heard_from_3_beyond(mark: int) -> bool:
+        return heard.get(3, -1) > mark
+
+    def heard_by_3_since(marks: dict[int, int]) -> Callable[[], bool]:
+        def done() -> bool:
+            latest = {e["msg"]["id"]: e["msg"]["seq"] for e in frozen.of("state")}
+            return all(latest.get(k, -1) > mark for k, mark in marks.items())
+
+        return done
+
+    await until_peer(frozen, publish_and(heard_by_3_since({1: 0, 2: 0})), STARTUP_S, "router 3 to hear 1 and 2")
+    for _ in range(2):
+        frozen.proc.send_signal(signal.SIGSTOP)
+        try:
+            await asyncio.sleep(2.5)  # the freeze itself: 2.5 leases, so both others close their links to 3
+            mark_3 = heard.get(3, -1)  # the last heartbeat 3 sent before it froze
+        finally:
+            frozen.proc.send_signal(signal.SIGCONT)
+        # marks taken after the thaw: only heartbeats sent once 3 has reconnected can pass
+        await until_peer(frozen, publish_and(partial(heard_from_3_beyond, mark_3)), 5.0, "router 1 to hear 3 again")
+        marks = {1: seq, 2: heard[2]}
+        await until_peer(frozen, publish_and(heard_by_3_since(marks)), 5.0, f"router 3 to hear 1 and 2 ({marks})")
 
 
 EXIT_SCRIPT = """

@@ -72,3 +72,24 @@ def test_a_peer_heard_only_by_its_token_is_in_the_cluster() -> None:
     table, _, _ = make(own=3)
     table.token_appeared(1)
     assert table.cluster == [1, 3] and table.leader == 1
+
+
+def test_a_live_token_with_no_heartbeat_marks_the_peer_deaf_even_after_it_left_on_silence() -> None:
+    table, _, clock = make()
+    table.token_appeared(4)
+    table.token_appeared(5)
+    table.heard(5, (0, 0, 1), Phase.FLYING, 1)
+    clock.now += 1.0
+    assert table.deaf(after_s=1.5) == []  # a token just seen: its first heartbeat is still on its way
+    clock.now += 1.0
+    table.heard(5, (0, 0, 1), Phase.FLYING, 1)
+    assert table.deaf(after_s=1.5) == [4]
+    clock.now += 3.5
+    assert table.expire() == [4, 5]  # both silent past the 3 s timeout; their tokens are still alive
+    assert table.deaf(after_s=1.5) == [4, 5]
+    table.heard(4, (0, 0, 1), Phase.FLYING, 1)
+    table.token_vanished(5)  # a peer whose token goes is gone, not unheard
+    assert table.deaf(after_s=1.5) == []
+    table.token_appeared(2)  # our own token
+    clock.now += 5.0
+    assert table.deaf(after_s=1.5) == [4]
