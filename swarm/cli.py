@@ -176,6 +176,12 @@ def build_parser() -> argparse.ArgumentParser:
     agent.set_defaults(handler=_agent)
     agent.add_argument("--id", type=_positive_int, help="drone id (also its MAVLink system id)")
     agent.add_argument("--autopilot", help="MAVSDK connection URL, e.g. udpin://0.0.0.0:14540")
+    agent.add_argument(
+        "--check",
+        action="store_true",
+        help="connect, read the vehicle's health and failsafe parameters, say whether the agent would fly, "
+        "and exit (0 ready, 1 not) without arming or writing anything",
+    )
     _add_config_flags(agent)
 
     observe = sub.add_parser("observe", help="follow a swarm on the bus and write its status")
@@ -451,6 +457,10 @@ def _world(args: argparse.Namespace) -> int:
 
 def _agent(args: argparse.Namespace) -> int:
     config = _config_from(args, {"agent.id": args.id, "agent.autopilot": args.autopilot})
+    if args.check:
+        from swarm.agent.preflight import preflight_command
+
+        return preflight_command(config)
     from swarm.agent.main import agent_command
 
     return agent_command(config)

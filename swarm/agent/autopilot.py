@@ -98,6 +98,16 @@ class Autopilot:
         self._action, self._offboard, self._tel = ActionAsync(system), OffboardAsync(system), TelemetryAsync(system)
         self._param = ParamAsync(system)
 
+    async def read_health(self) -> dict[str, bool]:
+        """The health items the agent waits for before it arms (`wait_healthy`), each ok or not."""
+        assert self._tel is not None
+        health = await self._call("health", self._tel.health)
+        return {
+            "local position": health.is_local_position_ok,
+            "home position": health.is_home_position_ok,
+            "armable": health.is_armable,
+        }
+
     async def wait_healthy(self, timeout_s: float) -> None:
         """Wait until the autopilot reports healthy, armable and a home position; then start the streams."""
         assert self._tel is not None
