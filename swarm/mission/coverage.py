@@ -7,6 +7,10 @@ uses on received patches (a bad file is counted and skipped, never fused), and f
 Each producer's patches are also fused into a map of their own, so the report can tell what each drone's camera
 contributed (`explored_by_agent`) and how much of the explored space more than one drone saw
 (`overlap_fraction`: the redundancy coordination is meant to keep low).
+
+`unexplored` lists the largest 26-connected pieces of the reachable space still unknown, with their bounding
+boxes: where the swarm did not go (a room behind a door its planner found too narrow, a storey never entered),
+which is what a mission that ends below its coverage target has to show.
 """
 
 from __future__ import annotations
@@ -16,14 +20,49 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy import ndimage
 
 from swarm.config import SwarmConfig
 from swarm.patches.fused import UNKNOWN, FusedMap
 from swarm.patches.lattice import Lattice
 from swarm.patches.patch import Patch
 from swarm.patches.wire import PatchDecodeError, decode_patch
-from swarm.sim.coverage import explored_fraction, mission_reachable_space
+from swarm.sim.coverage import ReachableSpace, mission_reachable_space
 from swarm.sim.worlds import load_world, mission_volume
+
+UNEXPLORED_REGIONS_KEPT = 3
+MIN_UNEXPLORED_M3 = 0.1  # smaller unknown pieces (corners, specks) are not regions
+
+
+def unexplored_regions(
+    space: ReachableSpace, known: np.ndarray, keep: int = UNEXPLORED_REGIONS_KEPT
+) -> list[dict[str, Any]]:
+    """The `keep` largest 26-connected pieces of `space` whose cells are not `known` ((N,) bool, in the order of
+    `space.centres`), largest first: volume and bounding box."""
+    unknown = np.zeros(space.mask.size, dtype=bool)
+    unknown[np.flatnonzero(space.mask.ravel())] = ~np.asarray(known, dtype=bool)
+    labels, count = ndimage.label(unknown.reshape(space.mask.shape), structure=np.ones((3, 3, 3), dtype=bool))
+    if count == 0:
+        return []
+    sizes = np.bincount(labels.ravel())[1:]
+    boxes = ndimage.find_objects(labels)
+    cell_m3 = space.resolution**3
+    regions = []
+    for index in np.argsort(-sizes, kind="stable")[:keep]:
+        if sizes[index] * cell_m3 < MIN_UNEXPLORED_M3:
+            break
+        box = boxes[index]
+        assert box is not None  # every label from 1 to count has cells
+        lo = space.origin + np.array([sl.start for sl in box]) * space.resolution
+        hi = space.origin + np.array([sl.stop for sl in box]) * space.resolution
+        regions.append(
+            {
+                "volume_m3": round(float(sizes[index] * cell_m3), 2),
+                "lo": [round(float(v), 2) for v in lo],
+                "hi": [round(float(v), 2) for v in hi],
+            }
+        )
+    return regions
 
 
 def overlap_fraction(known: np.ndarray) -> float:
@@ -57,6 +96,7 @@ class SwarmCoverage:
         self.by_producer: dict[int, FusedMap] = {}
         self.producer_timeline: dict[int, list[tuple[float, float]]] = {}
         self.overlap = 0.0
+        self.unexplored: list[dict[str, Any]] = []
         self._producer_known: dict[int, np.ndarray] = {}  # reachable cells each producer's map knows (cached)
         self._changed: set[int] = set()  # producers whose map grew since their mask was computed
         self._lock = threading.Lock()
@@ -78,7 +118,9 @@ class SwarmCoverage:
                     continue
                 self.fused.add(patch)
                 self._add_to_producer(patch)
-            self.fraction = explored_fraction(self.space, lambda points: self.fused.state_at(points) != UNKNOWN)
+            known = self.fused.state_at(self.space.centres) != UNKNOWN
+            self.fraction = float(np.count_nonzero(known)) / len(known) if len(known) else 0.0
+            self.unexplored = unexplored_regions(self.space, known)
             self.timeline.append((round(t, 2), round(self.fraction, 4)))
             self._measure_producers(t)
 
@@ -119,4 +161,5 @@ class SwarmCoverage:
             "reachable_cells": int(self.space.mask.sum()),
             "explored_by_agent": {str(k): list(v) for k, v in sorted(self.producer_timeline.items())},
             "overlap_fraction": round(self.overlap, 4),
+            "unexplored": self.unexplored,
         }

@@ -55,6 +55,14 @@ class LeaderEntry(FileModel):
     members: list[int]
 
 
+class UnexploredRegion(FileModel):
+    """A connected piece of the reachable space that no map knows (`swarm.mission.coverage`)."""
+
+    volume_m3: float
+    lo: tuple[float, float, float]  # the corners of its bounding box, world metres
+    hi: tuple[float, float, float]
+
+
 class ObserverStatus(FileModel):
     done: bool
     t: float
@@ -72,6 +80,7 @@ class ObserverStatus(FileModel):
     reachable_cells: int
     explored_by_agent: dict[str, list[tuple[float, float]]]
     overlap_fraction: float
+    unexplored: list[UnexploredRegion]  # the largest first, at most UNEXPLORED_REGIONS_KEPT
 
 
 NO_COVERAGE: dict[str, Any] = {
@@ -82,6 +91,7 @@ NO_COVERAGE: dict[str, Any] = {
     "reachable_cells": 0,
     "explored_by_agent": {},
     "overlap_fraction": 0.0,
+    "unexplored": [],
 }
 
 

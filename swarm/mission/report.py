@@ -27,6 +27,7 @@ from swarm.mission.files import (
     ObserverStatus,
     Priority,
     ReceivedPatches,
+    UnexploredRegion,
     Volume,
 )
 from swarm.mission.phantoms import phantom_check
@@ -79,7 +80,7 @@ def build_report(
     explore = getattr(plan.config, "explore", None)
     explored = seen.explored_fraction
     if status == "complete" and _judged_by_coverage(plan.config) and explored < COVERAGE_TARGET:
-        status, state.reason = "incomplete", _why_short(explored, agents)
+        status, state.reason = "incomplete", _why_short(explored, agents, seen.unexplored)
     links = state.links.report() if state.links is not None else {}
     return MissionReport(
         status=status,
@@ -181,12 +182,18 @@ def _judged_by_coverage(config: Any) -> bool:
     return getattr(explore, "strategy", "scripted") != "scripted" and getattr(camera, "source", "none") != "none"
 
 
-def _why_short(explored: float, agents: list[AgentRow]) -> str:
+def _why_short(explored: float, agents: list[AgentRow], unexplored: Sequence[UnexploredRegion] = ()) -> str:
     reasons = sorted({a.exploration_done_reason for a in agents if a.exploration_done_reason})
     given_up = sum(len(a.frontiers_given_up) for a in agents)
+    where = ""
+    if unexplored:
+        r = unexplored[0]
+        box = ", ".join(f"{axis} {a:g}-{b:g}" for axis, a, b in zip("xyz", r.lo, r.hi))
+        where = f"; the largest unexplored part: {r.volume_m3:g} m3 in {box} (observer.json unexplored)"
     return (
         f"exploration ended at {math.floor(explored * 1000) / 10:.1f} % explored, below {COVERAGE_TARGET:.0%}: "
         f"{'; '.join(reasons) or 'no agent said why'}; {given_up} frontier(s) given up (agents[].frontiers_given_up)"
+        f"{where}"
     )
 
 

@@ -15,12 +15,13 @@ from swarm.bus.messages import AgentState
 from swarm.bus.phase import Phase
 from swarm.config import load_config
 from swarm.mission import observer as observer_module
-from swarm.mission.coverage import SwarmCoverage, overlap_fraction
-from swarm.mission.files import MissionReport, ObserverStatus
+from swarm.mission.coverage import SwarmCoverage, overlap_fraction, unexplored_regions
+from swarm.mission.files import AgentRow, MissionReport, ObserverStatus, UnexploredRegion
 from swarm.mission.observer import LeaderTimeline, Observer, Trajectories, clusters_of
 from swarm.mission.plots import PLOT_NAMES, floor_plan, leader_segments, plot_explored, received_rate, write_plots
-from swarm.mission.report import finish_report, time_to, write_report
+from swarm.mission.report import _why_short, finish_report, time_to, write_report
 from swarm.mission.report_md import write_report_page
+from swarm.sim.coverage import ReachableSpace
 from swarm.sim.worlds import load_world
 from tests.file_models import agent_row_data, agent_summary_data, mission_report_data, observer_status_data
 from tests.mission.spin_patches import spin_patches
@@ -81,6 +82,8 @@ def test_coverage_keeps_one_map_per_producer_and_measures_their_overlap(tmp_path
     known = np.stack([coverage._producer_known[1], coverage._producer_known[2]])
     assert snapshot["overlap_fraction"] == pytest.approx(overlap_fraction(known), abs=1e-4)
     assert json.loads(json.dumps(snapshot))["explored_by_agent"]["2"][0] == [3.0, round(two, 4)]
+    assert snapshot["unexplored"] and snapshot["unexplored"][0]["volume_m3"] > 0  # the spins saw part of the box
+    ObserverStatus.model_validate(observer_status_data(**coverage.snapshot()))  # it fits the observer's file
 
     coverage.update(t=5.0)  # nothing new: one more point per producer, same values
     assert [t for t, _ in coverage.snapshot()["explored_by_agent"]["1"]] == [3.0, 5.0]
@@ -400,3 +403,33 @@ def test_a_plotting_failure_is_recorded_not_raised(tmp_path: Path, monkeypatch: 
     assert report.plots == [] and report.report_page == "report.md"
     assert json.loads(report.to_json())["plots_error"] == "RuntimeError: no fonts"
     assert (tmp_path / "report.md").exists()
+
+
+# --- where the swarm did not go --------------------------------------------------------------------------------
+
+
+def test_unexplored_regions_are_the_largest_unknown_pieces_of_reachable_space_with_their_boxes() -> None:
+    mask = np.ones((10, 4, 2), dtype=bool)
+    mask[5, :, :] = False  # a wall splitting the reachable space in two
+    space = ReachableSpace(np.array([1.0, 0.0, 0.0]), 0.5, mask, np.zeros((int(mask.sum()), 3)))
+    unknown = np.zeros(mask.shape, dtype=bool)
+    unknown[6:10, 1:3, :] = True  # 16 cells (2 m3) east of the wall
+    unknown[0, 0, 0] = True  # a speck of 0.125 m3
+    unknown[2, 3, 1] = True
+    known = ~unknown[mask]
+    regions = unexplored_regions(space, known, keep=5)
+    assert regions[0] == {"volume_m3": 2.0, "lo": [4.0, 0.5, 0.0], "hi": [6.0, 1.5, 1.0]}
+    assert [r["volume_m3"] for r in regions] == [2.0, 0.12, 0.12]
+    assert unexplored_regions(space, known, keep=1) == regions[:1]
+    assert unexplored_regions(space, np.ones(int(mask.sum()), dtype=bool)) == []
+
+
+def test_a_mission_below_its_coverage_target_names_the_largest_unexplored_part() -> None:
+    agents = [AgentRow.model_validate(agent_row_data(exploration_done_reason="leader 1: no reachable frontier"))]
+    region = UnexploredRegion(volume_m3=37.6, lo=(0.5, 8.9, 3.9), hi=(10.7, 11.5, 6.7))
+    reason = _why_short(0.9335, agents, [region])
+    assert reason.startswith("exploration ended at 93.3 % explored, below 95%: leader 1: no reachable frontier;")
+    assert reason.endswith(
+        "the largest unexplored part: 37.6 m3 in x 0.5-10.7, y 8.9-11.5, z 3.9-6.7 (observer.json unexplored)"
+    )
+    assert "unexplored" not in _why_short(0.9335, agents)
