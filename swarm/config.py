@@ -450,14 +450,6 @@ class MappingSettings(_Section):
     patch_frames: int = Field(15, ge=1, le=255, description="seal the open patch every K frames")
     patch_distance_m: PositiveFloat = Field(2.0, description="... or after the drone moved this far")
     planning_resolution_m: PositiveFloat = Field(0.2, description="occupancy grid exported for planning")
-    max_incidence_deg: float = Field(
-        90.0,
-        gt=0.0,
-        le=90.0,
-        description="depth pixels whose surface is seen more obliquely than this are not integrated (projective "
-        "distances there make the voxel behind a floor or ceiling read free; 78 leaves no such voxel under a "
-        "0.2 m slab, but slowed exploration by a quarter); 90: every pixel",
-    )
     max_patch_bytes: int = Field(4 << 20, ge=1024, description="larger patches are rejected on receipt")
 
 

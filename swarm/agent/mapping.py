@@ -35,7 +35,7 @@ from swarm.aio import wait_event
 from swarm.config import SwarmConfig, Vec3
 from swarm.explore.frontiers import ExplorationGrid, Frontier, ViewModel
 from swarm.files import write_atomic
-from swarm.patches.fused import OCCUPIED, UNKNOWN
+from swarm.patches.fused import OCCUPIED
 from swarm.patches.mapper import Mapper
 from swarm.patches.patch import Patch, PatchId
 from swarm.patches.wire import PatchDecodeError
@@ -210,10 +210,8 @@ class MappingTask:
         occupied_fine = None
         with self.mapper.current_map() as fused:
             origin, states = fused.occupancy_grid(resolution, min_known=self.config.explore.seen_fraction)
-            top = origin + np.array(states.shape) * resolution
-            # what is not entirely seen, which no airframe may have above it (ExplorationGrid.from_states)
-            unseen = fused.occupancy_grid(resolution, origin, top, min_known=1.0)[1] == UNKNOWN
             if refine > 1 and abs(refine * voxel - resolution) < 1e-9:
+                top = origin + np.array(states.shape) * resolution
                 occupied_fine = fused.occupancy_grid(voxel, origin, top)[1] == OCCUPIED
         for point in obstacles:
             _mark_occupied(states, origin, resolution, point, self.config.sim.drone_radius_m)
@@ -227,7 +225,6 @@ class MappingTask:
             free_points=[position],
             occupied_fine=occupied_fine,
             view=ViewModel.from_camera(self.config.camera),
-            unseen=unseen,
         )
         return grid, grid.frontiers(position)
 

@@ -9,9 +9,7 @@ that plan through known free space only. The input is the coarse state grid of t
   ceil((body_height_m - clearance_m) / res) cells above it (the airframe stands above its position) are known
   FREE with no point closer than `clearance_m` to an obstacle (the conservative rasterisation of
   `OccupancyGrid.inflate`), none of the ceil((body_height_m + clearance_m) / res) cells above it is UNKNOWN
-  (above the grid counts as unknown: a ceiling nobody saw, the drone's top would touch), nor, when the caller
-  gives `unseen`, only partly seen (a FREE cell at seen_fraction < 1 can be a floor slab whose underside was
-  taken for free space at grazing incidence and whose inside was never seen), and its centre is
+  (above the grid counts as unknown: a ceiling nobody saw, the drone's top would touch), and its centre is
   inside the flight band
   z in [floor_z + min_altitude_m, top_z - ceiling_margin_m]. UNKNOWN cells are never safe but are not inflated:
   otherwise every frontier would sit behind a wall of blocked cells. UNKNOWN cells whose centre is within
@@ -169,14 +167,11 @@ class ExplorationGrid:
         free_points: Sequence[Vec3] = (),
         occupied_fine: np.ndarray | None = None,
         view: ViewModel | None = None,
-        unseen: np.ndarray | None = None,
     ) -> ExplorationGrid:
         """The grid for one loop; `states` as `FusedMap.occupancy_grid` exports them (not modified).
         `occupied_fine`: the occupied voxels of the same volume at a resolution f times finer (f an integer),
         for the clearance test (see the module docstring). `view`: the camera, for the view gain; without it
-        (or with `gain_model = "box"`) frontiers carry the box gain. `unseen`: the cells not entirely seen (the
-        states exported with min_known = 1, UNKNOWN), which the airframe's column above a safe cell must not
-        touch; without it, the UNKNOWN cells of `states`."""
+        (or with `gain_model = "box"`) frontiers carry the box gain."""
         origin_ = np.asarray(origin, dtype=float).reshape(3)
         states = np.asarray(states, dtype=np.uint8)
         if states.ndim != 3 or not resolution > 0:
@@ -190,19 +185,12 @@ class ExplorationGrid:
         column = np.array([[0.0, 0.0, j * resolution] for j in range(max(seen_cells, body_cells + 1))])
         body_points = [tuple(np.asarray(p, dtype=float) + c) for p in free_points for c in column]
         states = _mark_free(states, origin_, resolution, body_points, settings.clearance_m)
-        overhead = states == UNKNOWN
-        if unseen is not None:
-            if unseen.shape != states.shape:
-                raise ValueError(f"unseen cells {unseen.shape} do not match the states {states.shape}")
-            # the space round a drone's position and above it counts as seen, as it counts as free
-            around = _mark_free(np.zeros_like(states), origin_, resolution, body_points, settings.clearance_m)
-            overhead |= unseen & (around != FREE)
         blocked = _blocked(states, occupied_fine, settings.clearance_m / resolution)
         low = (floor_z + settings.min_altitude_m - origin_[2]) / resolution - 0.5  # in layer-centre units
         high = (top_z - settings.ceiling_margin_m - origin_[2]) / resolution - 0.5
         k0 = max(math.ceil(low - _EPS), 0)
         k1 = max(min(math.floor(high + _EPS) + 1, states.shape[2]), k0)
-        safe = _with_room_above((states == FREE) & ~blocked, body_cells) & ~_under_unknown(overhead, seen_cells)
+        safe = _with_room_above((states == FREE) & ~blocked, body_cells) & ~_under_unknown(states, seen_cells)
         safe[:, :, :k0] = False
         safe[:, :, k1:] = False
         roomy = None
@@ -564,11 +552,11 @@ def _coarsen(mask: np.ndarray, f: int) -> np.ndarray:
     return out
 
 
-def _under_unknown(unknown_cells: np.ndarray, cells: int) -> np.ndarray:
-    """Cells with an unknown cell among the `cells` cells above them (above the grid counts as unknown)."""
-    unknown = np.concatenate([unknown_cells, np.ones(unknown_cells.shape[:2] + (cells,), dtype=bool)], axis=2)
-    out = np.zeros(unknown_cells.shape, dtype=bool)
-    nz = unknown_cells.shape[2]
+def _under_unknown(states: np.ndarray, cells: int) -> np.ndarray:
+    """Cells with an UNKNOWN cell among the `cells` cells above them (above the grid counts as unknown)."""
+    unknown = np.concatenate([states == UNKNOWN, np.ones(states.shape[:2] + (cells,), dtype=bool)], axis=2)
+    out = np.zeros(states.shape, dtype=bool)
+    nz = states.shape[2]
     for j in range(1, cells + 1):
         out |= unknown[:, :, j : j + nz]
     return out

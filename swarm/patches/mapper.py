@@ -16,7 +16,6 @@ import numpy as np
 from swarm.config import MappingSettings, Vec3
 from swarm.patches.backend import TsdfBackend, VoxelBlockGridBackend
 from swarm.patches.fused import Bounds, FusedMap
-from swarm.patches.grazing import drop_grazing
 from swarm.patches.lattice import Lattice
 from swarm.patches.patch import Patch, PatchId
 from swarm.patches.sealer import PatchSealer
@@ -42,7 +41,6 @@ class Mapper:
         self.producer = producer
         self.epoch = epoch
         self.sealer = PatchSealer(backend, producer, epoch, settings.patch_frames, settings.patch_distance_m)
-        self.max_incidence_deg = settings.max_incidence_deg
         self.private = PatchStore(self.lattice)
         self.public = PatchStore(self.lattice)
         self.fused = FusedMap(self.lattice, bounds, known_weight)
@@ -50,9 +48,7 @@ class Mapper:
     def integrate(
         self, depth: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray, t: float, max_range: float
     ) -> Patch | None:
-        """Integrate one frame, less its grazing pixels (`swarm.patches.grazing`); the patch it sealed (already
-        stored and fused), or None."""
-        depth = drop_grazing(depth, K, self.max_incidence_deg)
+        """Integrate one frame; the patch it sealed (already stored and fused), or None."""
         return self._keep(self.sealer.add_frame(depth, K, T_world_cam, t, max_range))
 
     def seal(self) -> Patch | None:

@@ -299,25 +299,6 @@ def test_a_drone_flies_only_where_the_space_above_its_airframe_has_been_seen() -
     assert _grid(states, airframe, free_points=[here]).planning_grid.is_free(here)
 
 
-def test_a_cell_only_partly_seen_above_the_airframe_counts_as_unseen() -> None:
-    # A floor slab seen from far below reads, cell by cell, half free voxels (its underside, taken for free at
-    # grazing incidence) and half never seen: FREE at the default seen_fraction. A drone once planned up through
-    # it. Given the cells not entirely seen (`unseen`), the layers under it are not safe: no path crosses it.
-    states = room_states(known_to_x=8.0)
-    airframe = SETTINGS.model_copy(update={"ceiling_margin_m": 0.01, "body_height_m": 0.45})
-    heights = [0.9 + 0.2 * k for k in range(8)]  # cell centres 0.9 .. 2.3 m
-    unseen = np.zeros(states.shape, dtype=bool)
-    unseen[:, :, 12:14] = True  # 2.4-2.8 m: FREE in `states`, not entirely seen
-    as_free = _grid(states, airframe)
-    assert [as_free.planning_grid.is_free((2.0, 3.0, z)) for z in heights] == [True] * 7 + [False]
-    strict = _grid(states, airframe, unseen=unseen)
-    assert [strict.planning_grid.is_free((2.0, 3.0, z)) for z in heights] == [True] * 4 + [False] * 4
-    here = (2.1, 3.1, 2.1)  # a drone already up there still plans from where it is
-    assert _grid(states, airframe, unseen=unseen, free_points=[here]).planning_grid.is_free(here)
-    with pytest.raises(ValueError, match="do not match"):
-        _grid(states, airframe, unseen=unseen[:, :, :-1])
-
-
 def test_gain_is_larger_facing_a_large_unknown_region_than_a_small_pocket() -> None:
     states = room_states(known_to_x=6.0)
     set_states(states, (2.0, 3.0, 1.2), (2.39, 3.39, 1.59), UNKNOWN)  # a 2 x 2 x 2 cell pocket in mid-air

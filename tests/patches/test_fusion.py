@@ -9,7 +9,6 @@ import pytest
 from swarm.config import MappingSettings
 from swarm.patches.backend import VoxelBlockGridBackend
 from swarm.patches.fused import FusedMap
-from swarm.patches.grazing import drop_grazing
 from swarm.patches.lattice import Lattice
 from swarm.patches.mapper import Mapper
 from swarm.patches.patch import TSDF_SCALE, Patch
@@ -34,7 +33,7 @@ def mapped(law: str) -> tuple[Mapper, list[Patch], VoxelBlockGridBackend]:
     single = VoxelBlockGridBackend(mapper.lattice, block_capacity=8192)
     patches = []
     for f in flight():
-        single.integrate(drop_grazing(f.depth, f.K, settings.max_incidence_deg), f.K, f.T, MAX_RANGE)
+        single.integrate(f.depth, f.K, f.T, MAX_RANGE)
         sealed = mapper.integrate(f.depth, f.K, f.T, f.t, MAX_RANGE)
         if sealed:
             patches.append(sealed)
