@@ -64,8 +64,11 @@ def test_a_stall_of_simulator_and_agent_together_is_not_taken_for_a_lost_link(tm
         for proc in (sim, agent):
             proc.send_signal(signal.SIGSTOP)
         time.sleep(FREEZE_S)
-        for proc in (agent, sim):  # the agent first: it may look at its telemetry before the vehicle sends
-            proc.send_signal(signal.SIGCONT)
+        # The agent first, and the vehicle only once the agent has looked at its telemetry: on a loaded machine
+        # the vehicle's next samples could otherwise reach the agent before it ran, and it would see no gap at all.
+        agent.send_signal(signal.SIGCONT)
+        wait_until(lambda: any(e["event"] == "telemetry_gap_unheard" for e in log_events(log)), 10, "the gap seen")
+        sim.send_signal(signal.SIGCONT)
         assert agent.wait(timeout=60) == 0, log.read_text()
         events = log_events(log)
         assert not [e for e in events if e["event"].startswith("failsafe")], log.read_text()
