@@ -3,8 +3,11 @@ serves both sides: the simulated vehicle takes these actions (swarm/sim/autopilo
 fly where its own death would be a Return (swarm/agent/px4_params.py), so the two can never disagree.
 
 Sources (PX4-Autopilot): `src/modules/commander/commander_params.c` (COM_OBL_RC_ACT, NAV_RCL_ACT, NAV_DLL_ACT,
-COM_RCL_EXCEPT, COM_RC_IN_MODE, COM_DL_LOSS_T) and `src/modules/commander/failsafe/failsafe.cpp`
-(`fromOffboardLossActParam`, `fromNavDllOrRclActParam`, the RC-loss exceptions), and the failsafe pages of the
+COM_RCL_EXCEPT, COM_RC_IN_MODE, COM_DL_LOSS_T; in current PX4 `commander_params.yaml`, also COM_LOW_BAT_ACT and
+COM_ARM_BAT_MIN) and `src/modules/commander/failsafe/failsafe.cpp` (`fromOffboardLossActParam`,
+`fromNavDllOrRclActParam`, `fromBatteryWarningActParam`, the RC-loss exceptions), `src/lib/battery/`
+(`battery_params_common.c`: BAT_LOW_THR, BAT_CRIT_THR, BAT_EMERGEN_THR; `Battery::determineWarning`),
+`src/modules/commander/HealthAndArmingChecks/checks/batteryCheck.cpp` (arming), and the failsafe pages of the
 PX4 user guide (`docs/en/config/safety.md`).
 
 Offboard loss:
@@ -19,13 +22,21 @@ Offboard loss:
    to the first mode that can run, which for a vehicle with a position estimate is Hold.
 
 Data-link loss: no GCS HEARTBEAT for COM_DL_LOSS_T seconds triggers NAV_DLL_ACT (0 disabled, the default).
+
+Battery: the remaining fraction below BAT_LOW_THR (0.15) is a low warning, below BAT_CRIT_THR (0.07) critical,
+below BAT_EMERGEN_THR (0.05) emergency (strictly below; while armed the warning only rises). Low only warns.
+At critical and emergency COM_LOW_BAT_ACT acts: 0 warning only (the default), 2 Land, 3 Return at critical and
+Land at emergency, 1 (deprecated, still honoured) Return at both; other values warn. The action is taken only for
+a warning worse than the one at arming (a vehicle armed with a low battery is not sent home for it). Arming is
+refused at critical or worse while COM_ARM_BAT_MIN is negative (the default, -1: "BAT_CRIT_THR is the
+threshold"); when it is 0 or more, arming is refused below it instead, and a critical warning alone does not.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from enum import Enum
+from enum import Enum, IntEnum
 
 
 class Action(Enum):
@@ -93,3 +104,75 @@ def datalink_loss_action(param: ParamReader) -> Decision:
     """What PX4 does when the GCS heartbeat has been missing for COM_DL_LOSS_T (NONE: NAV_DLL_ACT disabled)."""
     dll = int(param("NAV_DLL_ACT"))
     return Decision(_LINK_ACTIONS.get(dll, Action.NONE), "NAV_DLL_ACT", f"NAV_DLL_ACT={dll}")
+
+
+class BatteryWarning(IntEnum):
+    """PX4's battery warning levels (`battery_status.msg` WARNING_*), ordered by severity."""
+
+    NONE = 0
+    LOW = 1
+    CRITICAL = 2
+    EMERGENCY = 3
+
+    @property
+    def label(self) -> str:
+        return self.name.lower()
+
+
+# COM_LOW_BAT_ACT values (failsafe.h LowBatteryAction): what each does at critical, and at emergency
+_LOW_BAT_ACTIONS = {
+    1: (Action.RETURN, Action.RETURN),  # Return (deprecated, absent from the parameter's current values)
+    2: (Action.LAND, Action.LAND),
+    3: (Action.RETURN, Action.LAND),  # Return at critical, Land at emergency
+}
+# What PX4 says when a level is reached and the action is a warning (its events, failsafe/framework.cpp)
+BATTERY_WARNING_TEXT = {
+    BatteryWarning.LOW: "Low battery level, return advised",
+    BatteryWarning.CRITICAL: "Critical battery level, land now",
+    BatteryWarning.EMERGENCY: "Emergency battery level, land immediately",
+}
+
+
+def battery_warning(param: ParamReader, remaining: float) -> BatteryWarning:
+    """The warning level of a battery with `remaining` (0..1) charge (Battery::determineWarning)."""
+    if remaining < param("BAT_EMERGEN_THR"):
+        return BatteryWarning.EMERGENCY
+    if remaining < param("BAT_CRIT_THR"):
+        return BatteryWarning.CRITICAL
+    if remaining < param("BAT_LOW_THR"):
+        return BatteryWarning.LOW
+    return BatteryWarning.NONE
+
+
+def low_battery_action(
+    param: ParamReader, warning: BatteryWarning, at_arming: BatteryWarning = BatteryWarning.NONE
+) -> Decision:
+    """What PX4 does on reaching `warning` in flight (NONE: a warning only), having armed at `at_arming`."""
+    act = int(param("COM_LOW_BAT_ACT"))
+    if warning < BatteryWarning.CRITICAL:
+        return Decision(Action.NONE, "BAT_LOW_THR", f"{warning.label} battery: a warning only")
+    if warning <= at_arming:
+        return Decision(Action.NONE, "COM_LOW_BAT_ACT", f"{warning.label} battery since arming: a warning only")
+    critical, emergency = _LOW_BAT_ACTIONS.get(act, (Action.NONE, Action.NONE))
+    action = critical if warning == BatteryWarning.CRITICAL else emergency
+    return Decision(action, "COM_LOW_BAT_ACT", f"COM_LOW_BAT_ACT={act}")
+
+
+@dataclass(frozen=True)
+class Refusal:
+    param: str  # the parameter whose value decided it
+    reason: str  # for the STATUSTEXT
+
+
+def battery_arming_refusal(param: ParamReader, remaining: float) -> Refusal | None:
+    """Why PX4 refuses to arm with `remaining` (0..1) charge, or None when the battery allows arming."""
+    arm_min = param("COM_ARM_BAT_MIN")
+    if arm_min >= 0:
+        if remaining < arm_min:
+            return Refusal("COM_ARM_BAT_MIN", f"battery {remaining:.1%} below COM_ARM_BAT_MIN {arm_min:.1%}")
+        return None
+    warning = battery_warning(param, remaining)
+    if warning < BatteryWarning.CRITICAL:
+        return None  # a low battery is reported, not refused
+    threshold = "BAT_EMERGEN_THR" if warning == BatteryWarning.EMERGENCY else "BAT_CRIT_THR"
+    return Refusal(threshold, f"{warning.label} battery, {remaining:.1%} below {threshold} {param(threshold):.1%}")

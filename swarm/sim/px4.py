@@ -88,6 +88,13 @@ class Params:
             "COM_DL_LOSS_T": Param(10, INT32),  # s
             "COM_RC_IN_MODE": Param(3, INT32),  # 3 RC or joystick, first kept; 4 stick input disabled
             "COM_RCL_EXCEPT": Param(0, INT32),  # RC-loss exemptions: bit 0 Mission, 1 Hold/auto, 2 Offboard
+            # Battery (src/lib/battery/battery_params_common.c; commander_params.yaml): what the simulator does
+            # with them is swarm/agent/px4_failsafe.py; the battery itself is swarm/sim/battery.py
+            "BAT_LOW_THR": Param(0.15),
+            "BAT_CRIT_THR": Param(0.07),
+            "BAT_EMERGEN_THR": Param(0.05),
+            "COM_LOW_BAT_ACT": Param(0, INT32),  # 0 warning, 2 Land, 3 Return at critical / Land at emergency
+            "COM_ARM_BAT_MIN": Param(-1.0),  # negative: arming refused at BAT_CRIT_THR
             "COM_DISARM_LAND": Param(2.0),
             "COM_DISARM_PRFLT": Param(10.0),
             "MAV_SYS_ID": Param(sysid, INT32),
