@@ -259,6 +259,13 @@ class SimSettings(_Section):
     takeoff_alt_m: PositiveFloat = Field(1.5, description="MIS_TAKEOFF_ALT default")
     drone_radius_m: PositiveFloat = Field(0.2, description="collision sphere radius")
     offboard_timeout_s: PositiveFloat = Field(1.0, description="no setpoint for this long: hold (as PX4)")
+    battery_minutes: PositiveFloat = Field(
+        30.0,
+        description="a full battery hovers this long (faster flight drains it sooner, swarm/sim/battery.py); "
+        "the default leaves ordinary missions (the default 420 s limit; a lone drone's 15 min warehouse) well "
+        "above agent.battery_home_fraction",
+    )
+    battery_start: float = Field(1.0, ge=0.0, le=1.0, description="each vehicle's battery at start (fraction)")
     spawns: list[Vec3] = Field(default_factory=list, description="vehicle home positions; set by swarm run")
     sensor_listen: list[str] = Field(
         default_factory=list,

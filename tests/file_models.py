@@ -76,6 +76,7 @@ def vehicle_status(vehicle_id: int = 1, **overrides: Any) -> VehicleStatus:
             "mode": "HOLD",
             "landed_state": "on_ground",
             "distance_m": 12.5,
+            "battery": 0.9,
             "collisions": 0,
             "closest_world_m": None,
             "closest_world_at": None,

@@ -1,4 +1,4 @@
-"""The flight logic of one simulated PX4 vehicle: arming, modes, setpoints, failsafes and the landed state.
+"""The flight logic of one simulated PX4 vehicle: arming, modes, setpoints, battery, failsafes, the landed state.
 
 No MAVLink here (see vehicle.py): every command is a method that returns a MAV_RESULT. Positions are in the world
 frame (x east, y north, z up); the vehicle never goes below its home height (its floor).
@@ -14,9 +14,20 @@ from enum import Enum
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
-from swarm.agent.px4_failsafe import Action, Decision, datalink_loss_action, offboard_loss_action
-from swarm.config import Vec3
+from swarm.agent.px4_failsafe import (
+    BATTERY_WARNING_TEXT,
+    Action,
+    BatteryWarning,
+    Decision,
+    battery_arming_refusal,
+    battery_warning,
+    datalink_loss_action,
+    low_battery_action,
+    offboard_loss_action,
+)
+from swarm.config import SimSettings, Vec3
 from swarm.sim import kinematics
+from swarm.sim.battery import Battery
 from swarm.sim.kinematics import Body, Limits
 from swarm.sim.px4 import FlightMode, LandedState, Params
 
@@ -30,6 +41,11 @@ GROUND_EPS_M = 0.02  # this close to the home height counts as touching the grou
 OFFBOARD_ENTRY_S = 0.5
 ARRIVED_M = 0.1
 _HOLD_MODES = (FlightMode.HOLD, FlightMode.POSCTL, FlightMode.MANUAL)
+_WARNING_SEVERITY = {
+    BatteryWarning.LOW: mavlink.MAV_SEVERITY_WARNING,
+    BatteryWarning.CRITICAL: mavlink.MAV_SEVERITY_CRITICAL,
+    BatteryWarning.EMERGENCY: mavlink.MAV_SEVERITY_EMERGENCY,
+}
 
 
 @dataclass
@@ -56,10 +72,16 @@ class SimulatedPx4:
     `swarm.agent.autopilot.Autopilot`, a MAVSDK client)."""
 
     def __init__(
-        self, home: Vec3, params: Params, position_gain: float, floor_below: Callable[[np.ndarray], float] | None = None
+        self,
+        home: Vec3,
+        params: Params,
+        position_gain: float,
+        floor_below: Callable[[np.ndarray], float] | None = None,
+        battery: Battery | None = None,
     ) -> None:
         """`floor_below(position)`: the z of the first surface under the vehicle (the world's floors: a vehicle
-        landing on an upper storey touches its slab, as a real one would); None or NaN: the home height."""
+        landing on an upper storey touches its slab, as a real one would); None or NaN: the home height.
+        `battery`: a full one of the default `sim.battery_minutes` when None."""
         self.home = np.array(home, dtype=np.float64)
         self._floor_below = floor_below
         self._ground_at: np.ndarray | None = None  # where the floor under the vehicle was last looked up
@@ -88,6 +110,9 @@ class SimulatedPx4:
         self.rc_present = False  # the simulated vehicles have no RC transmitter
         self._gcs_heartbeat_time: float | None = None
         self._datalink_lost = False
+        self.battery = battery if battery is not None else Battery(SimSettings().battery_minutes)
+        self._battery_at_arming = BatteryWarning.NONE
+        self._battery_handled = BatteryWarning.NONE  # the worst warning announced (and acted on) since arming
         self.notices: list[tuple[int, str]] = []  # (MAV_SEVERITY, text) for STATUSTEXT, drained by the vehicle
 
     # --- state -------------------------------------------------------------------------------------------------
@@ -125,6 +150,15 @@ class SimulatedPx4:
     def airborne(self) -> bool:
         return self.landed_state != LandedState.ON_GROUND
 
+    @property
+    def battery_warning(self) -> BatteryWarning:
+        return battery_warning(self.params.__getitem__, self.battery.remaining)
+
+    @property
+    def armable(self) -> bool:
+        """What the pre-arm check bit says: the battery allows arming (the only check the simulator fails)."""
+        return battery_arming_refusal(self.params.__getitem__, self.battery.remaining) is None
+
     def limits(self, offboard: bool = False) -> Limits:
         key = (offboard, self._auto_speed, self.params.version)
         if self._limits_key != key:
@@ -152,7 +186,14 @@ class SimulatedPx4:
             return ACCEPTED
         if not self.at_ground and not force:
             return DENIED
+        refusal = None if force else battery_arming_refusal(self.params.__getitem__, self.battery.remaining)
+        if refusal is not None:
+            # PX4 reports the failed check and answers TEMPORARILY_REJECTED (batteryCheck.cpp, Commander.cpp)
+            self._notice(mavlink.MAV_SEVERITY_CRITICAL, f"Arming denied: {refusal.reason}")
+            return REJECTED
         self.armed = True
+        self._battery_at_arming = self.battery_warning
+        self._battery_handled = BatteryWarning.NONE  # a low battery at arming is announced once armed, as PX4 does
         self._ground_since = now
         self._flown_since_arm = False
         self._hold_point = self.body.position.copy()
@@ -248,6 +289,8 @@ class SimulatedPx4:
             else:
                 self._enter_hold()  # on the ground, disarmed: nothing to fail safe, the mode just lapses
         self._check_datalink(now)
+        self.battery.drain(dt, float(np.linalg.norm(self.body.velocity)), self.armed)
+        self._check_battery()
         if self.armed:
             target_p, target_v, yaw, yaw_rate = self._guidance()
             limits = self.limits(offboard=self.mode == FlightMode.OFFBOARD)
@@ -332,6 +375,21 @@ class SimulatedPx4:
             self._notice(mavlink.MAV_SEVERITY_WARNING, f"Data link lost ({decision.reason}: no action)")
             return
         self._fail_safe(decision, "no connection to the ground station")
+
+    def _check_battery(self) -> None:
+        """PX4's battery failsafe while armed: each warning level once, as it is reached; in the air, at critical
+        and emergency, COM_LOW_BAT_ACT's action (swarm.agent.px4_failsafe.low_battery_action)."""
+        if not self.armed:
+            return
+        warning = self.battery_warning
+        if warning <= self._battery_handled:
+            return
+        self._battery_handled = warning
+        decision = low_battery_action(self.params.__getitem__, warning, self._battery_at_arming)
+        if decision.action == Action.NONE or not self.airborne:  # on the ground: a warning only
+            self._notice(_WARNING_SEVERITY[warning], f"{BATTERY_WARNING_TEXT[warning]} ({self.battery.remaining:.0%})")
+            return
+        self._fail_safe(decision, f"{warning.label} battery level")
 
     def _fail_safe(self, decision: Decision, cause: str) -> None:
         """Take a failsafe action and announce it, as PX4 does ("Failsafe activated: ...")."""

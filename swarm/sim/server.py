@@ -277,6 +277,7 @@ class SimServer:
                             "mode": v["mode"],
                             "landed_state": v["landed_state"],
                             "distance_m": v["distance_m"],
+                            "battery": v["battery"],
                             "collisions": self.collisions.counts[vid],
                             "closest_world_m": _rounded(self.collisions.closest_world(vid)),
                             "closest_world_at": _rounded_point(self.collisions.closest_world_at(vid)),

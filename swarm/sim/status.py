@@ -17,6 +17,7 @@ class VehicleStatus(FileModel):
     mode: str  # FlightMode name
     landed_state: str  # "on_ground", "in_air", "taking_off", "landing"...
     distance_m: float
+    battery: float  # remaining fraction, 0..1 (swarm/sim/battery.py)
     collisions: int
     closest_world_m: float | None  # None until the vehicle came within NEAR_GAP_M of the world in flight
     closest_world_at: list[float] | None

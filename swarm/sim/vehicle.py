@@ -2,7 +2,8 @@
 streams telemetry, enough for MAVSDK (in PX4 mode) and pymavlink ground stations to fly it.
 
 What MAVSDK relies on: a HEARTBEAT from component 1 with autopilot PX4 and PX4 custom modes; SYS_STATUS health
-bits including PREARM_CHECK (is_armable); HOME_POSITION; EXTENDED_SYS_STATE (landed state); the new state
+bits including PREARM_CHECK (is_armable); BATTERY_STATUS (telemetry.battery; SYS_STATUS's battery fields until
+the first one arrives); HOME_POSITION; EXTENDED_SYS_STATE (landed state); the new state
 announced BEFORE each COMMAND_ACK; an ACK for every command (unknown ones UNSUPPORTED); a PARAM_VALUE echo for
 every PARAM_SET; OFFBOARD refused without a setpoint in the last 0.5 s. Failsafes and refusals are announced in
 STATUSTEXT (chunked past 50 characters, as MAVLink 2 allows); a GCS HEARTBEAT keeps the data link up.
@@ -24,8 +25,10 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
 from swarm import geo
+from swarm.agent.px4_failsafe import BatteryWarning
 from swarm.config import SwarmConfig, Vec3
 from swarm.sim.autopilot import ACCEPTED, DENIED, REJECTED, Setpoint, SimulatedPx4
+from swarm.sim.battery import Battery
 from swarm.sim.kinematics import tilt
 from swarm.sim.px4 import FlightMode, LandedState, Params
 
@@ -43,8 +46,16 @@ _SENSORS = (
     | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
     | mavlink.MAV_SYS_STATUS_SENSOR_GPS
     | mavlink.MAV_SYS_STATUS_AHRS
+    | mavlink.MAV_SYS_STATUS_SENSOR_BATTERY
     | mavlink.MAV_SYS_STATUS_PREARM_CHECK
 )
+# BATTERY_STATUS charge_state of each warning (PX4's mavlink/streams/BATTERY_STATUS.hpp)
+_CHARGE_STATE = {
+    BatteryWarning.NONE: mavlink.MAV_BATTERY_CHARGE_STATE_OK,
+    BatteryWarning.LOW: mavlink.MAV_BATTERY_CHARGE_STATE_LOW,
+    BatteryWarning.CRITICAL: mavlink.MAV_BATTERY_CHARGE_STATE_CRITICAL,
+    BatteryWarning.EMERGENCY: mavlink.MAV_BATTERY_CHARGE_STATE_EMERGENCY,
+}
 _CAPABILITIES = (
     mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
     | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
@@ -138,7 +149,8 @@ class SimVehicle:
         self.id = drone_id
         self.origin = config.mission.origin
         self.params = Params(sim, drone_id)
-        self.autopilot = SimulatedPx4(home, self.params, sim.position_gain, floor_below)
+        battery = Battery(sim.battery_minutes, sim.battery_start)
+        self.autopilot = SimulatedPx4(home, self.params, sim.position_gain, floor_below, battery)
         self.downlink = downlink or Downlink(None, (sim.host, 0))
         self.mav = mavlink.MAVLink(self.downlink, srcSystem=drone_id, srcComponent=COMPONENT_ID)  # sends
         self._parser = _new_parser()
@@ -151,6 +163,7 @@ class SimVehicle:
         self._senders: dict[int, Callable[[], None]] = {
             mavlink.MAVLINK_MSG_ID_HEARTBEAT: self._send_heartbeat,
             mavlink.MAVLINK_MSG_ID_SYS_STATUS: self._send_sys_status,
+            mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: self._send_battery_status,
             mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: self._send_extended_sys_state,
             mavlink.MAVLINK_MSG_ID_HOME_POSITION: self._send_home,
             mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: self._send_gps_raw,
@@ -162,6 +175,7 @@ class SimVehicle:
         intervals = {
             mavlink.MAVLINK_MSG_ID_HEARTBEAT: heartbeat,
             mavlink.MAVLINK_MSG_ID_SYS_STATUS: heartbeat,
+            mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: 2.0,  # PX4's 0.5 Hz (mavlink_main.cpp)
             mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: heartbeat,
             mavlink.MAVLINK_MSG_ID_HOME_POSITION: 1.0,
             mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: 1.0,
@@ -237,6 +251,7 @@ class SimVehicle:
             "mode": ap.mode.name,
             "landed_state": ap.landed_state.label,
             "distance_m": round(ap.distance_m, 3),
+            "battery": round(ap.battery.remaining, 4),
             "gcs_seen": self.last_gcs_message is not None,
             "last_gcs_message_age_s": age,
         }
@@ -290,7 +305,30 @@ class SimVehicle:
         self.mav.heartbeat_send(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, base, ap.mode.custom_mode, state)
 
     def _send_sys_status(self) -> None:
-        self.mav.sys_status_send(_SENSORS, _SENSORS, _SENSORS, 150, 16200, -1, 100, 0, 0, 0, 0, 0, 0)
+        ap = self.autopilot
+        health = _SENSORS if ap.armable else _SENSORS & ~mavlink.MAV_SYS_STATUS_PREARM_CHECK
+        millivolts = round(ap.battery.voltage_v * 1000)
+        remaining = math.ceil(ap.battery.remaining * 100)  # PX4 rounds up here, to the nearest in BATTERY_STATUS
+        self.mav.sys_status_send(_SENSORS, _SENSORS, health, 150, millivolts, -1, remaining, 0, 0, 0, 0, 0, 0)
+
+    def _send_battery_status(self) -> None:
+        """As PX4 reports a battery without cell voltages or a current sensor: the total voltage in the first
+        cell, unknown current and consumption (-1), unknown temperature (INT16_MAX), no time estimate (0)."""
+        ap = self.autopilot
+        voltages = [min(round(ap.battery.voltage_v * 1000), 65534)] + [65535] * 9
+        self.mav.battery_status_send(
+            0,
+            mavlink.MAV_BATTERY_FUNCTION_ALL,
+            mavlink.MAV_BATTERY_TYPE_LIPO,
+            32767,
+            voltages,
+            -1,
+            -1,
+            -1,
+            math.floor(ap.battery.remaining * 100 + 0.5),  # PX4's roundf: halves away from zero
+            0,
+            _CHARGE_STATE[ap.battery_warning],
+        )
 
     def _send_extended_sys_state(self) -> None:
         self.mav.extended_sys_state_send(mavlink.MAV_VTOL_STATE_UNDEFINED, int(self.autopilot.landed_state))

@@ -8,6 +8,7 @@ import pytest
 
 from swarm.config import SimSettings
 from swarm.sim.autopilot import ACCEPTED, REJECTED, Setpoint, SimulatedPx4
+from swarm.sim.battery import Battery
 from swarm.sim.px4 import FlightMode, LandedState, Params
 
 DT = 0.02
@@ -293,3 +294,87 @@ def test_a_vehicle_over_an_upper_storey_lands_on_its_slab_not_through_it(sim: Si
     clock.run_until(lambda: not ap.armed, timeout=15)
     assert ap.position[2] == pytest.approx(slab_top, abs=1e-6)  # on the slab, disarmed by the land detector
     assert ap.landed_state == LandedState.ON_GROUND
+
+
+def with_battery(sim: SimSettings, minutes: float, start: float) -> SimulatedPx4:
+    return SimulatedPx4(HOME, Params(sim, 1), sim.position_gain, battery=Battery(minutes, start))
+
+
+def hover(ap: SimulatedPx4, clock: Clock) -> None:
+    ap.arm(clock.now)
+    ap.takeoff()
+    clock.run_until(lambda: ap.mode == FlightMode.HOLD, timeout=10)
+
+
+def battery_notices(ap: SimulatedPx4) -> list[str]:
+    return [text for _, text in ap.notices if "battery" in text]
+
+
+def test_the_battery_drains_at_the_hover_rate_while_armed_and_faster_when_fast(sim: SimSettings) -> None:
+    ap = with_battery(sim, minutes=10.0, start=1.0)
+    clock = Clock(ap)
+    clock.run(30.0)
+    assert ap.battery.remaining == 1.0  # disarmed: no draw
+    hover(ap, clock)
+    start, hovered_s = ap.battery.remaining, 60.0
+    clock.run(hovered_s)
+    assert start - ap.battery.remaining == pytest.approx(hovered_s / 600.0, rel=1e-4)  # 10 min of hover per battery
+    offboard_to(ap, clock, target := (HOME[0] + 200.0, HOME[1], HOME[2] + 1.5))
+    clock.run(10.0, each=keep_streaming(ap, clock, target))
+    fast = ap.battery.remaining
+    clock.run(10.0, each=keep_streaming(ap, clock, target))
+    speed = float(np.linalg.norm(ap.velocity))
+    assert speed == pytest.approx(sim.max_speed_xy_m_s, abs=0.01)
+    assert fast - ap.battery.remaining == pytest.approx(10.0 / 600.0 * (1 + 0.05 * speed**2), rel=1e-3)
+    assert ap.battery.voltage_v < 4 * 4.05
+
+
+@pytest.mark.parametrize(("act", "mode"), [(2, FlightMode.LAND), (3, FlightMode.RTL)])
+def test_a_critical_battery_in_the_air_takes_com_low_bat_act(sim: SimSettings, act: int, mode: FlightMode) -> None:
+    ap = with_battery(sim, minutes=1.0, start=0.16)
+    ap.params.set("COM_LOW_BAT_ACT", act)
+    clock = Clock(ap)
+    hover(ap, clock)  # the low warning comes during the climb: only a warning
+    assert battery_notices(ap) == ["Low battery level, return advised (15%)"]
+    assert ap.mode == FlightMode.HOLD
+    clock.run_until(lambda: ap.mode != FlightMode.HOLD, timeout=10)
+    assert ap.mode == mode and ap.battery.remaining == pytest.approx(0.07, abs=0.001)
+    action = "Land" if act == 2 else "Return"
+    assert battery_notices(ap)[-1] == f"Failsafe: critical battery level, {action} (COM_LOW_BAT_ACT={act})"
+    if act == 3:  # Return at critical, Land at emergency
+        clock.run_until(lambda: ap.mode != FlightMode.RTL, timeout=5)
+        assert ap.mode == FlightMode.LAND and ap.battery.remaining == pytest.approx(0.05, abs=0.001)
+        assert battery_notices(ap)[-1] == "Failsafe: emergency battery level, Land (COM_LOW_BAT_ACT=3)"
+    clock.run_until(lambda: not ap.armed, timeout=30)
+    assert len(battery_notices(ap)) == 3  # each level once: low, critical, emergency (Land again where it is)
+
+
+def test_with_px4s_default_a_critical_battery_only_warns(sim: SimSettings) -> None:
+    ap = with_battery(sim, minutes=1.0, start=0.16)
+    clock = Clock(ap)
+    hover(ap, clock)
+    clock.run(10.0)
+    assert ap.mode == FlightMode.HOLD and ap.armed and ap.battery.remaining < 0.05
+    assert [text.split(" (")[0] for text in battery_notices(ap)] == [
+        "Low battery level, return advised",
+        "Critical battery level, land now",
+        "Emergency battery level, land immediately",
+    ]
+
+
+def test_arming_is_refused_below_the_critical_threshold_unless_forced(sim: SimSettings) -> None:
+    ap = with_battery(sim, minutes=10.0, start=0.06)
+    clock = Clock(ap)
+    assert not ap.armable
+    assert ap.arm(clock.now) == REJECTED and not ap.armed
+    assert ap.notices[-1][1] == "Arming denied: critical battery, 6.0% below BAT_CRIT_THR 7.0%"
+    ap.params.set("COM_ARM_BAT_MIN", 0.05)  # a threshold of its own: 6 % may arm
+    assert ap.armable and ap.arm(clock.now) == ACCEPTED
+    ap.disarm()
+    ap.params.set("COM_ARM_BAT_MIN", -1.0)
+    assert ap.arm(clock.now, force=True) == ACCEPTED  # forcing skips the checks, as in PX4
+
+
+def test_a_low_battery_arms(sim: SimSettings) -> None:
+    ap = with_battery(sim, minutes=10.0, start=0.10)
+    assert ap.armable and ap.arm(Clock(ap).now) == ACCEPTED

@@ -271,6 +271,7 @@ def test_status_file_and_endpoints(port_base: int, box_world: World, tmp_path) -
             "mode",
             "landed_state",
             "distance_m",
+            "battery",
             "collisions",
             "closest_world_m",
             "closest_world_at",

@@ -1,21 +1,23 @@
 """PX4's failsafes on the simulated vehicle, driven by a real MAVSDK client over UDP loopback: what happens to a
 drone when the process flying it in offboard dies (its setpoints and GCS heartbeats stop), for the parameter
-values that matter (swarm/agent/px4_failsafe.py). The client's death is `Mavsdk.destroy()`, after every call ended.
+values that matter (swarm/agent/px4_failsafe.py), and when its battery runs low. The client's death is
+`Mavsdk.destroy()`, after every call ended.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import time
-from collections.abc import Callable
+from collections.abc import AsyncIterator, Callable
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import mavsdk
 import pytest
 from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
-from mavsdk.asyncio.plugins.action import ActionAsync
+from mavsdk.asyncio.plugins.action import ActionAsync, ActionError
 from mavsdk.asyncio.plugins.mavlink_direct import MavlinkDirectAsync
 from mavsdk.asyncio.plugins.offboard import OffboardAsync, PositionNedYaw
 from mavsdk.asyncio.plugins.param import ParamAsync
@@ -50,7 +52,8 @@ def height(server: SimServer) -> float:
     return float(v["position"][2] - v["home"][2])
 
 
-async def connect(port: int) -> tuple[Mavsdk, Any]:
+async def connect(port: int, armable: bool = True) -> tuple[Mavsdk, Any]:
+    """A MAVSDK ground station on `port`, once the vehicle is healthy (and armable, unless told it is not)."""
     asyncio.get_running_loop().set_default_executor(ThreadPoolExecutor(16))
     mavsdk.log_subscribe(lambda *args: True)
     sdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
@@ -59,10 +62,34 @@ async def connect(port: int) -> tuple[Mavsdk, Any]:
     assert drone is not None
     telemetry = TelemetryAsync(drone)
     deadline = time.monotonic() + 10
-    while not await telemetry.health_all_ok():
+    while not (await telemetry.health_all_ok() if armable else (await telemetry.health()).is_local_position_ok):
         assert time.monotonic() < deadline, "vehicle not healthy"
         await asyncio.sleep(0.1)
     return sdk, drone
+
+
+async def battery_percent(drone: Any) -> float:
+    """The first battery report MAVSDK hands on (percent in MAVSDK 4, BATTERY_STATUS.battery_remaining)."""
+    async for battery in TelemetryAsync(drone).subscribe_battery():
+        return float(battery.remaining_percent)
+    raise AssertionError("the battery stream ended")
+
+
+@contextlib.asynccontextmanager
+async def status_texts(drone: Any) -> AsyncIterator[list[str]]:
+    """Every STATUSTEXT the vehicle sends while in the block (MAVSDK joins the chunks)."""
+    texts: list[str] = []
+
+    async def collect() -> None:
+        async for status in TelemetryAsync(drone).subscribe_status_text():
+            texts.append(status.text)
+
+    collector = asyncio.create_task(collect())
+    try:
+        yield texts
+    finally:
+        collector.cancel()
+        await asyncio.gather(collector, return_exceptions=True)
 
 
 async def fly_offboard_then_die(server: SimServer, port: int, ints: dict[str, int]) -> None:
@@ -166,3 +193,63 @@ async def test_data_link_loss_takes_nav_dll_act(port_base: int, box_world: World
         assert 1.9 < time.monotonic() - died < 4.5
         await until(lambda: not vehicle(server)["armed"], 15, "landed and disarmed")
         assert vehicle(server)["landed_state"] == "on_ground"
+
+
+@pytest.mark.parametrize(("act", "modes"), [(2, ["LAND"]), (3, ["RTL", "LAND"])])
+async def test_a_critical_battery_in_flight_takes_com_low_bat_act_and_says_so(
+    port_base: int, box_world: World, act: int, modes: list[str]
+) -> None:
+    """From 12 % (low already), a battery that hovers for a minute is critical 3 s after arming, emergency 1.2 s
+    later: COM_LOW_BAT_ACT 2 lands at critical; 3 returns at critical and lands at emergency."""
+    config = sim_config(port_base, **{"sim.battery_start": 0.12, "sim.battery_minutes": 1.0})
+    with running_sim(config, box_world) as server:
+        sdk, drone = await connect(gcs_port(config.sim, 1))
+        try:
+            async with status_texts(drone) as texts:
+                action, param = ActionAsync(drone), ParamAsync(drone)
+                assert await asyncio.wait_for(battery_percent(drone), 5) == 12  # MAVSDK 4 gives percent
+                await param.set_param_int("COM_LOW_BAT_ACT", act)
+                await action.set_takeoff_altitude(FLIGHT_ALT_M)
+                await action.arm()  # a low battery arms
+                await action.takeoff()
+                seen: list[str] = []
+
+                def mode_changes() -> bool:
+                    mode = vehicle(server)["mode"]
+                    if mode not in ("TAKEOFF", "HOLD") and mode not in seen:
+                        seen.append(mode)
+                    return seen == modes
+
+                await until(mode_changes, 10, f"the battery failsafe: {' then '.join(modes)}")
+                assert vehicle(server)["battery"] < 0.05 if act == 3 else 0.05 <= vehicle(server)["battery"] < 0.07
+                await until(lambda: not vehicle(server)["armed"], 20, "landed and disarmed")
+                assert vehicle(server)["landed_state"] == "on_ground"
+            failsafes = [t for t in texts if t.startswith("Failsafe")]
+            if act == 2:
+                assert failsafes[0] == "Failsafe: critical battery level, Land (COM_LOW_BAT_ACT=2)"
+            else:
+                assert failsafes == [
+                    "Failsafe: critical battery level, Return (COM_LOW_BAT_ACT=3)",
+                    "Failsafe: emergency battery level, Land (COM_LOW_BAT_ACT=3)",
+                ]
+            assert any(t.startswith("Low battery level, return advised") for t in texts)
+        finally:
+            sdk.destroy()
+
+
+async def test_arming_is_refused_below_the_critical_battery_threshold(port_base: int, box_world: World) -> None:
+    config = sim_config(port_base, **{"sim.battery_start": 0.06})
+    with running_sim(config, box_world) as server:
+        sdk, drone = await connect(gcs_port(config.sim, 1), armable=False)
+        try:
+            async with status_texts(drone) as texts:
+                telemetry = TelemetryAsync(drone)
+                assert not (await telemetry.health()).is_armable
+                assert await asyncio.wait_for(battery_percent(drone), 5) == 6
+                with pytest.raises(ActionError, match="COMMAND_DENIED"):
+                    await ActionAsync(drone).arm()
+                await until(lambda: any(t.startswith("Arming denied") for t in texts), 5, "the reason")
+            assert "Arming denied: critical battery, 6.0% below BAT_CRIT_THR 7.0%" in texts
+            assert not vehicle(server)["armed"]
+        finally:
+            sdk.destroy()

@@ -26,8 +26,8 @@ class CapturingSocket:
 class Bench:
     """A vehicle, a ground-station encoder and a decoder for what the vehicle sends."""
 
-    def __init__(self) -> None:
-        self.config = load_config(overrides={"mission.world": "box"})
+    def __init__(self, **settings: object) -> None:
+        self.config = load_config(overrides={"mission.world": "box", **settings})
         self.sock = CapturingSocket()
         self.now = 10.0
         self.vehicle = SimVehicle(1, HOME, self.config, Downlink(self.sock, GCS_ADDR), now=self.now)
@@ -52,6 +52,16 @@ class Bench:
             if each is not None:
                 each()
             self.vehicle.step(0.02, self.now)
+
+    def telemetry(self) -> dict[str, mavlink.MAVLink_message]:
+        """Every stream once (as at start), the last message of each type."""
+        self.vehicle.tick(self.now)
+        self.vehicle.downlink.flush()
+        out = {m.get_type(): m for d in self.sock.datagrams for m in self.decoder.parse_buffer(d) or []}
+        self.sock.datagrams.clear()
+        for stream in self.vehicle._streams.values():
+            stream.due = self.now  # due again at the next call
+        return out
 
     @property
     def ap(self):
@@ -157,3 +167,24 @@ def test_muted_downlink_sends_nothing(bench: Bench) -> None:
     bench.vehicle.tick(bench.now + 5)
     bench.vehicle.downlink.flush()
     assert bench.sock.datagrams == []
+
+
+def test_the_battery_is_reported_as_px4_does_and_a_critical_one_is_not_armable() -> None:
+    bench = Bench(**{"sim.battery_start": 0.12})
+    out = bench.telemetry()
+    battery, status = out["BATTERY_STATUS"], out["SYS_STATUS"]
+    assert battery.battery_remaining == 12 and battery.charge_state == mavlink.MAV_BATTERY_CHARGE_STATE_LOW
+    assert battery.voltages[0] == round(4 * (3.6 + 0.45 * 0.12) * 1000) and battery.voltages[1] == 65535
+    assert (battery.current_battery, battery.current_consumed, battery.temperature) == (-1, -1, 32767)
+    assert status.battery_remaining == 12 and status.voltage_battery == battery.voltages[0]
+    assert status.onboard_control_sensors_health & mavlink.MAV_SYS_STATUS_PREARM_CHECK  # a low battery arms
+    assert status.onboard_control_sensors_present & mavlink.MAV_SYS_STATUS_SENSOR_BATTERY
+    bench.ap.battery.remaining = 0.0649
+    out = bench.telemetry()
+    assert out["BATTERY_STATUS"].charge_state == mavlink.MAV_BATTERY_CHARGE_STATE_CRITICAL
+    assert out["BATTERY_STATUS"].battery_remaining == 6 and out["SYS_STATUS"].battery_remaining == 7  # PX4 rounds up
+    assert not out["SYS_STATUS"].onboard_control_sensors_health & mavlink.MAV_SYS_STATUS_PREARM_CHECK
+    answer = bench.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    assert [m.get_type() for m in answer] == ["STATUSTEXT", "STATUSTEXT", "COMMAND_ACK"]  # the reason first
+    assert "".join(m.text for m in answer[:2]) == "Arming denied: critical battery, 6.5% below BAT_CRIT_THR 7.0%"
+    assert answer[2].result == mavlink.MAV_RESULT_TEMPORARILY_REJECTED and not bench.ap.armed
