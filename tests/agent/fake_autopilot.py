@@ -36,6 +36,7 @@ class FakeAutopilot:
             "NAV_DLL_ACT": 0,
             "COM_RCL_EXCEPT": 0,
             "COM_RC_IN_MODE": 3,
+            "COM_LOW_BAT_ACT": 0,
             "RTL_RETURN_ALT": 60.0,
             "COM_OF_LOSS_T": 1.0,
         }

@@ -17,6 +17,7 @@ PX4_DEFAULTS = {
     "NAV_DLL_ACT": 0,
     "COM_RCL_EXCEPT": 0,
     "COM_RC_IN_MODE": 3,
+    "COM_LOW_BAT_ACT": 0,
     "RTL_RETURN_ALT": 60.0,
     "COM_OF_LOSS_T": 1.0,
 }
@@ -55,6 +56,23 @@ def test_return_on_offboard_loss_or_data_link_loss_is_unsafe() -> None:
     assert [f.param for f in unsafe(params(COM_OBL_RC_ACT=9, NAV_RCL_ACT=1))] == ["COM_OBL_RC_ACT"]
 
 
+@pytest.mark.parametrize("act", [1, 3])  # Return at critical (3; 1 is PX4's deprecated Return at both)
+def test_a_low_battery_action_that_returns_is_unsafe_and_set_writes_land(act: int) -> None:
+    values = params(COM_OBL_RC_ACT=5, COM_LOW_BAT_ACT=act)
+    [finding] = unsafe(values)
+    assert (finding.param, finding.value) == ("COM_LOW_BAT_ACT", act)
+    assert "critical battery" in finding.reason and "RTL_RETURN_ALT=60 m" in finding.reason
+    assert safe_writes(values)["COM_LOW_BAT_ACT"] == 2
+    assert unsafe({**values, **safe_writes(values)}) == []
+
+
+@pytest.mark.parametrize("act", [0, 2])  # PX4's default warning, and Land
+def test_a_low_battery_action_that_warns_or_lands_is_safe_and_left_alone(act: int) -> None:
+    values = params(COM_OBL_RC_ACT=5, COM_LOW_BAT_ACT=act)
+    assert unsafe(values) == []
+    assert "COM_LOW_BAT_ACT" not in safe_writes(values)
+
+
 def test_set_writes_hold_and_leaves_a_safe_data_link_action() -> None:
     assert safe_writes(params()) == {"COM_OBL_RC_ACT": 5, "NAV_RCL_ACT": 1}
     assert safe_writes(params(NAV_DLL_ACT=3)) == {"COM_OBL_RC_ACT": 5, "NAV_RCL_ACT": 1}
@@ -90,6 +108,16 @@ def test_set_writes_safe_values_and_flies() -> None:
     assert ap.params["COM_OBL_RC_ACT"] == 5 and ap.params["NAV_RCL_ACT"] == 1
     [written] = [f for e, f in events if e == "px4_params_set"]
     assert written["read_back"] == written["written"] == {"COM_OBL_RC_ACT": 5, "NAV_RCL_ACT": 1}
+
+
+def test_check_refuses_a_low_battery_return_and_set_writes_land() -> None:
+    phase, ap, events = fly("check", params(COM_LOW_BAT_ACT=3))
+    assert phase == Phase.FAILED and "arm_and_takeoff" not in ap.commands
+    assert [f["param"] for e, f in events if e == "px4_param_unsafe"] == ["NAV_RCL_ACT", "COM_LOW_BAT_ACT"]
+    phase, ap, events = fly("set", params(COM_LOW_BAT_ACT=3))
+    assert phase == Phase.LANDED and ap.params["COM_LOW_BAT_ACT"] == 2
+    [written] = [f for e, f in events if e == "px4_params_set"]
+    assert written["read_back"] == written["written"] == {"COM_OBL_RC_ACT": 5, "NAV_RCL_ACT": 1, "COM_LOW_BAT_ACT": 2}
 
 
 def test_off_neither_reads_nor_writes() -> None:

@@ -27,7 +27,7 @@ from tests.sim.support import free_port_block, running_sim, sim_config, wait_unt
 
 pytestmark = [pytest.mark.timeout(120), pytest.mark.sim]
 
-PX4_DEFAULTS = {"COM_OBL_RC_ACT": 0, "NAV_RCL_ACT": 2, "NAV_DLL_ACT": 0, "COM_RCL_EXCEPT": 0}
+PX4_DEFAULTS = {"COM_OBL_RC_ACT": 0, "NAV_RCL_ACT": 2, "NAV_DLL_ACT": 0, "COM_RCL_EXCEPT": 0, "COM_LOW_BAT_ACT": 0}
 
 
 def start_agent(config: SwarmConfig, log: Path, mode: str, *extra: str) -> subprocess.Popen:
