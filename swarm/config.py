@@ -224,6 +224,14 @@ class AgentSettings(_Section):
         "earlier runs (other epochs) before it asks its peers",
     )
     mavsdk_threads: int = Field(8, ge=2, le=64)
+    battery_home_fraction: float = Field(
+        0.25,
+        gt=0.0,
+        lt=1.0,
+        description="below this remaining battery (fraction, from the autopilot's battery telemetry) the agent "
+        "ends its mission, flies back above its take-off point and lands; above PX4's BAT_LOW_THR (0.15) so "
+        "that the vehicle's own battery failsafe never has to act",
+    )
     px4_params: Literal["set", "check", "off"] = Field(
         "check",
         description="the PX4 parameters that decide what the vehicle does when this agent dies or a link is lost "

@@ -52,6 +52,7 @@ def agent_summary_data(agent_id: int = 1, **overrides: Any) -> dict[str, Any]:
         "heartbeats_on_wrong_key": 0,
         "bus_route_refreshes": 0,
         "give_way": 0,
+        "battery_min_fraction": 0.8,
         "timeline": [[float(i), 100 * i, 200 * i] for i in range(5)],
         **SCRIPTED_EXPLORATION,
         **NO_MAPPING,

@@ -62,6 +62,8 @@ class TelemetryCache:
     landed_state: str = "UNKNOWN"
     updated: float = 0.0
     samples: int = 0
+    battery: float = math.nan  # remaining fraction 0..1 (MAVSDK's remaining_percent / 100); NaN: not reported
+    battery_min: float = math.nan  # the lowest seen
 
 
 class Autopilot:
@@ -252,6 +254,14 @@ class Autopilot:
         def on_landed(state: Any) -> None:
             cache.landed_state = state.name
 
+        def on_battery(battery: Any) -> None:
+            # MAVSDK 2+ gives percent (BATTERY_STATUS.battery_remaining, else SYS_STATUS's); -1 when not estimated
+            percent = battery.remaining_percent
+            if math.isfinite(percent) and 0.0 <= percent <= 100.0:
+                cache.battery = percent / 100.0
+                seen = cache.battery_min
+                cache.battery_min = cache.battery if math.isnan(seen) else min(seen, cache.battery)
+
         def on_status_text(status: Any) -> None:
             if self.on_status_text is not None:
                 self.on_status_text(status.type.name, status.text)
@@ -262,6 +272,7 @@ class Autopilot:
             (tel.subscribe_flight_mode, on_mode),
             (tel.subscribe_armed, on_armed),
             (tel.subscribe_landed_state, on_landed),
+            (tel.subscribe_battery, on_battery),
             (tel.subscribe_status_text, on_status_text),
         ):
             self._streams.append(asyncio.create_task(_consume(stream(), handler)))

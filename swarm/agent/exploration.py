@@ -10,7 +10,8 @@ The flight side (`fly`) plans a path on the latest grid to the current target's 
 decision loop interrupts it when the target changes or the path becomes blocked), turns to the frontier point
 for `dwell_s`, and reports that it arrived. A drone whose map shuts it in where it is (a pocket) gets out
 before it calls a target unreachable, and instead of waiting for a target that cannot come. When the mission is
-done it returns above its take-off point.
+done it returns above its take-off point; so it does, planned the same way (`fly_home`), when a low battery ends
+its flight early.
 """
 
 from __future__ import annotations
@@ -304,6 +305,16 @@ class Exploration:
         self.log("heading_home", idle_s=self.settings.idle_home_s)
         await flight.fly_path(path, stop, interrupt=self.retarget)  # a target, or `done`, sets retarget
         return True
+
+    async def fly_home(self, flight: Flight, stop: asyncio.Event) -> None:
+        """The flight's way home when it ends the mission early (a low battery): the targets are left, and the
+        drone returns above its take-off point as at the end of the mission."""
+        self.target = None
+        home = self.home()
+        if home is None:
+            self.log("land_in_place", reason="no home position")
+            return
+        await self._return(flight, stop, home)
 
     async def _return(self, flight: Flight, stop: asyncio.Event, home: Vec3) -> None:
         above = (home[0], home[1], home[2] + self.config.agent.altitude_m)

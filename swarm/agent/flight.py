@@ -20,6 +20,14 @@ there.
 
 Phases (`swarm.bus.phase.Phase`, what the heartbeat says) change as `swarm.agent.lifecycle.ALLOWED` says.
 
+Battery: once the autopilot's battery telemetry falls below `agent.battery_home_fraction` during the mission
+(or the hover after it), the flight logs `battery_low` once and ends the mission as a normal end would: the
+mission is interrupted (`BatteryLow`), the drone flies back above its take-off point the way the mission's
+`homeward` says (the exploration plans it on its map; a scripted route is retraced through the waypoints
+reached, each leg flown once already) and lands. A battery already that low on the ground is a refusal to take
+off. The threshold sits above PX4's BAT_LOW_THR, so that the vehicle's own battery failsafe
+(`swarm.agent.px4_failsafe`) never has to act.
+
 Fail safe: if position telemetry stops for `telemetry_timeout_s` while airborne, the drone is told to hold,
 then to land, and the flight ends in phase `failsafe`; if telemetry comes back, the agent watches the landing
 through as after a normal flight. Only silence this process was awake to hear counts: a gap while it was
@@ -57,6 +65,7 @@ LANDED_STATE_WAIT_S = 3.0  # after connecting, how long the landed state may sta
 FAILSAFE_COMMAND_TIMEOUT_S = 0.6
 RELAND_AFTER_S = 2.0  # airborne, telemetry fresh and not in LAND this long after a land command: command it again
 FAILSAFE_BLIND_S = 10.0  # after a failsafe land, telemetry still silent this long: stop watching (nothing to see)
+BATTERY_WAIT_S = 3.0  # before arming, how long the first battery report may take
 STEP_ASIDE_M = 0.7  # a yielding drone climbs or descends this much out of the way
 PASS_HYSTERESIS_M = 0.3  # ... and resumes once the other is this much beyond the separation distance
 PRIORITY_PAUSE_FRACTION = 1.0  # the drone with the right of way holds for one closer than this x separation
@@ -96,6 +105,10 @@ class StopRequested(Exception):
     pass
 
 
+class BatteryLow(Exception):
+    """The battery fell below agent.battery_home_fraction in flight: the mission ends, the drone goes home."""
+
+
 class Flight:
     def __init__(
         self,
@@ -123,6 +136,8 @@ class Flight:
         self._last_position: np.ndarray | None = None
         self._carrot: Vec3 | None = None
         self.path_ahead: list[Vec3] = []  # the waypoints of the path being flown not reached yet
+        self.reached: list[Vec3] = []  # every waypoint reached since take-off, in order (`retrace` flies it back)
+        self.battery_low = False
         self._last_check = time.monotonic()
         self.loop_monitor = LoopMonitor()  # what this process did not hear is not silence (swarm.agent.watchdog)
         self._excused_sample: float | None = None  # the last sample after which a gap was excused (logged once)
@@ -145,16 +160,17 @@ class Flight:
         self.phase = phase
         self.log("phase", phase=phase.value)
 
-    async def run(self, mission: Mission, stop: asyncio.Event) -> Phase:
-        """Fly the whole mission; returns the final phase (LANDED, FAILSAFE or FAILED)."""
+    async def run(self, mission: Mission, stop: asyncio.Event, homeward: Mission | None = None) -> Phase:
+        """Fly the whole mission; returns the final phase (LANDED, FAILSAFE or FAILED). `homeward` flies the drone
+        back above its take-off point when a low battery ends the mission (default: `retrace`)."""
         monitor = asyncio.create_task(self.loop_monitor.run())
         try:
-            return await self._run(mission, stop)
+            return await self._run(mission, stop, homeward or retrace)
         finally:
             monitor.cancel()
             await asyncio.gather(monitor, return_exceptions=True)
 
-    async def _run(self, mission: Mission, stop: asyncio.Event) -> Phase:
+    async def _run(self, mission: Mission, stop: asyncio.Event, homeward: Mission) -> Phase:
         s = self.settings
         try:
             await self.ap.connect(s.connect_timeout_s)
@@ -166,10 +182,13 @@ class Flight:
             self._check(stop)
             await self._take_off(stop)
             self._set_phase(Phase.FLYING)
-            await mission(self, stop)
-            if s.hover_s > 0:
-                self._set_phase(Phase.HOVERING)
-                await self._wait(s.hover_s, stop)
+            try:
+                await mission(self, stop)
+                if s.hover_s > 0:
+                    self._set_phase(Phase.HOVERING)
+                    await self._wait(s.hover_s, stop)
+            except BatteryLow:
+                await homeward(self, stop)
         except StopRequested:
             self.log("stop_requested", airborne=self.airborne)
         except TelemetryLost as exc:
@@ -192,12 +211,28 @@ class Flight:
             self.airborne = True  # a restarted agent takes over its drone where it hovers (offboard-loss hold)
             self.log("resumed_in_air", position=[round(v, 2) for v in self.ap.telemetry.position])
             return
+        await self._refuse_a_low_battery()
         altitude = self.settings.altitude_m
         await self.ap.arm_and_takeoff(altitude)
         self.airborne = True
         deadline = time.monotonic() + 15.0 + altitude / 0.3
         while not self.ap.height_above_home >= 0.9 * altitude:  # written so that an unknown (NaN) height waits
             await self._tick(stop, deadline, "take-off altitude")
+
+    async def _refuse_a_low_battery(self) -> None:
+        """On the ground, a battery already below agent.battery_home_fraction: refuse to take off (FlightError).
+        Waits up to BATTERY_WAIT_S for the first report; a vehicle that reports no battery flies unwatched."""
+        deadline = time.monotonic() + BATTERY_WAIT_S
+        while math.isnan(self.ap.telemetry.battery) and time.monotonic() < deadline:
+            await asyncio.sleep(0.05)
+        fraction, threshold = self.ap.telemetry.battery, self.settings.battery_home_fraction
+        if math.isnan(fraction):
+            self.log("no_battery_telemetry", waited_s=BATTERY_WAIT_S)
+        elif fraction < threshold:
+            self.log("battery_low", fraction=round(fraction, 3), threshold=threshold, airborne=False)
+            raise FlightError(
+                f"refusing to take off: battery {fraction:.0%} is below agent.battery_home_fraction {threshold:.0%}"
+            )
 
     async def _px4_params(self) -> None:
         """agent.px4_params: what the vehicle does when this agent dies must not be a climb (swarm.agent.px4_params);
@@ -251,6 +286,7 @@ class Flight:
                     return False
                 lead = 0.0
                 self.path_ahead.pop(0)
+                self.reached.append(waypoint)
             return True
         finally:
             self.path_ahead = []
@@ -582,6 +618,7 @@ class Flight:
         if now - self._last_check > STALL_S:
             self.log("stalled", seconds=round(now - self._last_check, 2))  # SIGSTOP, starved, or a long plan
         self._last_check = now
+        self._check_battery()
         timeout = self.settings.telemetry_timeout_s
         if self.airborne and self.ap.telemetry_age_s > timeout:
             # Telemetry is old; but while this process did not run (SIGSTOP, starved) samples queued up unread,
@@ -595,6 +632,24 @@ class Flight:
             if self._excused_sample != last_sample:
                 self._excused_sample = last_sample
                 self.log("telemetry_gap_unheard", age=round(self.ap.telemetry_age_s, 2), heard=round(heard, 2))
+
+    def _check_battery(self) -> None:
+        """In the mission or the hover after it, once: a battery below agent.battery_home_fraction raises
+        BatteryLow (NaN, no battery telemetry, never does)."""
+        if self.battery_low or self.phase not in (Phase.FLYING, Phase.HOVERING):
+            return
+        fraction, threshold = self.ap.telemetry.battery, self.settings.battery_home_fraction
+        if fraction < threshold:
+            self.battery_low = True
+            here = [round(v, 2) for v in self.ap.telemetry.position]
+            self.log("battery_low", fraction=round(fraction, 3), threshold=threshold, airborne=True, position=here)
+            raise BatteryLow
+
+    def way_back(self) -> list[Vec3]:
+        """Back through the waypoints reached since take-off to the point above home it took off to (`way_back`)."""
+        home = self.ap.home_world
+        above = [] if home is None else [(home[0], home[1], home[2] + self.settings.altitude_m)]
+        return way_back([*above, *self.reached], self.settings.waypoint_tolerance_m)
 
     def update_distance(self) -> None:
         """Accumulate travelled distance from telemetry; called at the heartbeat rate."""
@@ -614,6 +669,24 @@ def route_mission(route: list[Vec3]) -> Mission:
         await flight.fly_path(route, stop)
 
     return fly
+
+
+async def retrace(flight: Flight, stop: asyncio.Event) -> None:
+    """The way home without a map (a scripted route): back through the waypoints reached, loops cut out, to
+    above home."""
+    if not await flight.fly_path(flight.way_back(), stop):
+        flight.log("land_in_place", reason="kept giving way")
+
+
+def way_back(flown: list[Vec3], tolerance: float) -> list[Vec3]:
+    """The way from the last point of a flown path back to its first: its points in reverse, each loop cut out
+    (from a point the path came through before, on from where it first left it). Every leg was flown, one way."""
+    back: list[Vec3] = []
+    j = len(flown) - 1
+    while j >= 0:
+        back.append(flown[j])
+        j = next(i for i in range(j + 1) if math.dist(flown[i], flown[j]) <= tolerance) - 1
+    return back
 
 
 def carried_lead(here: Vec3, carrot: Vec3 | None, first_waypoint: Vec3) -> float:

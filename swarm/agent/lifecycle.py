@@ -20,8 +20,10 @@ and takes the phase anyway, so the heartbeat says what the drone does. The unit 
 
 "Returning" is no phase: it is the end of the mission, flown in phase flying (the exploration flies the drone
 back above its take-off point, `Exploration._return`; a route ends where it ends), and the drone lands where
-the mission left it. Lingering and exit come after the flight, while the heartbeat keeps the final phase (a
-lingering agent's says landed); they are process `Stage`s of `swarm.agent.main.Agent`.
+the mission left it. A low battery ends the mission early the same way: the way home is flown in the phase the
+battery ran low in (flying, or hovering), then the drone lands. Lingering and exit come after the flight, while
+the heartbeat keeps the final phase (a lingering agent's says landed); they are process `Stage`s of
+`swarm.agent.main.Agent`.
 """
 
 from __future__ import annotations

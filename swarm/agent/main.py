@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import asyncio
 import faulthandler
+import math
 import os
 import signal
 import sys
@@ -29,7 +30,7 @@ import zenoh
 from swarm.agent.autopilot import Autopilot
 from swarm.agent.events import EventLog
 from swarm.agent.exploration import Exploration
-from swarm.agent.flight import Flight, Mission, Neighbour, parked, route_mission
+from swarm.agent.flight import Flight, Mission, Neighbour, parked, retrace, route_mission
 from swarm.agent.lifecycle import Stage, next_stage
 from swarm.agent.mapping import MappingTask
 from swarm.agent.sensing import StreamSource
@@ -131,6 +132,7 @@ class Agent:
             share=self.sharing,
         )
         mission: Mission = route_mission(list(self.config.agent.waypoints))
+        homeward: Mission = retrace  # a low battery ends the mission: back the way the route came
         if exploring and mapping is not None:
             self.exploration = Exploration(
                 self.config,
@@ -145,7 +147,7 @@ class Agent:
                 obstacles=self._obstacles,
             )
             self.exploration.start()
-            mission = self.exploration.fly
+            mission, homeward = self.exploration.fly, self.exploration.fly_home
         if mapping is not None:
             recovered, rejected = await mapping.recover()
             for pid, data in recovered:
@@ -162,7 +164,7 @@ class Agent:
         final = Phase.FAILED
         released = False
         try:
-            final = await self.flight.run(mission, self.stop)
+            final = await self.flight.run(mission, self.stop, homeward)
             self.log("flight_ended", phase=final.value)
         finally:
             mapping_stop.set()
@@ -405,6 +407,7 @@ class Agent:
         out_dir = self.config.agent.out_dir
         if out_dir is None:
             return
+        battery = self.flight.ap.telemetry.battery_min
         summary = AgentSummary.model_validate(
             {
                 "id": self.id,
@@ -423,6 +426,7 @@ class Agent:
                 "heartbeats_on_wrong_key": self.keys_mismatch,
                 "bus_route_refreshes": self.route_refreshes,
                 "give_way": self.flight.yields,
+                "battery_min_fraction": None if math.isnan(battery) else round(battery, 4),
                 "timeline": self.timeline,
                 **(self.exploration.summary() if self.exploration is not None else SCRIPTED_EXPLORATION),
                 **(mapping.summary() if mapping is not None else NO_MAPPING),

@@ -82,6 +82,7 @@ class AgentSummary(FileModel):
     heartbeats_on_wrong_key: int
     bus_route_refreshes: int  # subscriptions declared again for a peer heard by token only (swarm.roles)
     give_way: int
+    battery_min_fraction: float | None  # the lowest remaining battery the autopilot reported; None: it reported none
     timeline: list[tuple[float, int, int]]  # (t since start, bytes sent, bytes received), once a second
     # exploration (`ExplorationTask.summary`; a scripted agent: zeros and None)
     strategy: str

@@ -20,6 +20,8 @@ class FakeAutopilot:
             landed_state="IN_AIR" if in_air else "ON_GROUND",
             updated=time.monotonic(),
             samples=1,
+            battery=1.0,
+            battery_min=1.0,
         )
         self.home_world = None
         self.refuse = refuse

@@ -18,6 +18,7 @@ import pytest
 
 from swarm.agent.exploration import Exploration, Target
 from swarm.agent.flight import Flight
+from swarm.bus.phase import Phase
 from swarm.config import ExploreSettings, load_config
 from swarm.explore.frontiers import ExplorationGrid
 from swarm.explore.grid import OccupancyGrid
@@ -186,6 +187,7 @@ async def test_waiting_for_a_target_ends_as_soon_as_one_comes() -> None:
         position = (0.0, 0.0, 1.5)
         yaw_deg = 0.0
         telemetry_age_s = 0.0
+        battery = 1.0
 
     class AP:
         telemetry = Telemetry()
@@ -203,6 +205,7 @@ async def test_waiting_for_a_target_ends_as_soon_as_one_comes() -> None:
     flight._last_check = time.monotonic()
     flight._judge_telemetry_after = 0.0
     flight.airborne = True
+    flight.phase, flight.battery_low = Phase.FLYING, False
     flight.settings = load_config().agent
     flight.log = lambda *a, **k: None  # type: ignore[assignment]
     interrupt = asyncio.Event()
