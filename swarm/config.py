@@ -224,6 +224,22 @@ class AgentSettings(_Section):
         "earlier runs (other epochs) before it asks its peers",
     )
     mavsdk_threads: int = Field(8, ge=2, le=64)
+    frame: Literal["global", "local"] = Field(
+        "global",
+        description="how the world frame is tied to the autopilot's: 'global' through its home position's latitude, "
+        "longitude and altitude (GPS, or a global origin set on the vehicle); 'local' (indoors, no GPS) through "
+        "agent.local_origin and agent.local_north_deg, the autopilot's local NED frame placed in the world",
+    )
+    local_origin: Vec3 | None = Field(
+        None, description='agent.frame = "local": the world position of the autopilot\'s local (EKF) origin'
+    )
+    local_north_deg: float = Field(
+        0.0,
+        ge=-180.0,
+        le=180.0,
+        description='agent.frame = "local": the world bearing of the local frame\'s north axis, degrees '
+        "counter-clockwise from the world's +y",
+    )
     battery_home_fraction: float = Field(
         0.25,
         gt=0.0,
@@ -239,6 +255,12 @@ class AgentSettings(_Section):
         "make the vehicle climb or return (PX4's defaults do: Return at 60 m); 'set' writes safe indoor values "
         "(Hold) and reads them back; 'off' leaves them alone. swarm run uses 'set' for its simulated vehicles",
     )
+
+    @model_validator(mode="after")
+    def _local_frame_placed(self) -> AgentSettings:
+        if self.frame == "local" and self.local_origin is None:
+            raise ValueError('agent.frame = "local" needs agent.local_origin (the world position of the local origin)')
+        return self
 
     @field_validator("autopilot")
     @classmethod
@@ -274,6 +296,20 @@ class SimSettings(_Section):
         "above agent.battery_home_fraction",
     )
     battery_start: float = Field(1.0, ge=0.0, le=1.0, description="each vehicle's battery at start (fraction)")
+    gps: bool = Field(
+        True,
+        description="False: indoor vehicles without GPS (EKF2_GPS_CTRL 0 at boot, local position from vision): "
+        "no global position, no HOME_POSITION, no Hold or Return mode until a SET_GPS_GLOBAL_ORIGIN; swarm run "
+        'then gives each agent agent.frame = "local" and its vehicle\'s local origin',
+    )
+    estimator_warmup_s: float = Field(
+        0.0, ge=0.0, le=120.0, description="after boot, how long each vehicle has no position estimate (not armable)"
+    )
+    local_origin_offset: Vec3 = Field(
+        (0.0, 0.0, 0.0),
+        description="where each vehicle's local (EKF) origin lies from its spawn point, world frame: PX4's origin is "
+        "where its estimator started (a vision system's start), not its home",
+    )
     spawns: list[Vec3] = Field(default_factory=list, description="vehicle home positions; set by swarm run")
     sensor_listen: list[str] = Field(
         default_factory=list,

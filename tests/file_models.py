@@ -78,6 +78,8 @@ def vehicle_status(vehicle_id: int = 1, **overrides: Any) -> VehicleStatus:
             "landed_state": "on_ground",
             "distance_m": 12.5,
             "battery": 0.9,
+            "global_position": True,
+            "local_origin": [0.0, 0.0, 0.0],
             "collisions": 0,
             "closest_world_m": None,
             "closest_world_at": None,

@@ -10,7 +10,11 @@ against the simulated vehicle, shape this module:
 - MAVSDK logs to stderr with colours unless silenced, process-wide.
 
 Positions are converted between the autopilot's local NED frame (origin at its local origin) and the shared
-world frame (z-up) through the home position, which the autopilot reports both geodetically and locally.
+world frame (z-up) in one of two ways. With a global position (GPS, or a global origin set on the vehicle), through
+the home position, which the autopilot reports both geodetically and locally. Without one (indoors, agent.frame =
+"local"), through a `LocalFrame`: where the local origin lies in the world and which way its north points. PX4
+then sends no home position and cannot fly Hold or Return (swarm.agent.px4_failsafe), so the agent takes off and
+holds in offboard, and home is where the vehicle stood when the agent connected.
 """
 
 from __future__ import annotations
@@ -31,7 +35,7 @@ from mavsdk.asyncio.plugins.param import ParamAsync, ParamError
 from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 from mavsdk.plugins.offboard import PositionNedYaw
 
-from swarm.config import GeoOrigin, Vec3
+from swarm.config import AgentSettings, GeoOrigin, Vec3
 from swarm.errors import SwarmError
 from swarm.geo import enu_to_ned, geo_to_world, ned_to_enu, yaw_enu_to_ned_deg, yaw_ned_to_enu_deg
 
@@ -66,10 +70,48 @@ class TelemetryCache:
     battery_min: float = math.nan  # the lowest seen
 
 
+@dataclass(frozen=True)
+class LocalFrame:
+    """The autopilot's local NED frame placed in the world: its origin (world point) and the world bearing of its
+    north axis (degrees counter-clockwise from the world's +y)."""
+
+    origin: Vec3
+    north_deg: float = 0.0
+
+    def to_world(self, ned: Vec3) -> Vec3:
+        x, y, z = self.vector_to_world(ned)
+        o = self.origin
+        return o[0] + x, o[1] + y, o[2] + z
+
+    def vector_to_world(self, ned: Vec3) -> Vec3:
+        """A local NED vector (a velocity) in world axes."""
+        x, y, z = ned_to_enu(ned)
+        c, s = math.cos(math.radians(self.north_deg)), math.sin(math.radians(self.north_deg))
+        return c * x - s * y, s * x + c * y, z
+
+    def to_local(self, p: Vec3) -> Vec3:
+        x, y, z = p[0] - self.origin[0], p[1] - self.origin[1], p[2] - self.origin[2]
+        c, s = math.cos(math.radians(self.north_deg)), math.sin(math.radians(self.north_deg))
+        return enu_to_ned((c * x + s * y, -s * x + c * y, z))
+
+
+def local_frame(settings: AgentSettings) -> LocalFrame | None:
+    """The local frame agent.frame = "local" asks for; None to fly by the global position."""
+    if settings.frame != "local":
+        return None
+    assert settings.local_origin is not None  # AgentSettings validates it
+    return LocalFrame(settings.local_origin, settings.local_north_deg)
+
+
 class Autopilot:
-    def __init__(self, url: str, origin: GeoOrigin, command_timeout_s: float = 5.0) -> None:
+    def __init__(
+        self, url: str, origin: GeoOrigin, command_timeout_s: float = 5.0, local_frame: LocalFrame | None = None
+    ) -> None:
+        """`local_frame`: fly without a global position, the world tied to the local frame this way."""
         self.url = url
         self.origin = origin
+        self.local_frame = local_frame
+        self._north_deg = 0.0 if local_frame is None else local_frame.north_deg  # world yaw = local yaw + this
         self.command_timeout_s = command_timeout_s
         self.telemetry = TelemetryCache()
         self.home_world: Vec3 | None = None
@@ -101,44 +143,48 @@ class Autopilot:
         self._param = ParamAsync(system)
 
     async def read_health(self) -> dict[str, bool]:
-        """The health items the agent waits for before it arms (`wait_healthy`), each ok or not."""
+        """The health items the agent waits for before it arms (`wait_healthy`), each ok or not: a home position
+        only when flying by it (no local frame)."""
         assert self._tel is not None
         health = await self._call("health", self._tel.health)
-        return {
-            "local position": health.is_local_position_ok,
-            "home position": health.is_home_position_ok,
-            "armable": health.is_armable,
-        }
+        items = {"local position": health.is_local_position_ok, "armable": health.is_armable}
+        if self.local_frame is None:
+            items["home position"] = health.is_home_position_ok
+        return items
 
     async def wait_healthy(self, timeout_s: float) -> None:
-        """Wait until the autopilot reports healthy, armable and a home position; then start the streams."""
+        """Wait until every `read_health` item is ok; then start the streams and place home in the world."""
         assert self._tel is not None
         deadline = time.monotonic() + timeout_s
-        while True:
-            health = await self._call("health", self._tel.health)
-            if health.is_local_position_ok and health.is_home_position_ok and health.is_armable:
-                break
+        while bad := [name for name, ok in (await self.read_health()).items() if not ok]:
             if time.monotonic() > deadline:
-                raise FlightError(f"autopilot not healthy within {timeout_s:.0f} s ({health})")
+                raise FlightError(f"autopilot not healthy within {timeout_s:.0f} s (no {', '.join(bad)})")
             await asyncio.sleep(0.2)
-        home = await self._call("home", self._tel.home)
-        self.home_world = geo_to_world(self.origin, home.latitude_deg, home.longitude_deg, home.absolute_altitude_m)
-        local = (home.local_north_m, home.local_east_m, home.local_down_m)
-        self._home_local_ned = local if all(math.isfinite(v) for v in local) else (0.0, 0.0, 0.0)
+        if self.local_frame is None:
+            home = await self._call("home", self._tel.home)
+            self.home_world = geo_to_world(self.origin, home.latitude_deg, home.longitude_deg, home.absolute_altitude_m)
+            local = (home.local_north_m, home.local_east_m, home.local_down_m)
+            self._home_local_ned = local if all(math.isfinite(v) for v in local) else (0.0, 0.0, 0.0)
         tel = self._tel
         await self._call("set rate", lambda: tel.set_rate_position_velocity_ned(20.0))
         self._start_streams()
         await self.wait_until(lambda t: t.samples > 0, max(1.0, deadline - time.monotonic()), "position telemetry")
+        if self.local_frame is not None:
+            self.home_world = self.telemetry.position  # on the ground where it will arm: PX4's home to be
 
     # -- frames ------------------------------------------------------------------------------------------
 
     def local_to_world(self, ned: Vec3) -> Vec3:
+        if self.local_frame is not None:
+            return self.local_frame.to_world(ned)
         assert self.home_world is not None
         (n, e, d), (hn, he, hd) = ned, self._home_local_ned
         rel = ned_to_enu((n - hn, e - he, d - hd))
         return self.home_world[0] + rel[0], self.home_world[1] + rel[1], self.home_world[2] + rel[2]
 
     def world_to_local(self, p: Vec3) -> Vec3:
+        if self.local_frame is not None:
+            return self.local_frame.to_local(p)
         assert self.home_world is not None
         (x, y, z), (hx, hy, hz) = p, self.home_world
         rel = enu_to_ned((x - hx, y - hy, z - hz))
@@ -157,8 +203,15 @@ class Autopilot:
     # -- commands ----------------------------------------------------------------------------------------
 
     async def arm_and_takeoff(self, altitude_m: float) -> None:
-        assert self._action is not None
+        """Arm and climb to `altitude_m` above home: PX4's Takeoff mode, which ends in Hold; without a global
+        position (a local frame), in offboard instead, since Hold could not run and PX4 would land."""
+        assert self._action is not None and self.home_world is not None
         action = self._action
+        if self.local_frame is not None:
+            here = self.telemetry.position
+            await self._call("arm", self._action.arm)
+            await self.set_setpoint((here[0], here[1], self.home_world[2] + altitude_m), self.telemetry.yaw_deg)
+            return
         await self._call("set takeoff altitude", lambda: action.set_takeoff_altitude(altitude_m))
         await self._call("arm", self._action.arm)
         await self._call("takeoff", self._action.takeoff)
@@ -182,7 +235,7 @@ class Autopilot:
         """Command a world-frame position; starts offboard mode on first use."""
         assert self._offboard is not None
         n, e, d = self.world_to_local(target_world)
-        setpoint = PositionNedYaw(n, e, d, yaw_enu_to_ned_deg(yaw_enu_deg))
+        setpoint = PositionNedYaw(n, e, d, yaw_enu_to_ned_deg(yaw_enu_deg - self._north_deg))
         offboard = self._offboard
         await self._call("offboard setpoint", lambda: offboard.set_position_ned(setpoint))
         if self.offboard_active and self._dropped_out_of_offboard():
@@ -198,7 +251,11 @@ class Autopilot:
         return settled and self.telemetry.flight_mode == "HOLD"
 
     async def hold(self, timeout_s: float | None = None) -> None:
+        """Stop where it is: PX4's Hold; without a global position, an offboard setpoint where it is."""
         assert self._action is not None and self._offboard is not None
+        if self.local_frame is not None:
+            await self.set_setpoint(self.telemetry.position, self.telemetry.yaw_deg)
+            return
         if self.offboard_active:
             self.offboard_active = False
             await self._call("offboard stop", self._offboard.stop, timeout_s)
@@ -238,12 +295,14 @@ class Autopilot:
         def on_position(pv: Any) -> None:
             p, v = pv.position, pv.velocity
             cache.position = self.local_to_world((p.north_m, p.east_m, p.down_m))
-            cache.velocity = ned_to_enu((v.north_m_s, v.east_m_s, v.down_m_s))
+            velocity = (v.north_m_s, v.east_m_s, v.down_m_s)
+            frame = self.local_frame
+            cache.velocity = ned_to_enu(velocity) if frame is None else frame.vector_to_world(velocity)
             cache.updated = time.monotonic()
             cache.samples += 1
 
         def on_attitude(att: Any) -> None:
-            cache.yaw_deg = yaw_ned_to_enu_deg(att.yaw_deg)
+            cache.yaw_deg = yaw_ned_to_enu_deg(att.yaw_deg) + self._north_deg
 
         def on_mode(mode: Any) -> None:
             cache.flight_mode = mode.name

@@ -27,7 +27,7 @@ from typing import Any, NoReturn
 import numpy as np
 import zenoh
 
-from swarm.agent.autopilot import Autopilot
+from swarm.agent.autopilot import Autopilot, local_frame
 from swarm.agent.events import EventLog
 from swarm.agent.exploration import Exploration
 from swarm.agent.flight import Flight, Mission, Neighbour, parked, retrace, route_mission
@@ -107,7 +107,10 @@ class Agent:
         self.log("starting", epoch=self.epoch, autopilot=self.config.agent.autopilot, pid=os.getpid())
         bus = await AsyncBus.open(self.config.agent_bus(), self.config.mission.name)
         autopilot = Autopilot(
-            self.config.agent.autopilot, self.config.mission.origin, self.config.agent.command_timeout_s
+            self.config.agent.autopilot,
+            self.config.mission.origin,
+            self.config.agent.command_timeout_s,
+            local_frame(self.config.agent),
         )
         exploring = self.config.explore.strategy != "scripted"
         self.flight = Flight(

@@ -13,7 +13,7 @@ import asyncio
 import time
 from dataclasses import dataclass, field
 
-from swarm.agent.autopilot import Autopilot, FlightError
+from swarm.agent.autopilot import Autopilot, FlightError, local_frame
 from swarm.agent.px4_params import FLOAT_PARAMS, INT_PARAMS, safe_writes, unsafe
 from swarm.config import SwarmConfig
 
@@ -47,7 +47,7 @@ class Preflight:
 async def check_vehicle(config: SwarmConfig, ap: Autopilot | None = None) -> Preflight:
     """Connect, wait up to `agent.health_timeout_s` for the vehicle to be healthy, read the parameters."""
     s = config.agent
-    ap = ap or Autopilot(s.autopilot, config.mission.origin, s.command_timeout_s)
+    ap = ap or Autopilot(s.autopilot, config.mission.origin, s.command_timeout_s, local_frame(s))
     found = Preflight(ap.url)
     try:
         await ap.connect(s.connect_timeout_s)

@@ -30,6 +30,12 @@ Land at emergency, 1 (deprecated, still honoured) Return at both; other values w
 a warning worse than the one at arming (a vehicle armed with a low battery is not sent home for it). Arming is
 refused at critical or worse while COM_ARM_BAT_MIN is negative (the default, -1: "BAT_CRIT_THR is the
 threshold"); when it is 0 or more, arming is refused below it instead, and a critical warning alone does not.
+
+Modes without a global position (an indoor vehicle with no GPS and no global origin set): a multicopter's Hold
+(AUTO_LOITER) and Return (AUTO_RTL) need one, Takeoff, Land and Offboard do not
+(`src/modules/commander/ModeUtil/mode_requirements.cpp`). A failsafe action whose mode cannot run falls back
+along Hold -> Return -> Land -> Descend (`FailsafeBase::getSelectedAction` in `failsafe/framework.cpp`), so
+without a global position both Hold and Return become Land.
 """
 
 from __future__ import annotations
@@ -176,3 +182,19 @@ def battery_arming_refusal(param: ParamReader, remaining: float) -> Refusal | No
         return None  # a low battery is reported, not refused
     threshold = "BAT_EMERGEN_THR" if warning == BatteryWarning.EMERGENCY else "BAT_CRIT_THR"
     return Refusal(threshold, f"{warning.label} battery, {remaining:.1%} below {threshold} {param(threshold):.1%}")
+
+
+NEEDS_GLOBAL_POSITION = ("HOLD", "RTL")  # PX4 flight mode names (mode_requirements.cpp, multicopter)
+
+
+def mode_can_run(mode: str, global_position: bool) -> bool:
+    """Whether PX4 can fly `mode` (a flight mode name) with or without a global position estimate."""
+    return global_position or mode not in NEEDS_GLOBAL_POSITION
+
+
+def action_that_can_run(action: Action, global_position: bool) -> Action:
+    """A failsafe action after PX4's fallback (framework.cpp): Hold and Return become Land without a global
+    position; the others are taken as they are."""
+    if action in (Action.HOLD, Action.RETURN) and not global_position:
+        return Action.LAND
+    return action

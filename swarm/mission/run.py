@@ -395,6 +395,9 @@ def _start_swarm(plan: RunPlan, state: RunState) -> None:
             "out_dir": plan.out / "agents",
             "state_dir": plan.out / "agents" / "state" / f"agent-{k}",
         }
+        if not config.sim.gps:  # indoor vehicles: each agent is told where its vehicle's local origin lies
+            spawn, offset = plan.spawns[k - 1], config.sim.local_origin_offset
+            update |= {"frame": "local", "local_origin": tuple(a + b for a, b in zip(spawn, offset, strict=True))}
         if "px4_params" not in config.agent.model_fields_set:
             update["px4_params"] = "set"  # simulated vehicles: a killed agent's drone holds (docs/architecture.md)
         if k in routes:

@@ -19,13 +19,15 @@ from swarm.agent.px4_failsafe import (
     Action,
     BatteryWarning,
     Decision,
+    action_that_can_run,
     battery_arming_refusal,
     battery_warning,
     datalink_loss_action,
     low_battery_action,
+    mode_can_run,
     offboard_loss_action,
 )
-from swarm.config import SimSettings, Vec3
+from swarm.config import GeoOrigin, SimSettings, Vec3
 from swarm.sim import kinematics
 from swarm.sim.battery import Battery
 from swarm.sim.kinematics import Body, Limits
@@ -78,11 +80,21 @@ class SimulatedPx4:
         position_gain: float,
         floor_below: Callable[[np.ndarray], float] | None = None,
         battery: Battery | None = None,
+        local_origin: Vec3 | None = None,
+        boot_time: float = 0.0,
+        estimator_warmup_s: float = 0.0,
     ) -> None:
         """`floor_below(position)`: the z of the first surface under the vehicle (the world's floors: a vehicle
         landing on an upper storey touches its slab, as a real one would); None or NaN: the home height.
-        `battery`: a full one of the default `sim.battery_minutes` when None."""
-        self.home = np.array(home, dtype=np.float64)
+        `battery`: a full one of the default `sim.battery_minutes` when None. `local_origin`: the world point of
+        the local NED frame's origin, where the estimator started (default: home). `estimator_warmup_s`: after
+        `boot_time`, how long the estimator has no position estimate yet."""
+        self.home = np.array(home, dtype=np.float64)  # where it was last armed (PX4 resets home at arming)
+        self.local_origin = self.home.copy() if local_origin is None else np.array(local_origin, dtype=np.float64)
+        self.gps = bool(int(params["EKF2_GPS_CTRL"]) & 1)  # GPS position fused (read at boot, as PX4 does)
+        self.global_origin: GeoOrigin | None = None  # without GPS: set by SET_GPS_GLOBAL_ORIGIN
+        self.now = boot_time  # the clock of the last step or command
+        self.estimator_ready_at = boot_time + estimator_warmup_s
         self._floor_below = floor_below
         self._ground_at: np.ndarray | None = None  # where the floor under the vehicle was last looked up
         self._ground_z = float(self.home[2])
@@ -155,9 +167,31 @@ class SimulatedPx4:
         return battery_warning(self.params.__getitem__, self.battery.remaining)
 
     @property
+    def global_position(self) -> bool:
+        """Whether the estimator has a global position: from GPS, or the local one placed by a set global origin."""
+        return self.gps or self.global_origin is not None
+
+    @property
+    def position_valid(self) -> bool:
+        """Whether the estimator has a local position yet (sim.estimator_warmup_s after boot)."""
+        return self.now >= self.estimator_ready_at
+
+    @property
     def armable(self) -> bool:
-        """What the pre-arm check bit says: the battery allows arming (the only check the simulator fails)."""
-        return battery_arming_refusal(self.params.__getitem__, self.battery.remaining) is None
+        """What the pre-arm check bit says: no reason to refuse arming."""
+        return self.arming_refusal() is None
+
+    def arming_refusal(self) -> str | None:
+        """Why PX4 would refuse to arm now, in its words, or None. The checks the simulator can fail, in PX4's
+        order of HealthAndArmingChecks: the position estimate (estimatorCheck.cpp: a multicopter arms in a mode
+        that needs one only with one), an active data-link failsafe (rcAndDataLinkChecks.cpp: no ground station
+        while NAV_DLL_ACT acts on its loss), the battery (batteryCheck.cpp)."""
+        if not self.position_valid:
+            return "no valid position estimate"
+        if self._datalink_lost and int(self.params["NAV_DLL_ACT"]) != 0:
+            return "no connection to the ground control station"
+        refusal = battery_arming_refusal(self.params.__getitem__, self.battery.remaining)
+        return None if refusal is None else refusal.reason
 
     def limits(self, offboard: bool = False) -> Limits:
         key = (offboard, self._auto_speed, self.params.version)
@@ -182,16 +216,19 @@ class SimulatedPx4:
     # --- commands (each returns a MAV_RESULT) ------------------------------------------------------------------
 
     def arm(self, now: float, force: bool = False) -> int:
+        self.now = now
         if self.armed:
             return ACCEPTED
         if not self.at_ground and not force:
             return DENIED
-        refusal = None if force else battery_arming_refusal(self.params.__getitem__, self.battery.remaining)
+        refusal = None if force else self.arming_refusal()
         if refusal is not None:
-            # PX4 reports the failed check and answers TEMPORARILY_REJECTED (batteryCheck.cpp, Commander.cpp)
-            self._notice(mavlink.MAV_SEVERITY_CRITICAL, f"Arming denied: {refusal.reason}")
+            # PX4 reports the failed check and answers TEMPORARILY_REJECTED (Commander.cpp)
+            self._notice(mavlink.MAV_SEVERITY_CRITICAL, f"Arming denied: {refusal}")
             return REJECTED
         self.armed = True
+        self.home = self.body.position.copy()  # PX4 sets home where it arms (Commander: home on arming)
+        self._ground_z = float(self.home[2])
         self._battery_at_arming = self.battery_warning
         self._battery_handled = BatteryWarning.NONE  # a low battery at arming is announced once armed, as PX4 does
         self._ground_since = now
@@ -225,6 +262,8 @@ class SimulatedPx4:
         return ACCEPTED
 
     def return_to_launch(self) -> int:
+        if not self._can_run(FlightMode.RTL):
+            return REJECTED
         self._rtl_z = max(self.position[2], self.home[2] + self.params["RTL_RETURN_ALT"])
         self._rtl_phase = RtlPhase.DESCEND if self.at_ground else RtlPhase.CLIMB
         self._set_mode(FlightMode.RTL)
@@ -234,6 +273,9 @@ class SimulatedPx4:
         if mode == self.mode:
             return ACCEPTED
         if mode == FlightMode.OFFBOARD:
+            if not self.position_valid:  # offboard needs a valid local position (docs/en/flight_modes/offboard.md)
+                self._notice(mavlink.MAV_SEVERITY_CRITICAL, "Offboard refused: no valid position estimate")
+                return REJECTED
             age = now - self._setpoint_time
             if age > OFFBOARD_ENTRY_S:
                 # PX4 answers TEMPORARILY_REJECTED to a mode it cannot enter (Commander.cpp, DO_SET_MODE)
@@ -248,6 +290,8 @@ class SimulatedPx4:
             return self.land()
         if mode == FlightMode.RTL:
             return self.return_to_launch()
+        if not self._can_run(mode):
+            return REJECTED
         self._enter_hold(mode)
         return ACCEPTED
 
@@ -255,6 +299,8 @@ class SimulatedPx4:
         """Fly to `target` (NaN axes: keep the current value) and hold there, in HOLD, as PX4's DO_REPOSITION."""
         if not self.armed or not self.airborne:
             return DENIED
+        if not self._can_run(FlightMode.HOLD):
+            return REJECTED
         self._enter_hold()
         self._hold_point = np.where(np.isnan(target), self.position, target)
         self._hold_yaw = yaw if yaw is not None and math.isfinite(yaw) else None
@@ -281,6 +327,7 @@ class SimulatedPx4:
     # --- physics -----------------------------------------------------------------------------------------------
 
     def step(self, dt: float, now: float) -> None:
+        self.now = now
         before = self.body.position.copy()
         if self.mode == FlightMode.OFFBOARD and now - self._setpoint_time > self.params["COM_OF_LOSS_T"]:
             if self.armed:
@@ -328,6 +375,12 @@ class SimulatedPx4:
         p, v = self.body.position, self.body.velocity
         if self.mode == FlightMode.TAKEOFF:
             if abs(p[2] - self._takeoff_target[2]) < ARRIVED_M and abs(v[2]) < 0.3:
+                if not self.global_position:  # Takeoff ends in Hold, which cannot run: PX4's fallback lands
+                    self._notice(
+                        mavlink.MAV_SEVERITY_CRITICAL, "Failsafe: Hold not possible without a global position, Land"
+                    )
+                    self.land()
+                    return
                 self._enter_hold()
                 self._hold_point = self._takeoff_target.copy()
         elif self.mode == FlightMode.RTL:
@@ -392,15 +445,18 @@ class SimulatedPx4:
         self._fail_safe(decision, f"{warning.label} battery level")
 
     def _fail_safe(self, decision: Decision, cause: str) -> None:
-        """Take a failsafe action and announce it, as PX4 does ("Failsafe activated: ...")."""
-        self._notice(mavlink.MAV_SEVERITY_CRITICAL, f"Failsafe: {cause}, {decision.action.value} ({decision.reason})")
-        if decision.action == Action.HOLD:
+        """Take a failsafe action and announce it, as PX4 does ("Failsafe activated: ..."); one whose mode cannot
+        run without a global position falls back to Land (swarm.agent.px4_failsafe.action_that_can_run)."""
+        action = action_that_can_run(decision.action, self.global_position)
+        taken = action.value if action == decision.action else f"{action.value} ({decision.action.value} not possible)"
+        self._notice(mavlink.MAV_SEVERITY_CRITICAL, f"Failsafe: {cause}, {taken} ({decision.reason})")
+        if action == Action.HOLD:
             self._enter_hold()
-        elif decision.action == Action.RETURN:
+        elif action == Action.RETURN:
             self.return_to_launch()
-        elif decision.action == Action.LAND:
+        elif action == Action.LAND:
             self.land()
-        elif decision.action in (Action.TERMINATE, Action.DISARM):
+        elif action in (Action.TERMINATE, Action.DISARM):
             self._enter_hold()  # out of OFFBOARD, so the loss is not taken again
             self._disarm()  # motors off: the vehicle falls
 
@@ -408,6 +464,13 @@ class SimulatedPx4:
         self.notices.append((severity, text))
 
     # --- helpers -----------------------------------------------------------------------------------------------
+
+    def _can_run(self, mode: FlightMode) -> bool:
+        """PX4's mode requirements: a mode that needs a global position is refused without one, with its reason."""
+        if mode_can_run(mode.name, self.global_position):
+            return True
+        self._notice(mavlink.MAV_SEVERITY_CRITICAL, f"Switching to {mode.name} is not possible: no global position")
+        return False
 
     def _set_mode(self, mode: FlightMode) -> None:
         self.mode = mode

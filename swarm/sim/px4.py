@@ -97,6 +97,11 @@ class Params:
             "COM_ARM_BAT_MIN": Param(-1.0),  # negative: arming refused at BAT_CRIT_THR
             "COM_DISARM_LAND": Param(2.0),
             "COM_DISARM_PRFLT": Param(10.0),
+            # Estimator aiding (src/modules/ekf2/module.yaml): GPS bits 0-2 (position, altitude, velocity), PX4's
+            # default 7; external vision bits 0-3 (position, altitude, velocity, yaw), default 15, used when vision
+            # data arrives. Read at boot, as PX4 applies them after a reboot: sim.gps = false boots with GPS off.
+            "EKF2_GPS_CTRL": Param(7 if sim.gps else 0, INT32),
+            "EKF2_EV_CTRL": Param(15, INT32),
             "MAV_SYS_ID": Param(sysid, INT32),
             "MAV_TYPE": Param(mavlink.MAV_TYPE_QUADROTOR, INT32),
             "SYS_AUTOSTART": Param(4001, INT32),  # PX4's SITL quadrotor airframe

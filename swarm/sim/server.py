@@ -278,6 +278,8 @@ class SimServer:
                             "landed_state": v["landed_state"],
                             "distance_m": v["distance_m"],
                             "battery": v["battery"],
+                            "global_position": v["global_position"],
+                            "local_origin": v["local_origin"],
                             "collisions": self.collisions.counts[vid],
                             "closest_world_m": _rounded(self.collisions.closest_world(vid)),
                             "closest_world_at": _rounded_point(self.collisions.closest_world_at(vid)),

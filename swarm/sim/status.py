@@ -18,6 +18,8 @@ class VehicleStatus(FileModel):
     landed_state: str  # "on_ground", "in_air", "taking_off", "landing"...
     distance_m: float
     battery: float  # remaining fraction, 0..1 (swarm/sim/battery.py)
+    global_position: bool  # False without GPS until a global origin is set
+    local_origin: list[float]  # the world point of the vehicle's local (EKF) origin
     collisions: int
     closest_world_m: float | None  # None until the vehicle came within NEAR_GAP_M of the world in flight
     closest_world_at: list[float] | None

@@ -9,7 +9,12 @@ every PARAM_SET; OFFBOARD refused without a setpoint in the last 0.5 s. Failsafe
 STATUSTEXT (chunked past 50 characters, as MAVLink 2 allows); a GCS HEARTBEAT keeps the data link up.
 
 The flight logic lives in autopilot.py; this module only translates MAVLink to and from it. Local NED is relative
-to the vehicle's home; global positions are the mission origin plus the world position (swarm.geo).
+to the vehicle's local origin (where its estimator started: the spawn point plus sim.local_origin_offset), not
+its home, which moves to wherever it arms. Global positions are the mission origin plus the world position
+(swarm.geo) while GPS is fused. Without GPS (EKF2_GPS_CTRL 0 at boot) the vehicle reports vision position in
+SYS_STATUS instead of GPS, sends no GPS_RAW_INT, and no GLOBAL_POSITION_INT or HOME_POSITION (PX4 sends home only
+with a valid global position, HOME_POSITION.hpp) until a SET_GPS_GLOBAL_ORIGIN places the local origin on the
+globe; from then on global positions are that origin plus the local position.
 """
 
 from __future__ import annotations
@@ -26,7 +31,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from swarm import geo
 from swarm.agent.px4_failsafe import BatteryWarning
-from swarm.config import SwarmConfig, Vec3
+from swarm.config import GeoOrigin, SwarmConfig, Vec3
 from swarm.sim.autopilot import ACCEPTED, DENIED, REJECTED, Setpoint, SimulatedPx4
 from swarm.sim.battery import Battery
 from swarm.sim.kinematics import tilt
@@ -44,11 +49,12 @@ _SENSORS = (
     | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
     | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG
     | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
-    | mavlink.MAV_SYS_STATUS_SENSOR_GPS
     | mavlink.MAV_SYS_STATUS_AHRS
     | mavlink.MAV_SYS_STATUS_SENSOR_BATTERY
     | mavlink.MAV_SYS_STATUS_PREARM_CHECK
 )
+# MAVSDK's health: local position ok from GPS, optical flow or vision position present, enabled and healthy
+_POSITION_SENSOR = {True: mavlink.MAV_SYS_STATUS_SENSOR_GPS, False: mavlink.MAV_SYS_STATUS_SENSOR_VISION_POSITION}
 # BATTERY_STATUS charge_state of each warning (PX4's mavlink/streams/BATTERY_STATUS.hpp)
 _CHARGE_STATE = {
     BatteryWarning.NONE: mavlink.MAV_BATTERY_CHARGE_STATE_OK,
@@ -150,7 +156,10 @@ class SimVehicle:
         self.origin = config.mission.origin
         self.params = Params(sim, drone_id)
         battery = Battery(sim.battery_minutes, sim.battery_start)
-        self.autopilot = SimulatedPx4(home, self.params, sim.position_gain, floor_below, battery)
+        local_origin = tuple(np.add(home, sim.local_origin_offset))
+        self.autopilot = SimulatedPx4(
+            home, self.params, sim.position_gain, floor_below, battery, local_origin, now, sim.estimator_warmup_s
+        )
         self.downlink = downlink or Downlink(None, (sim.host, 0))
         self.mav = mavlink.MAVLink(self.downlink, srcSystem=drone_id, srcComponent=COMPONENT_ID)  # sends
         self._parser = _new_parser()
@@ -171,6 +180,7 @@ class SimVehicle:
             mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: self._send_local_position,
             mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: self._send_global_position,
             mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION: self._send_autopilot_version,
+            mavlink.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN: self._send_gps_global_origin,
         }
         intervals = {
             mavlink.MAVLINK_MSG_ID_HEARTBEAT: heartbeat,
@@ -252,6 +262,8 @@ class SimVehicle:
             "landed_state": ap.landed_state.label,
             "distance_m": round(ap.distance_m, 3),
             "battery": round(ap.battery.remaining, 4),
+            "global_position": ap.global_position,
+            "local_origin": _rounded(ap.local_origin),
             "gcs_seen": self.last_gcs_message is not None,
             "last_gcs_message_age_s": age,
         }
@@ -306,10 +318,13 @@ class SimVehicle:
 
     def _send_sys_status(self) -> None:
         ap = self.autopilot
-        health = _SENSORS if ap.armable else _SENSORS & ~mavlink.MAV_SYS_STATUS_PREARM_CHECK
+        sensors = _SENSORS | _POSITION_SENSOR[ap.gps]
+        health = sensors if ap.armable else sensors & ~mavlink.MAV_SYS_STATUS_PREARM_CHECK
+        if not ap.position_valid:
+            health &= ~_POSITION_SENSOR[ap.gps]
         millivolts = round(ap.battery.voltage_v * 1000)
         remaining = math.ceil(ap.battery.remaining * 100)  # PX4 rounds up here, to the nearest in BATTERY_STATUS
-        self.mav.sys_status_send(_SENSORS, _SENSORS, health, 150, millivolts, -1, remaining, 0, 0, 0, 0, 0, 0)
+        self.mav.sys_status_send(sensors, sensors, health, 150, millivolts, -1, remaining, 0, 0, 0, 0, 0, 0)
 
     def _send_battery_status(self) -> None:
         """As PX4 reports a battery without cell voltages or a current sensor: the total voltage in the first
@@ -333,19 +348,52 @@ class SimVehicle:
     def _send_extended_sys_state(self) -> None:
         self.mav.extended_sys_state_send(mavlink.MAV_VTOL_STATE_UNDEFINED, int(self.autopilot.landed_state))
 
-    def _geo(self, p: np.ndarray) -> tuple[int, int, int]:
-        lat, lon, alt = geo.world_to_geo(self.origin, (p[0], p[1], p[2]))
+    def _globe(self) -> tuple[GeoOrigin, np.ndarray] | None:
+        """How world positions map to the globe: (geodetic point, the world point at it); None without a global
+        position. With GPS the truth (the mission origin at the world origin); without it, the set global origin
+        at the local origin."""
+        ap = self.autopilot
+        if ap.gps:
+            return self.origin, np.zeros(3)
+        if ap.global_origin is not None:
+            return ap.global_origin, ap.local_origin
+        return None
+
+    def _geo(self, p: np.ndarray) -> tuple[int, int, int] | None:
+        globe = self._globe()
+        if globe is None:
+            return None
+        q = p - globe[1]
+        lat, lon, alt = geo.world_to_geo(globe[0], (q[0], q[1], q[2]))
         return round(lat * 1e7), round(lon * 1e7), round(alt * 1000)
 
+    def _from_geo(self, lat_deg: float, lon_deg: float, alt_amsl_m: float) -> np.ndarray | None:
+        globe = self._globe()
+        if globe is None:
+            return None
+        return np.array(geo.geo_to_world(globe[0], lat_deg, lon_deg, alt_amsl_m)) + globe[1]
+
+    def _local_ned(self, p: np.ndarray) -> Vec3:
+        return geo.enu_to_ned(tuple(p - self.autopilot.local_origin))
+
     def _send_home(self) -> None:
-        lat, lon, alt = self._geo(self.home)
-        self.mav.home_position_send(
-            lat, lon, alt, 0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, int(self._now * 1e6)
-        )
+        geodetic = self._geo(self.home)
+        if geodetic is None:
+            return  # PX4 sends HOME_POSITION only with a valid global position (HOME_POSITION.hpp)
+        x, y, z = self._local_ned(self.home)
+        self.mav.home_position_send(*geodetic, x, y, z, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, int(self._now * 1e6))
+
+    def _send_gps_global_origin(self) -> None:
+        geodetic = self._geo(self.autopilot.local_origin)
+        if geodetic is not None:
+            self.mav.gps_global_origin_send(*geodetic, int(self._now * 1e6))
 
     def _send_gps_raw(self) -> None:
         ap = self.autopilot
-        lat, lon, alt = self._geo(ap.position)
+        geodetic = self._geo(ap.position)
+        if not ap.gps or geodetic is None:
+            return  # no GPS receiver fused: nothing to report
+        lat, lon, alt = geodetic
         speed = math.hypot(ap.velocity[0], ap.velocity[1])
         cog = round(math.degrees(math.atan2(ap.velocity[0], ap.velocity[1])) % 360 * 100) if speed > 0.1 else 65535
         self.mav.gps_raw_int_send(
@@ -359,13 +407,18 @@ class SimVehicle:
 
     def _send_local_position(self) -> None:
         ap = self.autopilot
-        n, e, d = geo.enu_to_ned(tuple(ap.position - ap.home))
+        if not ap.position_valid:
+            return  # PX4 sends LOCAL_POSITION_NED only with a valid estimate (LOCAL_POSITION_NED.hpp)
+        n, e, d = self._local_ned(ap.position)
         vn, ve, vd = geo.enu_to_ned(tuple(ap.velocity))
         self.mav.local_position_ned_send(self._boot_ms(), n, e, d, vn, ve, vd)
 
     def _send_global_position(self) -> None:
         ap = self.autopilot
-        lat, lon, alt = self._geo(ap.position)
+        geodetic = self._geo(ap.position)
+        if geodetic is None:
+            return
+        lat, lon, alt = geodetic
         vn, ve, vd = (_clamp_int16(v * 100) for v in geo.enu_to_ned(tuple(ap.velocity)))
         heading = round(math.degrees(ap.body.yaw) % 360 * 100) % 36000
         self.mav.global_position_int_send(self._boot_ms(), lat, lon, alt, round(ap.height * 1000), vn, ve, vd, heading)
@@ -440,11 +493,12 @@ class SimVehicle:
     def _cmd_reposition(self, cmd: _Command) -> int:
         if cmd.frame not in _GLOBAL_FRAMES:
             return UNSUPPORTED
-        pos = self.autopilot.position
-        lat, lon, _ = geo.world_to_geo(self.origin, tuple(pos))
-        lat = cmd.lat if math.isfinite(cmd.lat) else lat
-        lon = cmd.lon if math.isfinite(cmd.lon) else lon
-        x, y, _ = geo.geo_to_world(self.origin, lat, lon, 0.0)
+        here = self._geo(self.autopilot.position)
+        if here is None:
+            return self.autopilot.reposition(self.autopilot.position, None, None)  # refused: no global position
+        lat = cmd.lat if math.isfinite(cmd.lat) else here[0] / 1e7
+        lon = cmd.lon if math.isfinite(cmd.lon) else here[1] / 1e7
+        x, y, _ = self._from_geo(lat, lon, 0.0)  # type: ignore[misc]
         z = self._world_z(cmd.z, cmd.frame) if math.isfinite(cmd.z) else math.nan
         speed = cmd.params[0] if math.isfinite(cmd.params[0]) and cmd.params[0] > 0 else None
         yaw = cmd.params[3] if math.isfinite(cmd.params[3]) else None
@@ -482,7 +536,10 @@ class SimVehicle:
         """World z of a command altitude: AMSL, or relative to home in the relative-altitude frames."""
         if frame in _RELATIVE_ALT_FRAMES:
             return self.home[2] + alt
-        return geo.geo_to_world(self.origin, self.origin.lat_deg, self.origin.lon_deg, alt)[2]
+        globe = self._globe()
+        if globe is None:
+            return math.nan
+        return geo.geo_to_world(globe[0], globe[0].lat_deg, globe[0].lon_deg, alt)[2] + globe[1][2]
 
     # --- setpoints ---------------------------------------------------------------------------------------------
 
@@ -498,7 +555,7 @@ class SimVehicle:
             pos_ned, vel_ned = _body_to_ned(pos_ned, ap.body.yaw), _body_to_ned(vel_ned, ap.body.yaw)
         position = np.array(geo.ned_to_enu(tuple(pos_ned)))
         if frame == mavlink.MAV_FRAME_LOCAL_NED:
-            position = position + ap.home
+            position = position + ap.local_origin
         else:
             position = position + ap.position  # offset frames are relative to the current position
         velocity = np.array(geo.ned_to_enu(tuple(vel_ned)))
@@ -507,8 +564,11 @@ class SimVehicle:
     def _on_global_setpoint(self, msg: mavlink.MAVLink_set_position_target_global_int_message) -> None:
         if not self._for_me(msg) or msg.coordinate_frame not in _GLOBAL_FRAMES:
             return
+        point = self._from_geo(msg.lat_int / 1e7, msg.lon_int / 1e7, 0.0)
+        if point is None:
+            return  # no global position: PX4 cannot place a global setpoint
         mask = msg.type_mask
-        x, y, _ = geo.geo_to_world(self.origin, msg.lat_int / 1e7, msg.lon_int / 1e7, 0.0)
+        x, y = point[0], point[1]
         lat, lon, alt = _masked((y, x, self._world_z(msg.alt, msg.coordinate_frame)), mask, 1)
         position = np.array([lon, lat, alt])
         velocity = np.array(geo.ned_to_enu(tuple(_masked((msg.vx, msg.vy, msg.vz), mask, 8))))
@@ -549,6 +609,15 @@ class SimVehicle:
         if self._for_me(msg) and self.params.set_wire(msg.param_id, msg.param_value):
             self._send_param(msg.param_id)  # the echo is the acknowledgement (unknown names get none, as PX4)
 
+    def _on_set_gps_global_origin(self, msg: mavlink.MAVLink_set_gps_global_origin_message) -> None:
+        """Place the local origin on the globe (PX4's EKF2 takes it while GPS does not fix the origin)."""
+        if msg.target_system not in (0, self.id) or self.autopilot.gps:
+            return
+        self.autopilot.global_origin = GeoOrigin(
+            lat_deg=msg.latitude / 1e7, lon_deg=msg.longitude / 1e7, alt_amsl_m=msg.altitude / 1000
+        )
+        self._send_gps_global_origin()
+
     def _on_ping(self, msg: mavlink.MAVLink_ping_message) -> None:
         if msg.target_system == 0:  # a request; a non-zero target is a reply to someone
             self.mav.ping_send(msg.time_usec, msg.seq, msg.get_srcSystem(), msg.get_srcComponent())
@@ -587,6 +656,7 @@ class SimVehicle:
         "PARAM_REQUEST_LIST": _on_param_request_list,
         "PARAM_REQUEST_READ": _on_param_request_read,
         "PARAM_SET": _on_param_set,
+        "SET_GPS_GLOBAL_ORIGIN": _on_set_gps_global_origin,
         "PING": _on_ping,
         "TIMESYNC": _on_timesync,
         "MISSION_REQUEST_LIST": _on_mission_request_list,

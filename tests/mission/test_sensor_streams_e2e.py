@@ -23,9 +23,11 @@ from tests.helpers import SwarmPorts, processes_mentioning
 pytestmark = [pytest.mark.timeout(300), pytest.mark.mission]
 
 
-def test_agents_given_no_world_map_from_the_simulated_cameras_streams_and_complete(
+def test_agents_given_no_world_and_no_gps_map_from_the_simulated_cameras_streams_and_complete(
     tmp_path: Path, swarm_ports: SwarmPorts
 ) -> None:
+    """As indoors on real vehicles: no world for the agents, and vehicles without GPS (no global position, no home
+    position, no Hold), each agent flying in its vehicle's local frame, whose origin is not where it takes off."""
     out = tmp_path / "run"
     config = load_config(
         overrides={
@@ -34,6 +36,8 @@ def test_agents_given_no_world_map_from_the_simulated_cameras_streams_and_comple
             "mission.drones": 3,
             "mission.max_time_s": 240.0,
             "mission.record": True,  # camera.source is "sim", the default: the simulated cameras, streamed
+            "sim.gps": False,
+            "sim.local_origin_offset": [0.8, -0.6, 0.0],
             **swarm_ports.settings(),
         }
     )
@@ -41,10 +45,15 @@ def test_agents_given_no_world_map_from_the_simulated_cameras_streams_and_comple
     assert report["status"] == "complete", report["reason"]
     assert report["explored_fraction"] >= 0.95 and report["collisions"] == 0
     assert not (out / "config" / NO_WORLD_FOR_AGENTS).exists()
+    spawns = load_config(out / "config" / "sim.toml").sim.spawns
     for k in range(1, 4):
         agent_config = load_config(out / "config" / f"agent-{k}.toml")
         assert agent_config.mission.world.endswith(NO_WORLD_FOR_AGENTS) and agent_config.mission.volume is not None
         assert agent_config.camera.stream.depth_topic.startswith(f"/drone{k}/")
+        assert agent_config.agent.frame == "local"
+        assert agent_config.agent.local_origin == pytest.approx(np.add(spawns[k - 1], (0.8, -0.6, 0.0)))
+        log = (out / "logs" / f"agent-{k}.log").read_text()
+        assert "not possible" not in log and "Failsafe" not in log  # never asked for Hold, never failed safe
     for agent in report["agents"]:
         stream = agent["sensor_stream"]
         assert agent["exit_code"] == 0 and agent["frames"] > 100, agent
