@@ -19,6 +19,7 @@ from swarm.deploy.compose import (
     CONTROL_SUBNET,
     DEFAULT_IMAGE,
     RADIO_SUBNET,
+    SIM_WAIT,
     Deployment,
     cameras_address,
     control_address,
@@ -128,8 +129,11 @@ def test_each_agent_impairs_its_own_radio_then_runs(compose: dict[str, Any]) -> 
         radios.add(radio)
         assert service["entrypoint"] == ["/bin/sh", "-c"]
         (script,) = service["command"]
-        netem, _, agent = script.partition(" && exec ")
-        assert netem == f"swarm deploy netem --address {radio} --loss {LOSS:g}"
+        wait, netem, rest = script.split(" && ", 2)
+        assert wait == SIM_WAIT  # podman-compose on Podman < 4.6 ignores service_healthy: the agent waits itself
+        assert netem == f"swarm deploy netem --address {radio} --loss {LOSS:g} --record /results/agents/radio-{k}.json"
+        assert rest.startswith("exec ")
+        agent = rest.removeprefix("exec ")
         assert agent.endswith(f"swarm agent --config /etc/swarm/agent-{k}.toml")
         # mission.max_time_s, as swarm run --max-time: unset, the default for the box and three drones
         assert agent.startswith("timeout --signal=TERM --kill-after=") and " 420 swarm agent" in agent
@@ -196,7 +200,7 @@ def test_loss_zero_still_runs_the_netem_step(tmp_path: Path) -> None:
     deploy_compose_command(load_config(None, {"mission.world": "box"}), 1, 0.0, out, DEFAULT_IMAGE)
     compose = read_yaml((out / "docker-compose.yml").read_text())
     (script,) = compose["services"]["agent-1"]["command"]
-    assert script.startswith(f"swarm deploy netem --address {radio_address(1)} --loss 0 && ")
+    assert f" && swarm deploy netem --address {radio_address(1)} --loss 0 --record " in script
     assert compose_config(out / "docker-compose.yml", "-q").returncode == 0
 
 
