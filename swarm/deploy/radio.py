@@ -11,9 +11,12 @@ Two backends, as in `swarm.netem` (`--backend auto` picks the first that works):
   swarm makes ARP entries static for the same reason: lost ARP probes fail neighbour entries, and the loss seen
   becomes bursty and far above the configured one. The engine gives no MACs in advance, so here ARP is left off
   the impaired band. Loss, delay and jitter.
-- `nftables`, for kernels without sch_netem (Debian 12's CI machines): an `ip` family table whose output chain
-  drops packets leaving the radio with `numgen random` (`swarm.netem.impair.drop_rule`, the netns swarm's
-  rule). IPv4 only, so ARP is clean here too. Loss only: delay and jitter are refused, never dropped silently.
+- `nftables`, for kernels without sch_netem (Debian 12's CI machines): an `ip` family table whose prerouting
+  chain drops packets arriving on the radio with `numgen random` (`swarm.netem.impair.drop_rule`, the netns
+  swarm's rule). On ingress, not egress: a drop in the output or postrouting hook fails the sender's own
+  send (UDP `sendto` gets EPERM, TCP keeps the segment queued), which no radio does; a drop on arrival is a
+  packet lost in the air. Each direction of a link is still impaired once, at its receiver. IPv4 only, so ARP
+  is clean here too. Loss only: delay and jitter are refused, never dropped silently.
 Both first turn GSO off (`gso_max_segs 1 gso_max_size 1500`): with a veth's default offloads TCP leaves as
 ~47 kB super-packets, and one lost "packet" would be 30 segments. Nothing at all runs when loss, delay and
 jitter are 0: a clean radio is the kernel's default.
@@ -127,14 +130,14 @@ def gso_off(ifname: str) -> list[str]:
 
 
 def nft_ruleset(ifname: str, loss: float) -> str:
-    """The atomic nft script that (re)creates the radio's loss table: IPv4 leaving `ifname` dropped at `loss`."""
-    rule = drop_rule(f'oifname "{ifname}"', LinkProfile(loss=loss), "radio")
+    """The atomic nft script that (re)creates the radio's loss table: IPv4 arriving on `ifname` dropped at `loss`."""
+    rule = drop_rule(f'iifname "{ifname}"', LinkProfile(loss=loss), "radio")
     return (
         f"table ip {NFT_TABLE}\n"
         f"delete table ip {NFT_TABLE}\n"
         f"table ip {NFT_TABLE} {{\n"
         "  chain radio {\n"
-        "    type filter hook output priority 0; policy accept;\n"
+        "    type filter hook prerouting priority -300; policy accept;\n"
         f"    {rule}\n"
         "  }\n"
         "}\n"
@@ -248,9 +251,6 @@ def deploy_netem_command(
         print(f"radio {address}: clean (loss 0, no delay): nothing applied", flush=True)
         return 0
     delay = f", delay {delay_ms:g} ms" + (f" ± {jitter_ms:g} ms" if jitter_ms else "") if delay_ms else ""
-    how = "tc netem" if done.backend == "netem" else "nftables (no sch_netem in this kernel)"
-    print(
-        f"radio {address} ({done.interface}): loss {100 * loss:g} %{delay} on egress of IPv4 by {how}, ARP clean",
-        flush=True,
-    )
+    how = "on egress by tc netem" if done.backend == "netem" else "on ingress by nftables (no sch_netem here)"
+    print(f"radio {address} ({done.interface}): loss {100 * loss:g} %{delay} of IPv4 {how}, ARP clean", flush=True)
     return 0
