@@ -14,8 +14,10 @@ files every container writes into the shared results directory:
    `scenario.backend` / `impairments` name what each agent's `swarm deploy netem` applied (its
    `agents/radio-K.json`), so the report never claims a loss that no container applied.
 
-It exits 0 when the report says complete, 1 otherwise, so `docker compose up --exit-code-from observer` (and
-podman-compose's) ends with the mission and says how it went.
+It exits 0 when the report says complete, 1 otherwise: `docker compose wait observer` (`podman wait
+<project>_observer_1`) returns with the mission and says how it went. Not `up --exit-code-from observer`: that
+stops every container when the first one exits, and the first agent to land exits while the others still
+linger to finish their patch exchange.
 """
 
 from __future__ import annotations
