@@ -28,6 +28,7 @@ REPO = Path(__file__).resolve().parents[2]
 IMAGE = "localhost/swarm-agent"
 DRONES = 3
 LOSS = 0.2
+WORLD = "box"  # as the other end-to-end missions: the smallest built-in world
 PROJECT = f"swarmpodtest{os.getpid()}"  # every container, network and volume carries this project label
 LABEL = f"label=io.podman.compose.project={PROJECT}"
 
@@ -55,17 +56,18 @@ def _podman_compose() -> list[str]:
 
 
 @pytest.fixture(scope="module")
-def image() -> str:
+def image() -> Iterator[str]:
     if shutil.which("podman") is None:
         pytest.skip("containers cannot run here: podman is not installed")
-    os.environ.setdefault("CONTAINERS_CONF", str(REPO / "deploy" / "containers.conf"))
-    if not image_exists("podman", BASE_IMAGE):
-        build_base("podman")
-    probe = _podman("run", "--rm", BASE_IMAGE, "true", check=False)
-    if probe.returncode != 0:
-        pytest.skip(f"containers cannot run here: podman run {BASE_IMAGE} true: {probe.stderr.strip()[-300:]}")
-    build_image(REPO, IMAGE, "podman", ca_bundle=ca_bundle_of(None))
-    return IMAGE
+    with pytest.MonkeyPatch.context() as env:  # the engine settings for the builds below, this module only
+        env.setenv("CONTAINERS_CONF", _env()["CONTAINERS_CONF"])
+        if not image_exists("podman", BASE_IMAGE):
+            build_base("podman")
+        probe = _podman("run", "--rm", BASE_IMAGE, "true", check=False)
+        if probe.returncode != 0:
+            pytest.skip(f"containers cannot run here: podman run {BASE_IMAGE} true: {probe.stderr.strip()[-300:]}")
+        build_image(REPO, IMAGE, "podman", ca_bundle=ca_bundle_of(None))
+        yield IMAGE
 
 
 def _leftovers() -> dict[str, list[str]]:
@@ -81,7 +83,7 @@ def project(tmp_path: Path, image: str) -> Iterator[Path]:
     out = tmp_path / PROJECT
     done = subprocess.run(
         [sys.executable, "-m", "swarm", "deploy", "compose", "--drones", str(DRONES), "--loss", str(LOSS)]
-        + ["--tls", "--image", image, "--out", str(out)],
+        + ["--world", WORLD, "--tls", "--image", image, "--out", str(out)],
         capture_output=True,
         text=True,
         cwd=REPO,
