@@ -63,7 +63,7 @@ def image() -> Iterator[str]:
         env.setenv("CONTAINERS_CONF", _env()["CONTAINERS_CONF"])
         if not image_exists("podman", BASE_IMAGE):
             build_base("podman")
-        probe = _podman("run", "--rm", BASE_IMAGE, "true", check=False)
+        probe = _podman("run", "--rm", "--network", "none", BASE_IMAGE, "true", check=False)
         if probe.returncode != 0:
             pytest.skip(f"containers cannot run here: podman run {BASE_IMAGE} true: {probe.stderr.strip()[-300:]}")
         build_image(REPO, IMAGE, "podman", ca_bundle=ca_bundle_of(None))
