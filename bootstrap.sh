@@ -8,14 +8,18 @@
 #   ./bootstrap.sh test [pytest flags]      pytest with these flags (e.g. -m unit -n 2, or one file)
 #   ./bootstrap.sh env                      only set up; prints the environment's path
 #
-# Installs the system libraries Open3D links against, the tools the network experiments use and the
-# docker-compose parser the deployment tests validate with (no Docker engine: --no-install-recommends), creates a
+# Installs the system libraries Open3D links against, the tools the network experiments use, the
+# docker-compose parser the deployment tests validate with (no Docker engine: --no-install-recommends) and
+# rootful Podman with what it needs on Debian 12 to run the compose swarm in containers (runc, catatonit for
+# `init: true`, iptables and the CNI plugins for its bridges, debootstrap for the base image; podman-compose
+# comes with the test extras, since Debian's 1.0.3 places no static addresses), creates a
 # virtual environment in .venv (or uses the one that is active) and installs the package with its test
 # extras there. Each step is skipped when already done, so running it again costs a second.
 set -euo pipefail
 cd "$(dirname "$0")"
 
-SYSTEM_PACKAGES=(libusb-1.0-0 libgl1 libegl1 libx11-6 libgomp1 iproute2 nftables docker-compose)
+SYSTEM_PACKAGES=(libusb-1.0-0 libgl1 libegl1 libx11-6 libgomp1 iproute2 nftables docker-compose
+  podman runc catatonit iptables containernetworking-plugins debootstrap)
 
 say() { printf 'bootstrap: %s\n' "$*" >&2; }
 

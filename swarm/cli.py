@@ -289,7 +289,7 @@ def build_parser() -> argparse.ArgumentParser:
     soak.add_argument("--seed", type=int, default=0, help="seed of the random faults and loss levels")
     _add_config_flags(soak)
 
-    deploy = sub.add_parser("deploy", help="the simulated swarm as Docker containers (docs/deploy.md)")
+    deploy = sub.add_parser("deploy", help="the simulated swarm as containers, Docker or Podman (docs/deploy.md)")
     deploy_sub = deploy.add_subparsers(dest="deploy", required=True, parser_class=_Parser)
     compose = deploy_sub.add_parser("compose", help="write a docker-compose file: simulator, N agents, observer")
     compose.set_defaults(handler=_deploy_compose)
@@ -304,14 +304,46 @@ def build_parser() -> argparse.ArgumentParser:
         help="directory to write, new or empty (default swarm-compose)",
     )
     compose.add_argument("--world", help="built-in world or a .ply/.obj/.stl mesh (copied next to the configs)")
-    compose.add_argument("--image", default="swarm-agent", help="the image built from deploy/Dockerfile")
+    compose.add_argument(
+        "--image", default="swarm-agent", help="the image built by swarm deploy image (or from deploy/Dockerfile)"
+    )
     compose.add_argument(
         "--build-context",
         type=Path,
         dest="build_context",
         help="the swarm repository: docker compose builds the image itself",
     )
+    compose.add_argument(
+        "--tls",
+        action="store_true",
+        help="mutual TLS with access control on every Zenoh session; certificates in OUT/certs, each container "
+        "mounts only its own key",
+    )
     _add_config_flags(compose)
+    image = deploy_sub.add_parser("image", help="build the swarm image from Debian packages and PyPI (no registry)")
+    image.set_defaults(handler=_deploy_image)
+    image.add_argument(
+        "--engine", choices=("auto", "podman", "docker"), default="auto", help="default: podman if present"
+    )
+    image.add_argument("--tag", default="swarm-agent", help="image name (default swarm-agent)")
+    image.add_argument("--repo", type=Path, default=Path("."), help="the swarm repository (default: here)")
+    image.add_argument("--force", action="store_true", help="rebuild even when the image holds these sources")
+    image.add_argument(
+        "--ca-bundle",
+        type=Path,
+        dest="ca_bundle",
+        help="CA bundle pip trusts during the build (default $PIP_CERT, else $SSL_CERT_FILE, else none)",
+    )
+    mission = deploy_sub.add_parser(
+        "mission", help="in the observer container: observe, end with the agents, write report.json"
+    )
+    mission.set_defaults(handler=_deploy_mission)
+    mission.add_argument("--config", type=Path, required=True, help="the observer's config (observer.toml)")
+    mission.add_argument("--results", type=Path, required=True, help="the results directory shared by all")
+    wait_sim = deploy_sub.add_parser("wait-sim", help="in a container: wait until the simulator says it is ready")
+    wait_sim.set_defaults(handler=_deploy_wait_sim)
+    wait_sim.add_argument("--status", type=Path, required=True, help="the simulator's status file (sim.json)")
+    wait_sim.add_argument("--timeout", type=float, default=300.0, help="seconds (default 300)")
     certs = deploy_sub.add_parser("certs", help="a CA and per-drone certificates for mutual TLS (bus.tls_dir)")
     certs.set_defaults(handler=_deploy_certs)
     certs.add_argument("--drones", type=_positive_int, required=True, help="certificates for drones 1..N")
@@ -328,6 +360,13 @@ def build_parser() -> argparse.ArgumentParser:
     radio.add_argument("--loss", type=float, default=0.0, help="loss fraction 0..1 on egress (default 0)")
     radio.add_argument("--delay-ms", type=float, default=0.0, dest="delay_ms", help="added delay (default 0)")
     radio.add_argument("--jitter-ms", type=float, default=0.0, dest="jitter_ms", help="delay jitter (default 0)")
+    radio.add_argument(
+        "--backend",
+        default="auto",
+        choices=("auto", "netem", "nftables"),
+        help="auto (default): tc netem, nftables (loss only) where the kernel has no sch_netem",
+    )
+    radio.add_argument("--record", type=Path, help="write what was applied here (JSON)")
 
     netem = sub.add_parser("netem", help="a virtual swarm radio kept up by hand: namespaces + nftables (root)")
     netem_sub = netem.add_subparsers(dest="netem", required=True, parser_class=_Parser)
@@ -537,7 +576,25 @@ def _deploy_compose(args: argparse.Namespace) -> int:
 
     config = _config_from(args, {"mission.world": args.world})
     drones = args.drones if args.drones is not None else config.mission.drones
-    return deploy_compose_command(config, drones, args.loss, args.out, args.image, args.build_context)
+    return deploy_compose_command(config, drones, args.loss, args.out, args.image, args.build_context, args.tls)
+
+
+def _deploy_image(args: argparse.Namespace) -> int:
+    from swarm.deploy.image import deploy_image_command
+
+    return deploy_image_command(args.repo, args.tag, args.engine, args.force, args.ca_bundle)
+
+
+def _deploy_wait_sim(args: argparse.Namespace) -> int:
+    from swarm.deploy.mission import wait_sim_command
+
+    return wait_sim_command(args.status, args.timeout)
+
+
+def _deploy_mission(args: argparse.Namespace) -> int:
+    from swarm.deploy.mission import deploy_mission_command
+
+    return deploy_mission_command(load_config(args.config), args.config, args.results)
 
 
 def _deploy_certs(args: argparse.Namespace) -> int:
@@ -549,7 +606,7 @@ def _deploy_certs(args: argparse.Namespace) -> int:
 def _deploy_netem(args: argparse.Namespace) -> int:
     from swarm.deploy.radio import deploy_netem_command
 
-    return deploy_netem_command(args.address, args.loss, args.delay_ms, args.jitter_ms)
+    return deploy_netem_command(args.address, args.loss, args.delay_ms, args.jitter_ms, args.backend, args.record)
 
 
 def _netem_up(args: argparse.Namespace) -> int:

@@ -6,8 +6,16 @@ What it writes into OUT (which must be empty or new):
     config/sim.toml, observer.toml, agent-K.toml
                               each process's exact configuration, as `swarm run` writes it (mounted read-only
                               at /etc/swarm); a world given as a mesh file is copied to config/worlds/
-    results/                  mounted at /results: sim.json, observer.json, map.ply, agents/agent-K.json|ply,
-                              agents/patches/ (the same files a `swarm run` directory holds)
+    certs/                    with --tls: the CA and one certificate per drone and the observer
+                              (`swarm deploy certs`); a container mounts ca.pem and its own pair only, at
+                              /etc/swarm-tls, so a drone never holds another drone's key nor the CA's
+    results/                  mounted at /results: report.json (the observer's `swarm deploy mission`),
+                              sim.json, observer.json, map.ply, agents/agent-K.json|ply, agents/radio-K.json
+                              (what loss each radio got, and by which backend), agents/patches/
+
+Engines: written for `docker compose` and `podman-compose` (>= 1.1: static addresses and subnets). Podman
+before 4.6 cannot wait for a healthcheck, so podman-compose ignores `condition: service_healthy` there; each
+agent and the cameras therefore also wait for the simulator's status file themselves (SIM_WAIT).
 
 Networks (fixed subnets, static addresses, both `internal`: nothing reaches outside, so nothing goes around):
 - `radio` RADIO_SUBNET: Zenoh between agents, and the only impaired network. Agent k's command first runs
@@ -18,6 +26,8 @@ Networks (fixed subnets, static addresses, both `internal`: nothing reaches outs
   radio addresses of lower ids only (one connection per pair, as `swarm run`), and the observer connects to
   every agent's control address in `peer` mode: a peer never relays, so the observer cannot bridge a broken
   radio link, while it still hears every agent whatever the radio does.
+- With --tls every endpoint is `tls/` and each session checks its peers' certificates against the CA, under
+  the access control of `swarm run --tls` (swarm/bus/session.py: drone-K speaks only as agent K).
 
 MAVLink: the simulator binds 0.0.0.0 in its container; agent k uses `udpout://<sim>:<vehicle_port(k)>` (the
 simulated vehicle answers whoever last sent it MAVLink), so no agent address needs to be known in advance.
@@ -35,8 +45,9 @@ from typing import Any
 import tomli_w
 from pydantic import ValidationError
 
-from swarm.config import Box, ConfigError, SwarmConfig, dump_config, vehicle_port
+from swarm.config import TLS_OBSERVER_NAME, Box, ConfigError, SwarmConfig, dump_config, tls_drone_name, vehicle_port
 from swarm.deploy import yamltext
+from swarm.deploy.certs import CA_NAME, make_certs
 from swarm.errors import SwarmError, validation_problem
 from swarm.sim.worlds import is_mesh_file, load_world, mission_time_limit_s, mission_volume, spawn_points
 
@@ -47,7 +58,10 @@ HOST_OFFSET = 10  # agent k is .10+k on both networks; .1 Docker's bridge, .2 th
 # .4 the cameras
 MAX_DRONES = 16  # as mission.drones
 CONFIG_DIR = "/etc/swarm"
+TLS_DIR = "/etc/swarm-tls"  # not under CONFIG_DIR: a read-only mount cannot hold the mount points of the keys
 RESULTS_DIR = "/results"
+SIM_READY_TIMEOUT_S = 300
+SIM_WAIT = f"swarm deploy wait-sim --status {RESULTS_DIR}/sim.json --timeout {SIM_READY_TIMEOUT_S}"
 DEFAULT_IMAGE = "swarm-agent"  # not "swarm": Docker Hub has an unrelated official image of that name
 DOCKERFILE = "deploy/Dockerfile"
 AGENT_STOP_GRACE_S = 60  # SIGTERM makes an airborne agent land first (as swarm run's LANDING_GRACE_S)
@@ -81,8 +95,12 @@ def control_address(k: int) -> str:
     return str(CONTROL_SUBNET[HOST_OFFSET + k])
 
 
-def _zenoh(address: str) -> str:
-    return f"tcp/{address}:{ZENOH_PORT}"
+def _zenoh(address: str, tls: bool = False) -> str:
+    return f"{'tls' if tls else 'tcp'}/{address}:{ZENOH_PORT}"
+
+
+def _tls_bus(tls: bool, name: str) -> dict[str, Any]:
+    return {"tls_dir": TLS_DIR, "tls_name": name} if tls else {}
 
 
 @dataclass
@@ -93,6 +111,7 @@ class Deployment:
     configs: dict[str, SwarmConfig]
     worlds: list[Path] = field(default_factory=list)
     header: str = ""
+    tls_names: list[str] = field(default_factory=list)  # certificates to write into OUT/certs
 
     def write(self, out: Path) -> list[Path]:
         """Write every file under `out`; returns the files written (worlds and results dirs included)."""
@@ -106,6 +125,10 @@ class Deployment:
         for world in self.worlds:
             (config_dir / "worlds").mkdir(exist_ok=True)
             written.append(Path(shutil.copy2(world, config_dir / "worlds" / world.name)))
+        if self.tls_names:
+            drones = sum(1 for name in self.tls_names if name != TLS_OBSERVER_NAME)
+            make_certs(out / "certs", drones)
+            written.append(out / "certs")
         patches = out / "results" / "agents" / "patches"
         patches.mkdir(parents=True, exist_ok=True)  # the observer reads it from the start
         path = out / "docker-compose.yml"
@@ -129,7 +152,12 @@ def check_inputs(drones: int, loss: float, out: Path, image: str, build_context:
 
 
 def plan(
-    config: SwarmConfig, drones: int, loss: float, image: str = DEFAULT_IMAGE, build_context: Path | None = None
+    config: SwarmConfig,
+    drones: int,
+    loss: float,
+    image: str = DEFAULT_IMAGE,
+    build_context: Path | None = None,
+    tls: bool = False,
 ) -> Deployment:
     """The deployment of `drones` agents; raises WorldError (one line) for an unusable world or start point."""
     m = config.mission
@@ -182,8 +210,9 @@ def plan(
             "bus": base.bus.model_copy(
                 update={
                     "mode": "peer",
-                    "listen": [_zenoh(observer_address())],
-                    "connect": [_zenoh(control_address(k)) for k in range(1, drones + 1)],
+                    "listen": [_zenoh(observer_address(), tls)],
+                    "connect": [_zenoh(control_address(k), tls) for k in range(1, drones + 1)],
+                    **_tls_bus(tls, TLS_OBSERVER_NAME),
                 }
             )
         }
@@ -210,8 +239,9 @@ def plan(
                 "camera": sensors,
                 "bus": base.bus.model_copy(
                     update={
-                        "listen": [_zenoh(radio_address(k)), _zenoh(control_address(k))],
-                        "connect": [_zenoh(radio_address(j)) for j in range(1, k)],
+                        "listen": [_zenoh(radio_address(k), tls), _zenoh(control_address(k), tls)],
+                        "connect": [_zenoh(radio_address(j), tls) for j in range(1, k)],
+                        **_tls_bus(tls, tls_drone_name(k)),
                     }
                 ),
             }
@@ -219,22 +249,28 @@ def plan(
     # the configs are checked as the processes will load them (validators run on load, not on model_copy)
     configs = {name: _revalidate(name, c) for name, c in configs.items()}
 
-    compose = _compose(base, drones, loss, image, build_context)
+    compose = _compose(base, drones, loss, image, build_context, tls)
     build = (
-        f"Build the image first, from the swarm repository: docker build -t {image} -f {DOCKERFILE} ."
+        f"Build the image first, from the swarm repository: swarm deploy image --tag {image} "
+        f"(or docker build -t {image} -f {DOCKERFILE} .)"
         if build_context is None
         else f"`docker compose build` builds the image from {build_context.resolve()}"
     )
     header = "\n".join(
         [
-            f"Generated by `swarm deploy compose --drones {drones} --loss {loss:g}`: see docs/deploy.md.",
+            f"Generated by `swarm deploy compose --drones {drones} --loss {loss:g}{' --tls' if tls else ''}`: "
+            "see docs/deploy.md.",
             build,
+            "Run: docker compose up -d && docker compose wait observer (Podman: podman-compose up -d && podman wait "
+            "<project>_observer_1); results/report.json at the end.",
             "Start each run with an empty results/ (the observer would fuse an earlier run's patches).",
-            f"radio {RADIO_SUBNET}: Zenoh between agents, tc netem loss {loss:g} on each agent's egress; "
-            f"control {CONTROL_SUBNET}: MAVLink and the observer, never impaired",
+            f"radio {RADIO_SUBNET}: Zenoh between agents, loss {loss:g} on each agent's egress (tc netem, or "
+            f"nftables without sch_netem); control {CONTROL_SUBNET}: MAVLink and the observer, never impaired",
         ]
+        + (["TLS: certs/ holds the CA and every key; each container mounts ca.pem and its own pair"] if tls else [])
     )
-    return Deployment(compose, configs, worlds, header)
+    names = [tls_drone_name(k) for k in range(1, drones + 1)] + [TLS_OBSERVER_NAME] if tls else []
+    return Deployment(compose, configs, worlds, header, names)
 
 
 def _revalidate(name: str, config: SwarmConfig) -> SwarmConfig:
@@ -244,20 +280,28 @@ def _revalidate(name: str, config: SwarmConfig) -> SwarmConfig:
         raise ConfigError(f"the generated {name}.toml does not validate: {validation_problem(exc)}") from None
 
 
-def _service(image: str, build_context: Path | None) -> dict[str, Any]:
+def _service(image: str, build_context: Path | None, tls_name: str | None = None) -> dict[str, Any]:
+    """A service of the image; with `tls_name`, mounting the CA certificate and that name's pair, nothing else."""
     service: dict[str, Any] = {"image": image}
     if build_context is None:
         service["pull_policy"] = "never"  # a missing image is an error, never a download of someone else's
     else:
         service["build"] = {"context": str(build_context.resolve()), "dockerfile": DOCKERFILE}
+    volumes = [f"./config:{CONFIG_DIR}:ro", f"./results:{RESULTS_DIR}"]
+    if tls_name is not None:
+        volumes += [
+            f"./certs/{file}:{TLS_DIR}/{file}:ro" for file in (f"{CA_NAME}.pem", f"{tls_name}.pem", f"{tls_name}.key")
+        ]
     service |= {
         "init": True,  # a real PID 1 that forwards SIGTERM: `docker compose stop` lands the drones
-        "volumes": [f"./config:{CONFIG_DIR}:ro", f"./results:{RESULTS_DIR}"],
+        "volumes": volumes,
     }
     return service
 
 
-def _compose(config: SwarmConfig, drones: int, loss: float, image: str, build_context: Path | None) -> dict[str, Any]:
+def _compose(
+    config: SwarmConfig, drones: int, loss: float, image: str, build_context: Path | None, tls: bool = False
+) -> dict[str, Any]:
     services: dict[str, Any] = {}
     services["sim"] = _service(image, build_context) | {
         "command": ["sim", "--config", f"{CONFIG_DIR}/sim.toml"],
@@ -272,34 +316,28 @@ def _compose(config: SwarmConfig, drones: int, loss: float, image: str, build_co
     }
     if config.camera.source == "sim":
         services["cameras"] = _service(image, build_context) | {
-            "command": ["cameras", "--config", f"{CONFIG_DIR}/cameras.toml"],
+            "entrypoint": ["/bin/sh", "-c"],
+            "command": [f"{SIM_WAIT} && exec swarm cameras --config {CONFIG_DIR}/cameras.toml"],
             "networks": {"control": {"ipv4_address": cameras_address()}},
             "depends_on": {"sim": {"condition": "service_healthy"}},
             "stop_grace_period": "10s",
         }
-    services["observer"] = _service(image, build_context) | {
-        "command": [
-            "observe",
-            "--config",
-            f"{CONFIG_DIR}/observer.toml",
-            "--status",
-            f"{RESULTS_DIR}/observer.json",
-            "--patches",
-            f"{RESULTS_DIR}/agents/patches",
-            "--map",
-            f"{RESULTS_DIR}/map.ply",
-        ],
+    # the ground station: it runs the observer, ends with the agents and writes results/report.json
+    services["observer"] = _service(image, build_context, TLS_OBSERVER_NAME if tls else None) | {
+        "command": ["deploy", "mission", "--config", f"{CONFIG_DIR}/observer.toml", "--results", RESULTS_DIR],
         "networks": {"control": {"ipv4_address": observer_address()}},
-        "stop_grace_period": "30s",
+        "stop_grace_period": "90s",
     }
     max_time = f"{config.mission.max_time_s:g}"
     for k in range(1, drones + 1):
         script = (
-            f"swarm deploy netem --address {radio_address(k)} --loss {loss:g}"
+            f"{SIM_WAIT}"
+            f" && swarm deploy netem --address {radio_address(k)} --loss {loss:g}"
+            f" --record {RESULTS_DIR}/agents/radio-{k}.json"
             f" && exec timeout --signal=TERM --kill-after={AGENT_STOP_GRACE_S} {max_time}"
             f" swarm agent --config {CONFIG_DIR}/agent-{k}.toml"
         )
-        services[f"agent-{k}"] = _service(image, build_context) | {
+        services[f"agent-{k}"] = _service(image, build_context, tls_drone_name(k) if tls else None) | {
             "cap_add": ["NET_ADMIN"],
             "entrypoint": ["/bin/sh", "-c"],
             "command": [script],
@@ -325,10 +363,11 @@ def deploy_compose_command(
     out: Path,
     image: str = DEFAULT_IMAGE,
     build_context: Path | None = None,
+    tls: bool = False,
 ) -> int:
     """`swarm deploy compose`: validate, write OUT/docker-compose.yml, OUT/config/, OUT/results/; say what."""
     check_inputs(drones, loss, out, image, build_context)
-    deployment = plan(config, drones, loss, image, build_context)
+    deployment = plan(config, drones, loss, image, build_context, tls)
     deployment.write(out)
     compose = out / "docker-compose.yml"
     cameras = ", cameras" if "cameras" in deployment.compose["services"] else ""
@@ -338,7 +377,7 @@ def deploy_compose_command(
     )
     print(
         f"  radio {RADIO_SUBNET}: agents at {radio_address(1)}..{radio_address(drones)}, "
-        f"loss {loss:g} on every link each way (tc netem in each agent)"
+        f"loss {loss:g} on every link each way (tc netem in each agent, nftables without sch_netem)"
     )
     print(
         f"  control {CONTROL_SUBNET}: simulator {sim_address()} (its sensor router too), cameras "
@@ -349,7 +388,9 @@ def deploy_compose_command(
         f"wrote {out / 'config'}: {', '.join(f'{name}.toml' for name in deployment.configs)}"
         + (f", worlds/{deployment.worlds[0].name}" if deployment.worlds else "")
     )
-    print(f"results will appear in {out / 'results'}")
-    build = "docker compose build" if build_context else f"docker build -t {image} -f {DOCKERFILE} <swarm repository>"
-    print(f"next: {build}; then cd {out} && docker compose up")
+    if tls:
+        print(f"wrote {out / 'certs'}: ca, drone-1..drone-{drones}, observer (each container mounts its own key)")
+    print(f"results will appear in {out / 'results'} (report.json when the mission ends)")
+    build = "docker compose build" if build_context else f"swarm deploy image --tag {image} (in the swarm repository)"
+    print(f"next: {build}; then cd {out} && docker compose up -d && docker compose wait observer (docs/deploy.md)")
     return 0

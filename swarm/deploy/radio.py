@@ -1,21 +1,30 @@
-"""`swarm deploy netem`: an agent container impairs its own radio interface with `tc netem` before it starts.
+"""`swarm deploy netem`: an agent container impairs its own radio interface before it starts.
 
 In the compose deployment every agent has two interfaces, the radio (Zenoh between drones) and the control
-network (MAVLink to the simulator, the observer's measurements), and Docker does not say which one is `eth0`.
-The radio is therefore found by the address the compose file gave it (`ip -j addr`), and only that interface
-is impaired, on egress: a packet between two agents crosses exactly one impaired interface, the sender's, so
-`loss` is the loss of every link in each direction, as `LinkProfile.loss` is in the netns swarm.
+network (MAVLink to the simulator, the observer's measurements), and the engine does not say which one is
+`eth0`. The radio is therefore found by the address the compose file gave it (`ip -j addr`), and only that
+interface is impaired, on egress: a packet between two agents crosses exactly one impaired interface, the
+sender's, so `loss` is the loss of every link in each direction, as `LinkProfile.loss` is in the netns swarm.
 
-What is applied (what the netns swarm measured, `swarm.netem.topology`):
-- GSO off (`gso_max_segs 1 gso_max_size 1500`): with a veth's default offloads TCP leaves as ~47 kB
-  super-packets, and one lost "packet" would be 30 segments.
-- netem on IPv4 only, under a `prio` root with a u32 filter: ARP is not impaired. The netns swarm makes ARP
-  entries static for the same reason: lost ARP probes fail neighbour entries, and the loss seen becomes bursty
-  and far above the configured one. Docker gives no MACs in advance, so here ARP is left off the impaired band.
-- nothing at all when loss, delay and jitter are 0: a clean radio is the kernel's default.
+Two backends, as in `swarm.netem` (`--backend auto` picks the first that works):
+- `netem`: `tc netem` on IPv4 only, under a `prio` root with a u32 filter: ARP is not impaired. The netns
+  swarm makes ARP entries static for the same reason: lost ARP probes fail neighbour entries, and the loss seen
+  becomes bursty and far above the configured one. The engine gives no MACs in advance, so here ARP is left off
+  the impaired band. Loss, delay and jitter.
+- `nftables`, for kernels without sch_netem (Debian 12's CI machines): an `ip` family table whose prerouting
+  chain drops packets arriving on the radio with `numgen random` (`swarm.netem.impair.drop_rule`, the netns
+  swarm's rule). On ingress, not egress: a drop in the output or postrouting hook fails the sender's own
+  send (UDP `sendto` gets EPERM, TCP keeps the segment queued), which no radio does; a drop on arrival is a
+  packet lost in the air. Each direction of a link is still impaired once, at its receiver. IPv4 only, so ARP
+  is clean here too. Loss only: delay and jitter are refused, never dropped silently.
+Both first turn GSO off (`gso_max_segs 1 gso_max_size 1500`): with a veth's default offloads TCP leaves as
+~47 kB super-packets, and one lost "packet" would be 30 segments. Nothing at all runs when loss, delay and
+jitter are 0: a clean radio is the kernel's default.
 
-Every failure (bad value, no interface holding the address, `tc` missing or refused, a kernel without
-sch_netem) is a `NetemUnavailable`: one line that names the interface and the reason.
+`--record FILE` writes what was applied (`RadioImpairment`, JSON), so the mission report can name the backend.
+
+Every failure (bad value, no interface holding the address, `tc`/`nft` missing or refused, no backend that can
+apply the profile) is a `NetemUnavailable`: one line that names the interface and the reason.
 """
 
 from __future__ import annotations
@@ -23,13 +32,33 @@ from __future__ import annotations
 import ipaddress
 import json
 from collections.abc import Iterable, Mapping
-from typing import Any
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import Field
 
 from swarm.config import ConfigError
+from swarm.files import FileModel, write_atomic
 from swarm.netem.commands import NetemUnavailable, run
-from swarm.netem.profile import kernel_has_netem
+from swarm.netem.impair import drop_rule
+from swarm.netem.profile import LinkProfile, kernel_has_netem
 
 NETEM_BAND = "1:4"  # a fourth prio band: the default priomap never sends anything there, only the filter does
+NFT_TABLE = "swradio"
+BACKENDS = ("auto", "netem", "nftables")
+Backend = Literal["netem", "nftables"]
+
+
+class RadioImpairment(FileModel):
+    """What `swarm deploy netem` applied to one container's radio (its --record file)."""
+
+    address: str
+    interface: str = Field(description="the interface holding the address; empty when nothing was applied")
+    backend: Backend | None = Field(description="None: a clean radio, nothing applied")
+    loss: float
+    delay_ms: float = 0.0
+    jitter_ms: float = 0.0
+    commands: list[str] = Field(default_factory=list, description="what ran, in order (nft scripts inline)")
 
 
 def check_values(address: str, loss: float, delay_ms: float, jitter_ms: float) -> None:
@@ -96,11 +125,30 @@ def netem_commands(ifname: str, loss: float, delay_ms: float = 0.0, jitter_ms: f
     ]
 
 
+def gso_off(ifname: str) -> list[str]:
+    return ["ip", "link", "set", "dev", ifname, "gso_max_segs", "1", "gso_max_size", "1500"]
+
+
+def nft_ruleset(ifname: str, loss: float) -> str:
+    """The atomic nft script that (re)creates the radio's loss table: IPv4 arriving on `ifname` dropped at `loss`."""
+    rule = drop_rule(f'iifname "{ifname}"', LinkProfile(loss=loss), "radio")
+    return (
+        f"table ip {NFT_TABLE}\n"
+        f"delete table ip {NFT_TABLE}\n"
+        f"table ip {NFT_TABLE} {{\n"
+        "  chain radio {\n"
+        "    type filter hook prerouting priority -300; policy accept;\n"
+        f"    {rule}\n"
+        "  }\n"
+        "}\n"
+    )
+
+
 def apply_radio_netem(
     address: str, loss: float, delay_ms: float = 0.0, jitter_ms: float = 0.0
 ) -> tuple[str, list[str]]:
-    """Impair the interface holding `address`; returns (interface, the commands run). Nothing runs (and the
-    interface is not even looked up) when loss, delay and jitter are all 0."""
+    """Impair the interface holding `address` with tc netem; returns (interface, the commands run). Nothing runs
+    (and the interface is not even looked up) when loss, delay and jitter are all 0."""
     check_values(address, loss, delay_ms, jitter_ms)
     if loss == 0 and delay_ms == 0 and jitter_ms == 0:
         return "", []
@@ -111,10 +159,70 @@ def apply_radio_netem(
     return ifname, [" ".join(argv) for argv in commands]
 
 
-def _run(argv: list[str], doing: str) -> str:
+def apply_radio_nftables(
+    address: str, loss: float, delay_ms: float = 0.0, jitter_ms: float = 0.0
+) -> tuple[str, list[str]]:
+    """Impair the interface holding `address` with the nftables loss rule; as `apply_radio_netem`."""
+    check_values(address, loss, delay_ms, jitter_ms)
+    if delay_ms or jitter_ms:
+        raise NetemUnavailable(
+            f"radio {address}: delay/jitter ({delay_ms:g} ms / {jitter_ms:g} ms) need tc netem; "
+            "the nftables backend applies loss only"
+        )
+    if loss == 0:
+        return "", []
+    ifname = interface_of(address)
+    script = nft_ruleset(ifname, loss)
+    _run(gso_off(ifname), f"impair the radio {ifname} ({address})")
+    _run(["nft", "-f", "-"], f"impair the radio {ifname} ({address})", script)
+    return ifname, [" ".join(gso_off(ifname)), "nft -f - <<< " + " ".join(script.split())]
+
+
+def impair_radio(
+    address: str, loss: float, delay_ms: float = 0.0, jitter_ms: float = 0.0, backend: str = "auto"
+) -> RadioImpairment:
+    """Impair the radio with `backend` (auto: tc netem, and nftables where the kernel has no sch_netem)."""
+    if backend not in BACKENDS:
+        raise ConfigError(f"--backend must be one of {', '.join(BACKENDS)} (got {backend})")
+    check_values(address, loss, delay_ms, jitter_ms)
+    if loss == 0 and delay_ms == 0 and jitter_ms == 0:
+        return RadioImpairment(address=address, interface="", backend=None, loss=0.0)
+    chosen: Backend
+    if backend == "nftables":
+        chosen = "nftables"
+        ifname, commands = apply_radio_nftables(address, loss, delay_ms, jitter_ms)
+    else:
+        try:
+            chosen = "netem"
+            ifname, commands = apply_radio_netem(address, loss, delay_ms, jitter_ms)
+        except NetemUnavailable as exc:
+            if backend == "netem" or "qdisc kind is unknown" not in str(exc):
+                raise
+            _remove_root_qdisc(interface_of(address))  # the prio root went in before netem was refused
+            chosen = "nftables"
+            ifname, commands = apply_radio_nftables(address, loss, delay_ms, jitter_ms)
+    return RadioImpairment(
+        address=address,
+        interface=ifname,
+        backend=chosen,
+        loss=loss,
+        delay_ms=delay_ms,
+        jitter_ms=jitter_ms,
+        commands=commands,
+    )
+
+
+def _remove_root_qdisc(ifname: str) -> None:
+    try:
+        run(["tc", "qdisc", "del", "dev", ifname, "root"])
+    except NetemUnavailable:
+        pass  # there was none
+
+
+def _run(argv: list[str], doing: str, stdin: str | None = None) -> str:
     """Run one command (`swarm.netem.commands.run`); NetemUnavailable naming what we were doing, in one line."""
     try:
-        return run(argv)
+        return run(argv, stdin)
     except NetemUnavailable as exc:
         raise NetemUnavailable(f"cannot {doing}: {_with_hint(str(exc))}") from None
 
@@ -131,12 +239,18 @@ def _with_hint(message: str) -> str:
     return message
 
 
-def deploy_netem_command(address: str, loss: float, delay_ms: float, jitter_ms: float) -> int:
+def deploy_netem_command(
+    address: str, loss: float, delay_ms: float, jitter_ms: float, backend: str = "auto", record: Path | None = None
+) -> int:
     """`swarm deploy netem`: impair this container's radio, say what was done in one line, return 0."""
-    ifname, commands = apply_radio_netem(address, loss, delay_ms, jitter_ms)
-    if not commands:
+    done = impair_radio(address, loss, delay_ms, jitter_ms, backend)
+    if record is not None:
+        record.parent.mkdir(parents=True, exist_ok=True)
+        write_atomic(record, done.model_dump_json(indent=2).encode())
+    if done.backend is None:
         print(f"radio {address}: clean (loss 0, no delay): nothing applied", flush=True)
         return 0
     delay = f", delay {delay_ms:g} ms" + (f" ± {jitter_ms:g} ms" if jitter_ms else "") if delay_ms else ""
-    print(f"radio {address} ({ifname}): netem loss {100 * loss:g} %{delay} on egress of IPv4, ARP clean", flush=True)
+    how = "on egress by tc netem" if done.backend == "netem" else "on ingress by nftables (no sch_netem here)"
+    print(f"radio {address} ({done.interface}): loss {100 * loss:g} %{delay} of IPv4 {how}, ARP clean", flush=True)
     return 0

@@ -53,7 +53,8 @@ class Impairments:
         return Impairments(self.all, dict(self.nodes), dict(self.pairs))
 
 
-def _drop(match: str, profile: LinkProfile, comment: str) -> str:
+def drop_rule(match: str, profile: LinkProfile, comment: str) -> str:
+    """One nft rule: the packets `match` selects are dropped as the profile's loss or cut says."""
     if profile.cut or profile.loss >= 1.0:
         verdict = "counter drop"
     else:
@@ -66,16 +67,16 @@ def drop_rules(layout: NetworkLayout, imp: Impairments) -> list[str]:
     """The nft rules (one per line) for the loss and cut parts of the profiles."""
     rules = []
     if imp.all is not None and imp.all.drops:
-        rules.append(_drop("", imp.all, "all"))
+        rules.append(drop_rule("", imp.all, "all"))
     for k, profile in sorted(imp.nodes.items()):
         if profile.drops:
-            rules.append(_drop(f'iifname "{layout.port(k)}"', profile, f"node {k}"))
-            rules.append(_drop(f'oifname "{layout.port(k)}"', profile, f"node {k}"))
+            rules.append(drop_rule(f'iifname "{layout.port(k)}"', profile, f"node {k}"))
+            rules.append(drop_rule(f'oifname "{layout.port(k)}"', profile, f"node {k}"))
     for (a, b), profile in sorted(imp.pairs.items()):
         if profile.drops:
             for src, dst in ((a, b), (b, a)):
                 match = f'iifname "{layout.port(src)}" oifname "{layout.port(dst)}"'
-                rules.append(_drop(match, profile, f"pair {a}-{b}"))
+                rules.append(drop_rule(match, profile, f"pair {a}-{b}"))
     return rules
 
 

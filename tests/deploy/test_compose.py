@@ -19,6 +19,7 @@ from swarm.deploy.compose import (
     CONTROL_SUBNET,
     DEFAULT_IMAGE,
     RADIO_SUBNET,
+    SIM_WAIT,
     Deployment,
     cameras_address,
     control_address,
@@ -128,8 +129,11 @@ def test_each_agent_impairs_its_own_radio_then_runs(compose: dict[str, Any]) -> 
         radios.add(radio)
         assert service["entrypoint"] == ["/bin/sh", "-c"]
         (script,) = service["command"]
-        netem, _, agent = script.partition(" && exec ")
-        assert netem == f"swarm deploy netem --address {radio} --loss {LOSS:g}"
+        wait, netem, rest = script.split(" && ", 2)
+        assert wait == SIM_WAIT  # podman-compose on Podman < 4.6 ignores service_healthy: the agent waits itself
+        assert netem == f"swarm deploy netem --address {radio} --loss {LOSS:g} --record /results/agents/radio-{k}.json"
+        assert rest.startswith("exec ")
+        agent = rest.removeprefix("exec ")
         assert agent.endswith(f"swarm agent --config /etc/swarm/agent-{k}.toml")
         # mission.max_time_s, as swarm run --max-time: unset, the default for the box and three drones
         assert agent.startswith("timeout --signal=TERM --kill-after=") and " 420 swarm agent" in agent
@@ -196,7 +200,7 @@ def test_loss_zero_still_runs_the_netem_step(tmp_path: Path) -> None:
     deploy_compose_command(load_config(None, {"mission.world": "box"}), 1, 0.0, out, DEFAULT_IMAGE)
     compose = read_yaml((out / "docker-compose.yml").read_text())
     (script,) = compose["services"]["agent-1"]["command"]
-    assert script.startswith(f"swarm deploy netem --address {radio_address(1)} --loss 0 && ")
+    assert f" && swarm deploy netem --address {radio_address(1)} --loss 0 --record " in script
     assert compose_config(out / "docker-compose.yml", "-q").returncode == 0
 
 
@@ -297,3 +301,53 @@ def test_image_names_docker_takes(tmp_path: Path, image: str) -> None:
     deploy_compose_command(load_config(None, {"mission.world": "box"}), 1, 0.0, tmp_path / "o", image)
     compose = read_yaml((tmp_path / "o" / "docker-compose.yml").read_text())
     assert {s["image"] for s in compose["services"].values()} == {image}
+
+
+# ----- --tls ------------------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def with_tls(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("deploy-tls") / "swarm"
+    config = load_config(None, {"mission.world": "box"})
+    assert deploy_compose_command(config, DRONES, LOSS, out, DEFAULT_IMAGE, tls=True) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def tls_compose() -> dict[str, Any]:
+    return plan(load_config(None, {"mission.world": "box"}), DRONES, LOSS, tls=True).compose
+
+
+def test_tls_each_container_mounts_only_its_own_key(with_tls: Path, tls_compose: dict[str, Any]) -> None:
+    compose = tls_compose
+    expected = {f"agent-{k}": f"drone-{k}" for k in range(1, DRONES + 1)} | {"observer": "observer"}
+    for name, service in compose["services"].items():
+        keys = sorted(v.split(":")[0] for v in service["volumes"] if v.startswith("./certs/"))
+        if name in expected:
+            who = expected[name]
+            assert keys == sorted([f"./certs/{who}.key", f"./certs/{who}.pem", "./certs/ca.pem"]), name
+        else:
+            assert keys == [], name  # the simulator and the cameras are not on the swarm's bus
+    assert {p.name for p in (with_tls / "certs").iterdir()} >= {"ca.key", *(f"drone-{k}.key" for k in (1, 2, 3))}
+
+
+def test_tls_every_bus_endpoint_is_tls_with_its_own_certificate(with_tls: Path) -> None:
+    for k in range(1, DRONES + 1):
+        bus = load_config(with_tls / "config" / f"agent-{k}.toml").bus
+        assert bus.listen and all(e.startswith("tls/") for e in bus.listen + bus.connect)
+        assert (str(bus.tls_dir), bus.tls_name) == ("/etc/swarm-tls", f"drone-{k}")
+    observer = load_config(with_tls / "config" / "observer.toml").bus
+    assert all(e.startswith("tls/") for e in observer.listen + observer.connect)
+    assert observer.tls_name == "observer"
+
+
+def test_observer_is_the_ground_station(tls_compose: dict[str, Any]) -> None:
+    observer = tls_compose["services"]["observer"]
+    assert observer["command"] == ["deploy", "mission", "--config", "/etc/swarm/observer.toml", "--results", "/results"]
+
+
+@pytest.mark.sim
+def test_docker_compose_parser_accepts_the_tls_file(with_tls: Path) -> None:
+    done = compose_config(with_tls / "docker-compose.yml", "-q")
+    assert done.returncode == 0, done.stderr

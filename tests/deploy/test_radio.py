@@ -16,7 +16,7 @@ import pytest
 
 from swarm.config import ConfigError
 from swarm.deploy import radio
-from swarm.deploy.radio import apply_radio_netem, check_values, find_interface, netem_commands
+from swarm.deploy.radio import NFT_TABLE, apply_radio_netem, check_values, find_interface, netem_commands
 from swarm.netem import commands
 from swarm.netem.commands import NetemUnavailable, tool
 from swarm.netem.profile import kernel_has_netem
@@ -168,20 +168,37 @@ import sys
 from swarm.deploy.radio import deploy_netem_command
 from swarm.errors import SwarmError
 try:
-    deploy_netem_command("127.0.0.1", 0.1, 0.0, 0.0)
+    deploy_netem_command("127.0.0.1", 0.1, 0.0, 0.0, sys.argv[1])
 except SwarmError as exc:
     print(f"swarm deploy: error: {exc}", file=sys.stderr)
     sys.exit(1)
+"""
+
+# 2000 datagrams over the impaired loopback: how many arrive
+UDP_SCRIPT = """
+import socket
+rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM); rx.bind(("127.0.0.1", 0)); rx.settimeout(0.05)
+tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+got = 0
+for batch in range(40):  # 50 at a time, drained each time: the receive buffer never overflows
+    for i in range(50):
+        tx.sendto(b"x", rx.getsockname())
+    try:
+        while True:
+            rx.recv(16); got += 1
+    except socket.timeout:
+        pass
+print(got)
 """
 
 
 @netns
 @pytest.mark.netns
 def test_netem_on_loopback_works_or_says_why_in_one_line(namespace: str) -> None:
-    done = in_namespace(namespace, [sys.executable, "-c", NETEM_SCRIPT])
+    done = in_namespace(namespace, [sys.executable, "-c", NETEM_SCRIPT, "netem"])
     assert "Traceback" not in done.stderr, done.stderr
     if done.returncode == 0:  # a kernel with sch_netem (and sch_prio): the impairment is in place
-        assert "netem loss 10 %" in done.stdout
+        assert "loss 10 % of IPv4 on egress by tc netem" in done.stdout
         qdiscs = in_namespace(namespace, [tool("tc"), "qdisc", "show", "dev", "lo"]).stdout
         assert "prio 1:" in qdiscs and "netem 40:" in qdiscs and "loss 10%" in qdiscs
         return
@@ -190,3 +207,19 @@ def test_netem_on_loopback_works_or_says_why_in_one_line(namespace: str) -> None
     assert "cannot impair the radio lo (127.0.0.1)" in lines[0]
     if kernel_has_netem() is False:
         assert "this kernel lacks sch_netem" in lines[0]
+
+
+@netns
+@pytest.mark.netns
+def test_auto_backend_loses_what_it_says(namespace: str) -> None:
+    """auto: tc netem, or nftables where the kernel has none; either way about 10 % of datagrams are lost."""
+    done = in_namespace(namespace, [sys.executable, "-c", NETEM_SCRIPT, "auto"])
+    assert done.returncode == 0, done.stderr
+    if kernel_has_netem() is False:
+        assert "on ingress by nftables (no sch_netem here)" in done.stdout
+        qdiscs = in_namespace(namespace, [tool("tc"), "qdisc", "show", "dev", "lo"]).stdout
+        assert "prio" not in qdiscs  # the root netem would have hung from is gone again
+        rules = in_namespace(namespace, [tool("nft"), "list", "table", "ip", NFT_TABLE]).stdout
+        assert 'iifname "lo"' in rules and "numgen random mod 1000000 < 100000" in rules
+    got = int(in_namespace(namespace, [sys.executable, "-c", UDP_SCRIPT]).stdout)
+    assert 1700 <= got <= 1900, got  # 2000 at 10 %: 1800 +- 4.5 sigma
