@@ -40,6 +40,7 @@ from swarm.bus.bridge import AsyncBus
 from swarm.bus.messages import AgentState
 from swarm.bus.phase import AIRBORNE_PHASES, Phase
 from swarm.config import ConfigError, SwarmConfig, vec3
+from swarm.errors import BusError
 from swarm.files import write_model
 from swarm.patches.lattice import Lattice
 from swarm.patches.patch import PatchId
@@ -346,7 +347,12 @@ class Agent:
             if deaf and time.monotonic() - refreshed_at >= ROUTE_REFRESH_GAP_S:
                 refreshed_at = time.monotonic()
                 self.route_refreshes += 1
-                self.log("bus_routes_refreshed", deaf_to=deaf, declarations=bus.refresh_routes())
+                try:
+                    declared = bus.refresh_routes()
+                except BusError as exc:  # the session is closing, or Zenoh refused: try again after the gap
+                    self.log("bus_routes_refresh_failed", deaf_to=deaf, reason=str(exc))
+                else:
+                    self.log("bus_routes_refreshed", deaf_to=deaf, declarations=declared)
             now = time.time() - self.started
             if now >= next_sample:
                 self.timeline.append([round(now, 2), bus.counters.bytes_sent, bus.counters.bytes_received])
