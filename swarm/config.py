@@ -296,6 +296,9 @@ class SimSettings(_Section):
         "above agent.battery_home_fraction",
     )
     battery_start: float = Field(1.0, ge=0.0, le=1.0, description="each vehicle's battery at start (fraction)")
+    battery_starts: dict[int, Annotated[float, Field(ge=0.0, le=1.0)]] = Field(
+        default_factory=dict, description="vehicle id -> its battery at start, for those not at sim.battery_start"
+    )
     gps: bool = Field(
         True,
         description="False: indoor vehicles without GPS (EKF2_GPS_CTRL 0 at boot, local position from vision): "

@@ -245,6 +245,17 @@ class Autopilot:
             self.offboard_active = True
             self._offboard_started = time.monotonic()
 
+    def taken_over_by(self) -> str | None:
+        """The mode the vehicle is in, while this agent commands offboard, when it is one the agent did not ask
+        for and must not fight: a pilot's switch, or PX4's own failsafe (Land, Return). None while it flies
+        offboard, or HOLD (PX4's offboard loss after this process was frozen: `set_setpoint` enters again)."""
+        settled = time.monotonic() - self._offboard_started > OFFBOARD_MODE_SETTLE_S
+        fresh = self.telemetry_age_s < OFFBOARD_MODE_SETTLE_S
+        mode = self.telemetry.flight_mode
+        if self.offboard_active and settled and fresh and mode not in ("OFFBOARD", "HOLD", "UNKNOWN"):
+            return mode
+        return None
+
     def _dropped_out_of_offboard(self) -> bool:
         """The vehicle reports HOLD, its failsafe when offboard setpoints stop, well after we entered offboard."""
         settled = time.monotonic() - self._offboard_started > OFFBOARD_MODE_SETTLE_S

@@ -105,6 +105,14 @@ class StopRequested(Exception):
     pass
 
 
+class TakenOver(Exception):
+    """The vehicle left offboard for a mode the agent did not ask for: the agent stops commanding it."""
+
+    def __init__(self, mode: str) -> None:
+        super().__init__(f"the vehicle switched to {mode} while the agent was commanding it")
+        self.mode = mode
+
+
 class BatteryLow(Exception):
     """The battery fell below agent.battery_home_fraction in flight: the mission ends, the drone goes home."""
 
@@ -189,6 +197,9 @@ class Flight:
                     await self._wait(s.hover_s, stop)
             except BatteryLow:
                 await homeward(self, stop)
+        except TakenOver as exc:
+            await self._taken_over(exc.mode, stop)
+            return self.phase
         except StopRequested:
             self.log("stop_requested", airborne=self.airborne)
         except TelemetryLost as exc:
@@ -580,6 +591,20 @@ class Flight:
                     self.log("flight_error", reason=str(exc))
             await asyncio.sleep(SETPOINT_PERIOD_S)
 
+    async def _taken_over(self, mode: str, stop: asyncio.Event) -> None:
+        """A pilot or PX4's own failsafe has the vehicle: command nothing more, and watch it until it is down and
+        disarmed (phase failsafe: the drone is out of the mission, and where it lands is not this agent's)."""
+        self.ap.offboard_active = False
+        self.log("taken_over", mode=mode, position=[round(v, 2) for v in self.ap.telemetry.position])
+        self._set_phase(Phase.FAILSAFE)
+        while not (self.ap.telemetry.landed_state == "ON_GROUND" and not self.ap.telemetry.armed):
+            if stop.is_set():
+                self.log("stop_requested", airborne=True)
+                return
+            await asyncio.sleep(SETPOINT_PERIOD_S)
+        self.airborne = False
+        self.log("taken_over_landed", mode=self.ap.telemetry.flight_mode)
+
     async def _fail_safe(self) -> None:
         """Hold, then land, then watch the landing through if telemetry comes back; without telemetry we cannot
         confirm the landing, and the flight ends in FAILSAFE either way.
@@ -619,6 +644,9 @@ class Flight:
             self.log("stalled", seconds=round(now - self._last_check, 2))  # SIGSTOP, starved, or a long plan
         self._last_check = now
         self._check_battery()
+        taken_over_by = self.ap.taken_over_by()
+        if taken_over_by is not None:
+            raise TakenOver(taken_over_by)
         timeout = self.settings.telemetry_timeout_s
         if self.airborne and self.ap.telemetry_age_s > timeout:
             # Telemetry is old; but while this process did not run (SIGSTOP, starved) samples queued up unread,

@@ -155,7 +155,7 @@ class SimVehicle:
         self.id = drone_id
         self.origin = config.mission.origin
         self.params = Params(sim, drone_id)
-        battery = Battery(sim.battery_minutes, sim.battery_start)
+        battery = Battery(sim.battery_minutes, sim.battery_starts.get(drone_id, sim.battery_start))
         local_origin = tuple(np.add(home, sim.local_origin_offset))
         self.autopilot = SimulatedPx4(
             home, self.params, sim.position_gain, floor_below, battery, local_origin, now, sim.estimator_warmup_s

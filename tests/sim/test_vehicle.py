@@ -188,3 +188,9 @@ def test_the_battery_is_reported_as_px4_does_and_a_critical_one_is_not_armable()
     assert [m.get_type() for m in answer] == ["STATUSTEXT", "STATUSTEXT", "COMMAND_ACK"]  # the reason first
     assert "".join(m.text for m in answer[:2]) == "Arming denied: critical battery, 6.5% below BAT_CRIT_THR 7.0%"
     assert answer[2].result == mavlink.MAV_RESULT_TEMPORARILY_REJECTED and not bench.ap.armed
+
+
+def test_one_vehicle_can_start_with_another_battery() -> None:
+    bench = Bench(**{"sim.battery_start": 0.9, "sim.battery_starts": {"1": 0.3}})  # keys as TOML spells them
+    assert bench.ap.battery.remaining == pytest.approx(0.3)
+    assert Bench(**{"sim.battery_start": 0.9, "sim.battery_starts": {"2": 0.3}}).ap.battery.remaining == 0.9
