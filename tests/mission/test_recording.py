@@ -213,7 +213,9 @@ def _run_dir(tmp_path: Path) -> Path:
     run.mkdir()
     _record(run / RECORDING_NAME)
     (run / "report.json").write_text(mission_report(duration_s=6.5).to_json())
-    write_ply(run / "map.ply", np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]]), np.array([[0, 1, 2], [0, 2, 3]]))
+    write_ply(
+        run / "map.ply", np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]]), np.array([[0, 1, 2], [0, 2, 3]])
+    )
     return run
 
 
