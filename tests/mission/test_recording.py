@@ -277,3 +277,14 @@ def test_the_viewer_opens_every_recording_of_a_run_and_binds_to_loopback(tmp_pat
     assert "--web-viewer" in argv and argv[-2:] == [str(p) for p in paths]
     assert "--web-viewer" not in viewer_argv(Path("/bin/rerun"), paths)
     assert not has_display({}) and has_display({"DISPLAY": ":0"})
+
+
+def test_the_report_page_says_how_to_open_the_recording(tmp_path: Path) -> None:
+    from swarm.mission.report_md import render_report_page, write_report_page
+
+    report = mission_report(run_dir="runs/r1")
+    assert "swarm view runs/r1" in render_report_page(report, recording=True)
+    assert "## Recording" not in render_report_page(report)
+    assert "## Recording" not in write_report_page(tmp_path, report).read_text()
+    (tmp_path / RECORDING_NAME).write_bytes(b"")
+    assert "swarm view runs/r1" in write_report_page(tmp_path, report).read_text()
