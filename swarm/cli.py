@@ -449,7 +449,10 @@ def _run(args: argparse.Namespace) -> int:
     if args.view:
         from swarm.mission.viewer import view_run
 
-        view_run(Path(report["run_dir"]))
+        try:
+            view_run(Path(report["run_dir"]))
+        except SwarmError as exc:  # the mission's outcome decides the exit code, not the viewer
+            print(f"swarm run: warning: not viewed: {exc}", file=sys.stderr)
     return 0 if report["status"] == "complete" else EXIT_FAILED
 
 
