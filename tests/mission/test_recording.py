@@ -16,6 +16,7 @@ from swarm.bus.phase import Phase
 from swarm.errors import SwarmError
 from swarm.mission.export import export_mcap, stamp_ns
 from swarm.mission.recording import (
+    MAP_BYTES_PER_S,
     MAP_PERIOD_S,
     RECORDING_NAME,
     MissionRecording,
@@ -102,7 +103,7 @@ def test_throttle_lets_one_through_per_period_per_key() -> None:
 
 def test_large_maps_are_refreshed_less_often() -> None:
     assert map_period_s(1000, 2000) == MAP_PERIOD_S
-    assert map_period_s(200_000, 400_000) == pytest.approx(12 * 600_000 / 250_000)
+    assert map_period_s(200_000, 400_000) == pytest.approx(12 * 600_000 / MAP_BYTES_PER_S)
 
 
 def test_report_events_hold_faults_links_partitions_and_the_end() -> None:
