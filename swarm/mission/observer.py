@@ -179,7 +179,9 @@ class Observer:
             self.recording.explored(t, self.coverage.fraction, self.coverage.by_producer_now())
             version = len(self.coverage.seen)
             if final or self.recording.map_due(t, version):
-                self.recording.map(t, *self.coverage.mesh(), version=version)
+                started = time.thread_time()
+                vertices, triangles = self.coverage.mesh()
+                self.recording.map(t, vertices, triangles, version, time.thread_time() - started)
 
     def _final_map(self) -> None:
         assert self.coverage is not None

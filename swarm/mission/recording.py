@@ -14,7 +14,9 @@ Entities (`/` is the world frame, z up, metres):
 
 =================================  ==========================================================================
 world                              the world mesh (static; simulated runs only)
-map                                the swarm's fused map (marching cubes), refreshed every `MAP_PERIOD_S`
+map/tI_J_K                         the swarm's fused map (marching cubes) in `TILE_M` cubes; a refresh logs the
+                                   tiles that changed (and clears emptied ones), every `MAP_PERIOD_S` or less
+                                   often when large (`map_period_s`)
 drones/K/pose                      the drone's pose (translation, yaw) and, under it, its body
 drones/K/trajectory                the heartbeat positions so far, re-logged every `TRAIL_PERIOD_S`
 drones/K/segment                   the straight segment the drone is flying (its heartbeat's `heading_to`)
@@ -34,6 +36,7 @@ from __future__ import annotations
 
 import math
 import threading
+import time
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -52,8 +55,10 @@ from swarm.roles.messages import FrontierReport, TargetAssignment
 APPLICATION_ID = "swarm"
 RECORDING_NAME = "run.rrd"
 TIMELINE = "mission"
-MAP_PERIOD_S = 5.0  # a marching-cubes pass over the fused map: a few tens of ms on the test worlds
-MAP_BYTES_PER_S = 100_000  # a large map is refreshed less often: the file grows by at most this much per second
+MAP_PERIOD_S = 5.0
+MAP_BYTES_PER_S = 150_000  # the file grows by at most this much per second from the map's changed tiles
+MAP_CPU_SHARE = 0.05  # and the marching-cubes passes take at most this share of one core (0.45 s: office, full)
+TILE_M = 2.0
 TRAIL_PERIOD_S = 2.0
 POSE_PERIOD_S = 0.2  # heartbeats come at 5 Hz or more; a viewer needs no more
 BODY_HALF_SIZE = (0.25, 0.25, 0.06)
@@ -108,10 +113,47 @@ def gain_colors(gains: np.ndarray) -> np.ndarray:
     return (low + share[:, None] * (high - low)).round().astype(np.uint8)
 
 
-def map_period_s(vertices: int, triangles: int) -> float:
-    """How long until the next map refresh after one of this size: `MAP_PERIOD_S`, or longer for a map so large
-    that refreshing it that often would write more than `MAP_BYTES_PER_S` (float32 vertices, uint32 indices)."""
-    return max(MAP_PERIOD_S, 12 * (vertices + triangles) / MAP_BYTES_PER_S)
+def map_period_s(written_bytes: int, mesh_cpu_s: float) -> float:
+    """How long until the next map refresh after one that wrote `written_bytes` and whose mesh took `mesh_cpu_s`
+    of CPU: `MAP_PERIOD_S`, or longer, so the map adds at most `MAP_BYTES_PER_S` to the file and
+    `MAP_CPU_SHARE` of a core to the observer."""
+    return max(MAP_PERIOD_S, written_bytes / MAP_BYTES_PER_S, mesh_cpu_s / MAP_CPU_SHARE)
+
+
+Tile = tuple[int, int, int]
+
+
+def map_tiles(
+    vertices: np.ndarray, triangles: np.ndarray, tile_m: float = TILE_M
+) -> dict[Tile, tuple[np.ndarray, np.ndarray]]:
+    """The mesh cut into cubes of `tile_m` (world-aligned, by triangle centroid): per tile its own vertices
+    (float32) and triangles indexing them (uint32)."""
+    vertices = np.asarray(vertices, dtype=np.float32).reshape(-1, 3)
+    triangles = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
+    if len(triangles) == 0:
+        return {}
+    keys = np.floor(vertices[triangles].mean(axis=1) / tile_m).astype(np.int64)
+    order = np.lexsort(keys.T[::-1])
+    keys, triangles = keys[order], triangles[order]
+    starts = np.flatnonzero(np.r_[True, np.any(keys[1:] != keys[:-1], axis=1)])
+    tiles = {}
+    for start, stop in zip(starts, np.r_[starts[1:], len(keys)]):
+        used, local = np.unique(triangles[start:stop], return_inverse=True)
+        i, j, k = (int(c) for c in keys[start])
+        tiles[(i, j, k)] = (vertices[used], local.reshape(-1, 3).astype(np.uint32))
+    return tiles
+
+
+def tile_fingerprint(vertices: np.ndarray, triangles: np.ndarray) -> tuple[int, int, float]:
+    """What a tile holds, independent of vertex and triangle order: counts and the sum of its corners (to the
+    micrometre); equal for the same surface extracted again from an unchanged part of the map."""
+    corners = np.asarray(vertices, dtype=np.float64)[np.asarray(triangles, dtype=np.int64)]
+    return len(vertices), len(triangles), round(float(corners.sum()), 6)
+
+
+def tile_path(tile: Tile) -> str:
+    i, j, k = tile
+    return f"map/t{i}_{j}_{k}"
 
 
 def cluster_text(clusters: Sequence[Cluster]) -> str:
@@ -179,6 +221,7 @@ class MissionRecording:
         self._last_map_t: float | None = None
         self._map_period_s = MAP_PERIOD_S
         self._map_version: int | None = None
+        self._tiles: dict[Tile, tuple[int, int, float]] = {}
 
     def _at(self, t: float) -> None:
         self.stream.set_time(TIMELINE, duration=max(0.0, t))
@@ -201,21 +244,32 @@ class MissionRecording:
             return False
         return self._last_map_t is None or t - self._last_map_t >= self._map_period_s
 
-    def map(self, t: float, vertices: np.ndarray, triangles: np.ndarray, version: int = 0) -> None:
-        """The fused map's surface at t (an empty map is not logged)."""
+    def map(
+        self, t: float, vertices: np.ndarray, triangles: np.ndarray, version: int = 0, mesh_cpu_s: float = 0.0
+    ) -> int:
+        """The fused map's surface at t: the tiles that changed since the last refresh, and a Clear for tiles
+        that are empty now; `mesh_cpu_s`, what extracting the mesh cost, sets the next refresh with this call's
+        own cost (`map_period_s`). Returns the bytes written (vertices and indices)."""
+        started = time.thread_time()
         self._last_map_t, self._map_version = t, version
-        if len(vertices) == 0 or len(triangles) == 0:
-            return
-        self._map_period_s = map_period_s(len(vertices), len(triangles))
         self._at(t)
-        self.stream.log(
-            "map",
-            rr.Mesh3D(
-                vertex_positions=np.asarray(vertices, dtype=np.float32),
-                triangle_indices=np.asarray(triangles, dtype=np.uint32),
-                albedo_factor=MAP_RGB,
-            ),
-        )
+        tiles = map_tiles(vertices, triangles)
+        written = 0
+        for tile, (tile_vertices, tile_triangles) in sorted(tiles.items()):
+            fingerprint = tile_fingerprint(tile_vertices, tile_triangles)
+            if self._tiles.get(tile) == fingerprint:
+                continue
+            self._tiles[tile] = fingerprint
+            self.stream.log(
+                tile_path(tile),
+                rr.Mesh3D(vertex_positions=tile_vertices, triangle_indices=tile_triangles, albedo_factor=MAP_RGB),
+            )
+            written += tile_vertices.nbytes + tile_triangles.nbytes
+        for tile in sorted(set(self._tiles) - set(tiles)):
+            del self._tiles[tile]
+            self.stream.log(tile_path(tile), rr.Clear(recursive=False))
+        self._map_period_s = map_period_s(written, mesh_cpu_s + time.thread_time() - started)
+        return written
 
     def state(self, t: float, state: AgentState, has_position: bool = True) -> None:
         """A heartbeat: leader and patches held always; pose, trajectory and segment once the drone has a

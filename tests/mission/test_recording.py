@@ -17,6 +17,7 @@ from swarm.errors import SwarmError
 from swarm.mission.export import export_mcap, stamp_ns
 from swarm.mission.recording import (
     MAP_BYTES_PER_S,
+    MAP_CPU_SHARE,
     MAP_PERIOD_S,
     RECORDING_NAME,
     MissionRecording,
@@ -27,10 +28,13 @@ from swarm.mission.recording import (
     entity_spans,
     gain_colors,
     map_period_s,
+    map_tiles,
     patches_held,
     recording_ids,
     report_events,
     run_recording_id,
+    tile_fingerprint,
+    tile_path,
     yaw_quaternion,
 )
 from swarm.mission.viewer import has_display, run_recordings, viewer_argv
@@ -102,8 +106,56 @@ def test_throttle_lets_one_through_per_period_per_key() -> None:
 
 
 def test_large_maps_are_refreshed_less_often() -> None:
-    assert map_period_s(1000, 2000) == MAP_PERIOD_S
-    assert map_period_s(200_000, 400_000) == pytest.approx(12 * 600_000 / MAP_BYTES_PER_S)
+    assert map_period_s(10_000, 0.01) == MAP_PERIOD_S
+    assert map_period_s(3_000_000, 0.01) == pytest.approx(3_000_000 / MAP_BYTES_PER_S)
+    assert map_period_s(10_000, 0.5) == pytest.approx(0.5 / MAP_CPU_SHARE)
+
+
+def _two_squares() -> tuple[np.ndarray, np.ndarray]:
+    """Two unit squares (two triangles each), one at the origin and one 3 m along x: two 2 m tiles."""
+    square = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
+    vertices = np.vstack([square + 0.1, square + [3.1, 0, 0]])
+    triangles = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]])
+    return vertices, triangles
+
+
+def test_map_tiles_cut_the_mesh_into_cubes_with_their_own_vertices() -> None:
+    vertices, triangles = _two_squares()
+    tiles = map_tiles(vertices, triangles, tile_m=2.0)
+    assert sorted(tiles) == [(0, 0, 0), (1, 0, 0)]
+    tile_vertices, tile_triangles = tiles[(1, 0, 0)]
+    assert tile_vertices.dtype == np.float32 and tile_triangles.dtype == np.uint32
+    assert len(tile_vertices) == 4 and tile_triangles.max() == 3
+    assert np.allclose(tile_vertices[tile_triangles], vertices[triangles[2:]])  # the same triangles
+    assert map_tiles(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int32)) == {}
+    assert tile_path((1, -2, 0)) == "map/t1_-2_0"
+
+
+def test_a_tile_fingerprint_ignores_order_and_sees_change() -> None:
+    vertices, triangles = _two_squares()
+    v, t = map_tiles(vertices, triangles)[(0, 0, 0)]
+    shuffled = v[::-1].copy(), (len(v) - 1 - t)[::-1].copy()  # the same surface, listed backwards
+    assert tile_fingerprint(*shuffled) == tile_fingerprint(v, t)
+    moved = v.copy()
+    moved[0, 2] += 0.01
+    assert tile_fingerprint(moved, t) != tile_fingerprint(v, t)
+
+
+def test_a_refresh_logs_only_the_tiles_that_changed(tmp_path: Path) -> None:
+    path = tmp_path / RECORDING_NAME
+    recording = MissionRecording(path, "run-1")
+    vertices, triangles = _two_squares()
+    assert recording.map(1.0, vertices, triangles) > 0
+    assert recording.map(2.0, vertices, triangles) == 0  # nothing changed
+    moved = vertices.copy()
+    moved[4:, 2] += 0.05  # the second square moved up
+    written = recording.map(3.0, moved, triangles)
+    assert written == 4 * 12 + 2 * 12
+    recording.map(4.0, vertices[:4], triangles[:2])  # the second square gone
+    recording.close()
+    spans = entity_spans([path])
+    assert spans["/map/t0_0_0"].rows == 1
+    assert spans["/map/t1_0_0"].rows == 3 and spans["/map/t1_0_0"].last_s == 4.0  # logged, changed, cleared
 
 
 def test_report_events_hold_faults_links_partitions_and_the_end() -> None:
@@ -178,7 +230,7 @@ def test_a_recording_reads_back_with_its_entities_and_times(tmp_path: Path) -> N
     assert spans["/world"].first_s is None  # static
     assert spans["/drones/1/pose"].rows == 11
     assert (spans["/drones/1/pose"].first_s, spans["/drones/1/pose"].last_s) == (1.0, 6.0)
-    for entity in ("/frontiers/2", "/drones/2/target", "/swarm/clusters", "/series/explored/swarm", "/map"):
+    for entity in ("/frontiers/2", "/drones/2/target", "/swarm/clusters", "/series/explored/swarm", "/map/t0_0_0"):
         assert spans[entity].rows == 1, entity
     assert spans["/series/leader/2"].rows == 11
     [(t, [position])] = entity_rows([path], "/drones/2/target", "Points3D:positions")
