@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import asyncio
 import signal
+import sys
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -175,13 +176,17 @@ class Observer:
         """Fuse the new patches and measure (coverage thread); record the fraction, and the map when due."""
         assert self.coverage is not None
         self.coverage.update(t)
-        if self.recording is not None:
+        if self.recording is None:
+            return
+        try:
             self.recording.explored(t, self.coverage.fraction, self.coverage.by_producer_now())
             version = len(self.coverage.seen)
             if final or self.recording.map_due(t, version):
                 started = time.thread_time()
                 vertices, triangles = self.coverage.mesh()
                 self.recording.map(t, vertices, triangles, version, time.thread_time() - started)
+        except Exception as exc:  # noqa: BLE001 - the recording must never stop the coverage measurement
+            print(f"observer: recording the map failed: {type(exc).__name__}: {exc}", file=sys.stderr, flush=True)
 
     def _final_map(self) -> None:
         assert self.coverage is not None
