@@ -184,7 +184,7 @@ class Observer:
             if final or self.recording.map_due(t, version):
                 started = time.thread_time()
                 vertices, triangles = self.coverage.mesh()
-                self.recording.map(t, vertices, triangles, version, time.thread_time() - started)
+                self.recording.map(t, vertices, triangles, version, time.thread_time() - started, exact=final)
         except Exception as exc:  # noqa: BLE001 - the recording must never stop the coverage measurement
             print(f"observer: recording the map failed: {type(exc).__name__}: {exc}", file=sys.stderr, flush=True)
 

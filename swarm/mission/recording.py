@@ -59,6 +59,8 @@ MAP_PERIOD_S = 5.0
 MAP_BYTES_PER_S = 150_000  # the file grows by at most this much per second from the map's changed tiles
 MAP_CPU_SHARE = 0.05  # and the marching-cubes passes take at most this share of one core (0.45 s: office, full)
 TILE_M = 2.0
+TILE_GROWTH = 0.1  # between refreshes, a tile is logged again when its triangle count changed by this share
+TILE_GROWTH_MIN = 20  # or at least this many: a surface refined in place (its vertices shift) is not logged again
 TRAIL_PERIOD_S = 2.0
 POSE_PERIOD_S = 0.2  # heartbeats come at 5 Hz or more; a viewer needs no more
 BODY_HALF_SIZE = (0.25, 0.25, 0.06)
@@ -149,6 +151,11 @@ def tile_fingerprint(vertices: np.ndarray, triangles: np.ndarray) -> tuple[int, 
     micrometre); equal for the same surface extracted again from an unchanged part of the map."""
     corners = np.asarray(vertices, dtype=np.float64)[np.asarray(triangles, dtype=np.int64)]
     return len(vertices), len(triangles), round(float(corners.sum()), 6)
+
+
+def tile_grew(logged: int | None, now: int) -> bool:
+    """Whether a tile with `now` triangles, logged with `logged` (None: never), changed enough to log again."""
+    return logged is None or abs(now - logged) > max(TILE_GROWTH_MIN, TILE_GROWTH * logged)
 
 
 def tile_path(tile: Tile) -> str:
@@ -245,9 +252,16 @@ class MissionRecording:
         return self._last_map_t is None or t - self._last_map_t >= self._map_period_s
 
     def map(
-        self, t: float, vertices: np.ndarray, triangles: np.ndarray, version: int = 0, mesh_cpu_s: float = 0.0
+        self,
+        t: float,
+        vertices: np.ndarray,
+        triangles: np.ndarray,
+        version: int = 0,
+        mesh_cpu_s: float = 0.0,
+        exact: bool = False,
     ) -> int:
-        """The fused map's surface at t: the tiles that changed since the last refresh, and a Clear for tiles
+        """The fused map's surface at t: the tiles that grew or shrank since they were last logged (`tile_grew`;
+        with `exact`, every tile that differs at all, so the last refresh is the final map), and a Clear for tiles
         that are empty now; `mesh_cpu_s`, what extracting the mesh cost, sets the next refresh with this call's
         own cost (`map_period_s`). Returns the bytes written (vertices and indices)."""
         started = time.thread_time()
@@ -257,7 +271,8 @@ class MissionRecording:
         written = 0
         for tile, (tile_vertices, tile_triangles) in sorted(tiles.items()):
             fingerprint = tile_fingerprint(tile_vertices, tile_triangles)
-            if self._tiles.get(tile) == fingerprint:
+            logged = self._tiles.get(tile)
+            if logged == fingerprint or not (exact or tile_grew(logged[1] if logged else None, len(tile_triangles))):
                 continue
             self._tiles[tile] = fingerprint
             self.stream.log(

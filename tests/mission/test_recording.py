@@ -20,6 +20,7 @@ from swarm.mission.recording import (
     MAP_CPU_SHARE,
     MAP_PERIOD_S,
     RECORDING_NAME,
+    TILE_GROWTH_MIN,
     MissionRecording,
     Throttle,
     add_report,
@@ -34,6 +35,7 @@ from swarm.mission.recording import (
     report_events,
     run_recording_id,
     tile_fingerprint,
+    tile_grew,
     tile_path,
     yaw_quaternion,
 )
@@ -131,6 +133,12 @@ def test_map_tiles_cut_the_mesh_into_cubes_with_their_own_vertices() -> None:
     assert tile_path((1, -2, 0)) == "map/t1_-2_0"
 
 
+def test_a_tile_is_logged_again_when_it_grew_or_shrank_enough() -> None:
+    assert tile_grew(None, 5)
+    assert not tile_grew(100, 100 + TILE_GROWTH_MIN) and tile_grew(100, 100 + TILE_GROWTH_MIN + 1)
+    assert not tile_grew(1000, 1100) and tile_grew(1000, 1101) and tile_grew(1000, 899)
+
+
 def test_a_tile_fingerprint_ignores_order_and_sees_change() -> None:
     vertices, triangles = _two_squares()
     v, t = map_tiles(vertices, triangles)[(0, 0, 0)]
@@ -148,9 +156,9 @@ def test_a_refresh_logs_only_the_tiles_that_changed(tmp_path: Path) -> None:
     assert recording.map(1.0, vertices, triangles) > 0
     assert recording.map(2.0, vertices, triangles) == 0  # nothing changed
     moved = vertices.copy()
-    moved[4:, 2] += 0.05  # the second square moved up
-    written = recording.map(3.0, moved, triangles)
-    assert written == 4 * 12 + 2 * 12
+    moved[4:, 2] += 0.05  # the second square moved up: refined in place, not logged again until the end
+    assert recording.map(3.0, moved, triangles) == 0
+    assert recording.map(3.5, moved, triangles, exact=True) == 4 * 12 + 2 * 12
     recording.map(4.0, vertices[:4], triangles[:2])  # the second square gone
     recording.close()
     spans = entity_spans([path])
