@@ -143,7 +143,36 @@ def build_parser() -> argparse.ArgumentParser:
         help="every agent records the sensor streams it received (depth, camera info, odometry) to "
         "OUT/bags/agent-K (ROS 2 MCAP)",
     )
+    run.add_argument(
+        "--no-rrd",
+        dest="rrd",
+        action="store_false",
+        default=None,
+        help="do not record the run to OUT/run.rrd (Rerun); it is recorded by default",
+    )
+    run.add_argument("--view", action="store_true", help="open the recording in the Rerun viewer at the end")
     _add_config_flags(run)
+
+    view = sub.add_parser("view", help="open a finished run's recording (OUT/*.rrd) in the Rerun viewer")
+    view.set_defaults(handler=_view)
+    view.add_argument("run_dir", type=Path, metavar="RUN_DIR", help="a swarm run output directory")
+    view.add_argument(
+        "--web",
+        action="store_true",
+        help="serve the web viewer instead (for a machine without a display); runs until Ctrl-C",
+    )
+    view.add_argument("--port", type=_positive_int, default=9090, help="with --web: the web viewer's port")
+
+    export = sub.add_parser("export", help="export a finished run for other tools")
+    export.set_defaults(handler=_export)
+    export.add_argument("run_dir", type=Path, metavar="RUN_DIR", help="a swarm run output directory")
+    export.add_argument(
+        "--mcap",
+        type=Path,
+        required=True,
+        metavar="OUT.mcap",
+        help="write a ROS 2 bag (MCAP): poses as nav_msgs/Odometry, the map as sensor_msgs/PointCloud2, targets",
+    )
 
     cameras = sub.add_parser("cameras", help="the simulated depth cameras as ROS 2 camera drivers over Zenoh")
     cameras.set_defaults(handler=_cameras)
@@ -190,6 +219,8 @@ def build_parser() -> argparse.ArgumentParser:
     observe.add_argument("--patches", type=Path, help="directory of sealed patches to fuse into the swarm's map")
     observe.add_argument("--map", type=Path, help="where to write the swarm's fused mesh (.ply) at the end")
     observe.add_argument("--since", type=float, help="the Unix time its clock counts from (default: its start)")
+    observe.add_argument("--record", type=Path, help="write a Rerun recording (.rrd) of what it observes there")
+    observe.add_argument("--recording-id", help="the run's recording id (with --record)")
     _add_config_flags(observe)
 
     node = sub.add_parser("mapnode", help="a map-sharing node without a vehicle (sync experiments and tests)")
@@ -445,13 +476,38 @@ def _run(args: argparse.Namespace) -> int:
             "mission.faults": args.fault,
             "mission.tls": args.tls,
             "mission.record": args.record,
+            "mission.rrd": args.rrd,
         },
     )
+    if args.view and not config.mission.rrd:
+        raise ConfigError("--view needs the recording (drop --no-rrd or mission.rrd = false)")
     from swarm.mission.run import run_mission
 
     report = run_mission(config, live=False if args.no_live else None)
     _print_summary(report)
+    if args.view:
+        from swarm.mission.viewer import view_run
+
+        try:
+            view_run(Path(report["run_dir"]))
+        except SwarmError as exc:  # the mission's outcome decides the exit code, not the viewer
+            print(f"swarm run: warning: not viewed: {exc}", file=sys.stderr)
     return 0 if report["status"] == "complete" else EXIT_FAILED
+
+
+def _view(args: argparse.Namespace) -> int:
+    from swarm.mission.viewer import serve_run, view_run
+
+    code = serve_run(args.run_dir, args.port) if args.web else view_run(args.run_dir)
+    return EXIT_FAILED if code else 0
+
+
+def _export(args: argparse.Namespace) -> int:
+    from swarm.mission.export import export_mcap
+
+    counts = export_mcap(args.run_dir, args.mcap)
+    print(f"{args.mcap}: " + ", ".join(f"{topic} {n}" for topic, n in sorted(counts.items())))
+    return 0
 
 
 def _map(args: argparse.Namespace) -> int:
@@ -508,7 +564,9 @@ def _agent(args: argparse.Namespace) -> int:
 def _observe(args: argparse.Namespace) -> int:
     from swarm.mission.observer import observe_command
 
-    return observe_command(_config_from(args, {}), args.status, args.patches, args.map, args.since)
+    return observe_command(
+        _config_from(args, {}), args.status, args.patches, args.map, args.since, args.record, args.recording_id
+    )
 
 
 def _mapnode(args: argparse.Namespace) -> int:

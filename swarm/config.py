@@ -162,6 +162,11 @@ class MissionSettings(_Section):
         description="swarm run: each agent records its sensor streams to OUT/bags/agent-K "
         '(needs camera.source = "zenoh")',
     )
+    rrd: bool = Field(
+        True,
+        description="swarm run: the observer and the harness record the run to OUT/run.rrd (Rerun; headless, "
+        "open it with swarm view OUT)",
+    )
     sim_nice: int = Field(
         -10,
         ge=-20,

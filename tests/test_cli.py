@@ -26,6 +26,8 @@ def swarm(*args: str, timeout: float = 60) -> subprocess.CompletedProcess[str]:
         ("mapnode", "--status", "/tmp/n.json", "--set", "sync.chunk_bytes=10"),
         ("mapnode", "--status", "/tmp/n.json", "--set", "sync.backoff_max_s=0.1"),
         ("bench", "sync", "--drones", "x"),
+        ("run", "--no-rrd", "--view"),
+        ("export", "/tmp"),
     ],
 )
 @pytest.mark.sim
@@ -38,11 +40,30 @@ def test_bad_input_is_one_line_and_exit_2(args: tuple[str, ...]) -> None:
     assert "Traceback" not in result.stderr
 
 
+@pytest.mark.parametrize(
+    "args",
+    [
+        ("view", "/nonexistent/run"),
+        ("view", "--web", "/nonexistent/run"),
+        ("export", "/nonexistent/run", "--mcap", "/nonexistent/bag"),
+    ],
+)
+@pytest.mark.sim
+def test_a_run_directory_that_is_not_there_is_one_line_and_exit_1(args: tuple[str, ...]) -> None:
+    result = swarm(*args)
+    assert result.returncode == 1, result.stderr
+    assert result.stderr.strip() == f"swarm {args[0]}: error: /nonexistent/run: " + (
+        "no such run directory"
+        if args[0] == "view"
+        else "no report.json (not a finished swarm run, or recorded with --no-rrd)"
+    )
+
+
 @pytest.mark.sim
 def test_help_lists_every_command() -> None:
     result = swarm("--help")
     assert result.returncode == 0
-    for command in ("run", "sim", "agent", "observe", "mapnode", "bench"):
+    for command in ("run", "sim", "agent", "observe", "mapnode", "bench", "view", "export"):
         assert command in result.stdout
 
 

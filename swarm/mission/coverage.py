@@ -84,6 +84,7 @@ class SwarmCoverage:
         self.config = config
         self.patches_dir = patches_dir
         world = load_world(config.mission.world)
+        self.world = world
         self.space = mission_reachable_space(world, config)
         lo, hi = mission_volume(world, config.mission.volume)
         self.bounds = (lo, hi)
@@ -146,6 +147,18 @@ class SwarmCoverage:
             self.producer_timeline.setdefault(producer, []).append((round(t, 2), round(share, 4)))
         masks = list(self._producer_known.values())
         self.overlap = overlap_fraction(np.stack(masks)) if masks else 0.0
+
+    def mesh(self) -> tuple[np.ndarray, np.ndarray]:
+        """The fused map's surface now: (V,3) vertices, (F,3) triangles (both empty before the first patch)."""
+        with self._lock:
+            if self.fused.voxel_count == 0:
+                return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int32)
+            return self.fused.mesh()
+
+    def by_producer_now(self) -> dict[int, float]:
+        """Each producer's latest explored share (`explored_by_agent`'s last samples)."""
+        with self._lock:
+            return {k: v[-1][1] for k, v in self.producer_timeline.items() if v}
 
     def write_mesh(self, path: Path) -> None:
         with self._lock:

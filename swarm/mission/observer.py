@@ -16,16 +16,22 @@ entry, so `swarm run` can time how fast patch sets converge after a link heals.
 For the exploration report it also keeps each drone's trajectory (heartbeat positions, thinned to one sample per
 half second) and the leader timeline: the clusters as the heartbeats describe them (who follows whom), recorded
 each time they change, so splits and merges of the swarm can be seen after the run.
+
+With a recording (`swarm observe --record`, which `swarm run` passes by default) it also writes all of this to a
+Rerun recording as it goes (`swarm.mission.recording`): the world, the map every few seconds, poses, clusters,
+explored fraction; and, heard only for the recording, the explorers' frontier reports and the leaders' target
+assignments (without a recording it does not subscribe to them).
 """
 
 from __future__ import annotations
 
 import asyncio
 import signal
+import sys
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from swarm.aio import wait_event
 from swarm.bus.bridge import AsyncBus
@@ -35,6 +41,10 @@ from swarm.config import SwarmConfig
 from swarm.files import write_model
 from swarm.mission.coverage import SwarmCoverage
 from swarm.mission.files import NO_COVERAGE, ObserverStatus
+from swarm.roles.messages import FrontierReport, TargetAssignment
+
+if TYPE_CHECKING:
+    from swarm.mission.recording import MissionRecording  # imports rerun (0.5 s, 100 MB): only when recording
 
 SNAPSHOT_PERIOD_S = 0.5
 COVERAGE_PERIOD_S = 2.0
@@ -110,8 +120,10 @@ class Observer:
         patches_dir: Path | None = None,
         map_path: Path | None = None,
         since: float | None = None,
+        recording: MissionRecording | None = None,
     ) -> None:
         self.config = config
+        self.recording = recording
         self.status_path = status_path
         self.coverage = SwarmCoverage(config, patches_dir) if patches_dir is not None else None
         self.map_path = map_path
@@ -131,6 +143,11 @@ class Observer:
         self.keys = bus.keys
         bus.subscribe(bus.keys.all_states, AgentState, self._on_state)
         bus.watch_liveliness(bus.keys.all_alive, self._on_join, self._on_leave)
+        if self.recording is not None:
+            bus.subscribe(bus.keys.all_frontiers, FrontierReport, self._on_frontiers)
+            bus.subscribe(bus.keys.all_targets, TargetAssignment, self._on_targets)
+            if self.coverage is not None:
+                self.recording.world(self.coverage.world.vertices, self.coverage.world.triangles)
         coverage_task = asyncio.create_task(self._follow_coverage()) if self.coverage is not None else None
         try:
             while not self.stop.is_set():
@@ -144,18 +161,36 @@ class Observer:
                 await asyncio.get_running_loop().run_in_executor(None, self._final_map)
             self._write(bus, done=True)
             await bus.close()
+            if self.recording is not None:
+                self.recording.close()
         return 0
 
     async def _follow_coverage(self) -> None:
         assert self.coverage is not None
         loop = asyncio.get_running_loop()
         while True:
-            await loop.run_in_executor(None, self.coverage.update, time.time() - self.started)
+            await loop.run_in_executor(None, self._measure, time.time() - self.started, False)
             await asyncio.sleep(COVERAGE_PERIOD_S)
+
+    def _measure(self, t: float, final: bool) -> None:
+        """Fuse the new patches and measure (coverage thread); record the fraction, and the map when due."""
+        assert self.coverage is not None
+        self.coverage.update(t)
+        if self.recording is None:
+            return
+        try:
+            self.recording.explored(t, self.coverage.fraction, self.coverage.by_producer_now())
+            version = len(self.coverage.seen)
+            if final or self.recording.map_due(t, version):
+                started = time.thread_time()
+                vertices, triangles = self.coverage.mesh()
+                self.recording.map(t, vertices, triangles, version, time.thread_time() - started, exact=final)
+        except Exception as exc:  # noqa: BLE001 - the recording must never stop the coverage measurement
+            print(f"observer: recording the map failed: {type(exc).__name__}: {exc}", file=sys.stderr, flush=True)
 
     def _final_map(self) -> None:
         assert self.coverage is not None
-        self.coverage.update(time.time() - self.started)
+        self._measure(time.time() - self.started, True)
         if self.map_path is not None:
             self.coverage.write_mesh(self.map_path)
 
@@ -176,10 +211,22 @@ class Observer:
         entry["heartbeats"] += 1
         if state.phase != NO_POSITION_PHASE:
             self.trajectories.add(state.id, time.time() - self.started, state.position)
+        if self.recording is not None:
+            self.recording.state(time.time() - self.started, state, has_position=state.phase != NO_POSITION_PHASE)
+
+    def _on_frontiers(self, key: str, report: FrontierReport) -> None:
+        assert self.recording is not None
+        self.recording.frontiers(time.time() - self.started, report)
+
+    def _on_targets(self, key: str, assignment: TargetAssignment) -> None:
+        assert self.recording is not None
+        self.recording.targets(time.time() - self.started, assignment)
 
     def _follow_leaders(self) -> None:
         now = time.time()
-        self.leaders.update(now - self.started, clusters_of(self.agents, now))
+        clusters = clusters_of(self.agents, now)
+        if self.leaders.update(now - self.started, clusters) and self.recording is not None:
+            self.recording.clusters(now - self.started, clusters)
 
     def _on_join(self, key: str) -> None:
         self._presence(key, alive=True)
@@ -194,6 +241,8 @@ class Observer:
         self.agents.setdefault(agent_id, {"heartbeats": 0})["alive"] = alive
         event = "joined" if alive else "left"
         self.timeline.append({"t": round(time.time() - self.started, 3), "event": event, "agent": agent_id})
+        if self.recording is not None:
+            self.recording.event(time.time() - self.started, f"agent {agent_id} {event}", "INFO" if alive else "WARN")
 
     def _write(self, bus: AsyncBus, done: bool) -> None:
         snapshot = ObserverStatus.model_validate(
@@ -218,5 +267,14 @@ def observe_command(
     patches_dir: Path | None = None,
     map_path: Path | None = None,
     since: float | None = None,
+    record: Path | None = None,
+    recording_id: str | None = None,
 ) -> int:
-    return asyncio.run(Observer(config, status_path, patches_dir, map_path, since).run())
+    """Observe until SIGINT/SIGTERM; with `record`, write the Rerun recording there (`recording_id`: the run's,
+    so other processes' recordings of the same run merge with it; default a fresh one)."""
+    recording = None
+    if record is not None:
+        from swarm.mission.recording import MissionRecording
+
+        recording = MissionRecording(record, recording_id or f"{record.parent.name}-{round(time.time() * 1000)}")
+    return asyncio.run(Observer(config, status_path, patches_dir, map_path, since, recording).run())

@@ -14,6 +14,7 @@ if TYPE_CHECKING:
     from swarm.mission.files import LeaderEntry, MissionReport
 
 REPORT_PAGE = "report.md"
+RECORDING = "run.rrd"  # swarm.mission.recording.RECORDING_NAME (not imported: that module imports rerun)
 LEADER_ENTRIES_SHOWN = 20
 
 FIGURE_CAPTIONS = {
@@ -85,7 +86,19 @@ def leader_lines(leaders: Sequence[LeaderEntry], limit: int = LEADER_ENTRIES_SHO
     return lines
 
 
-def render_report_page(report: MissionReport) -> str:
+def recording_lines(run_dir: str) -> list[str]:
+    """How to open the run's recording."""
+    return [
+        "## Recording",
+        "",
+        f"[`{RECORDING}`]({RECORDING}): the whole mission in 3D on a timeline (map, drones, targets, frontiers, "
+        "leaders, faults). Open it with `swarm view " + run_dir + "` (or `swarm view --web " + run_dir + "` "
+        "without a display); `swarm export " + run_dir + " --mcap BAG` writes it as a ROS 2 bag.",
+        "",
+    ]
+
+
+def render_report_page(report: MissionReport, recording: bool = False) -> str:
     strategy = report.mission.strategy or "unspecified"
     lines = [
         f"# Exploration report: {report.world}, {report.drones} drones, strategy {strategy}",
@@ -116,6 +129,7 @@ def render_report_page(report: MissionReport) -> str:
         "",
         *leader_lines(report.leaders),
         "",
+        *(recording_lines(report.run_dir) if recording else []),
     ]
     for name in report.plots:
         lines += [f"## {FIGURE_CAPTIONS.get(name, name)}", "", f"![]({name})", ""]
@@ -125,5 +139,5 @@ def render_report_page(report: MissionReport) -> str:
 def write_report_page(run_dir: Path, report: MissionReport) -> Path:
     """Write report.md into run_dir and return its path."""
     path = run_dir / REPORT_PAGE
-    path.write_text(render_report_page(report))
+    path.write_text(render_report_page(report, recording=(run_dir / RECORDING).exists()))
     return path

@@ -49,11 +49,19 @@ from swarm.config import (
 from swarm.deploy.certs import make_certs
 from swarm.errors import SwarmError
 from swarm.mission.faults import FaultInjector
+from swarm.mission.files import MissionReport
 from swarm.mission.links import LinkController
 from swarm.mission.ports import ensure_free
 from swarm.mission.processes import Child, start_child, stop_all, swarm_command
 from swarm.mission.progress import ProgressView
-from swarm.mission.report import build_report, read_observer_status, read_sim_status, run_priority, write_report
+from swarm.mission.report import (
+    build_report,
+    read_observer_status,
+    read_sim_status,
+    read_summaries,
+    run_priority,
+    write_report,
+)
 from swarm.mission.routes import ScriptedRoute, scripted_routes
 from swarm.netem.commands import NetemUnavailable, check_prerequisites
 from swarm.netem.network import SwarmNetwork
@@ -251,7 +259,19 @@ def run_mission(
         shutil.rmtree(_agents_tmp(plan), ignore_errors=True)
     report = build_report(plan, state, read_sim_status(out), read_observer_status(out))
     write_report(out, report)
+    if plan.config.mission.rrd:
+        _record_report(plan, state, report)
     return json.loads(report.to_json())  # the report as report.json holds it
+
+
+def _record_report(plan: RunPlan, state: RunState, report: MissionReport) -> None:
+    """Add the harness's part to OUT/run.rrd; a recording that cannot be written never costs the run its report."""
+    from swarm.mission.recording import RECORDING_NAME, add_report, run_recording_id  # rerun: 0.5 s to import
+
+    try:
+        add_report(plan.out, run_recording_id(plan.out, state.started_wall), report, read_summaries(plan.out, report))
+    except Exception as exc:  # noqa: BLE001 - as the figures: the report stands without it
+        print(f"swarm run: warning: {RECORDING_NAME} not completed: {type(exc).__name__}: {exc}", file=sys.stderr)
 
 
 def was_interrupted(report: dict[str, Any]) -> bool:
@@ -380,6 +400,7 @@ def _start_swarm(plan: RunPlan, state: RunState) -> None:
             str(plan.out / "map.ply"),
             "--since",
             f"{state.started_wall:.3f}",
+            *_recording_flags(plan, state),
         ),
         plan.out / "logs" / "observer.log",
     )
@@ -421,6 +442,15 @@ def _start_swarm(plan: RunPlan, state: RunState) -> None:
         state.agents[k] = start_child(
             f"agent-{k}", argv, plan.out / "logs" / f"agent-{k}.log", _agent_env(plan), nice=config.mission.agent_nice
         )
+
+
+def _recording_flags(plan: RunPlan, state: RunState) -> list[str]:
+    if not plan.config.mission.rrd:
+        return []
+    from swarm.mission.recording import RECORDING_NAME, run_recording_id
+
+    recording_id = run_recording_id(plan.out, state.started_wall)
+    return ["--record", str(plan.out / RECORDING_NAME), "--recording-id", recording_id]
 
 
 def _warn_unless_prioritised(plan: RunPlan, state: RunState) -> None:

@@ -13,7 +13,9 @@ from typing import Any
 import pytest
 
 from swarm.config import load_config
-from swarm.mission.report import read_sim_status
+from swarm.mission.export import export_mcap
+from swarm.mission.recording import RECORDING_NAME, entity_rows, entity_spans, recording_ids
+from swarm.mission.report import read_observer_status, read_sim_status
 from swarm.mission.run import run_mission
 from tests.helpers import SwarmPorts, log_events, processes_mentioning
 
@@ -62,6 +64,46 @@ def test_killing_the_leader_hands_over_within_3_s_and_the_others_finish(
     leaders_after = {entry["leader"] for entry in report["leaders"] if entry["t"] > 0 and 1 not in entry["members"]}
     assert 2 in leaders_after, report["leaders"]
     assert not processes_mentioning(str(out)), "swarm run left processes behind"
+    _check_recording(out, report, kill["t"], tmp_path / "bag")
+
+
+def _check_recording(out: Path, report: dict[str, Any], kill_t: float, bag: Path) -> None:
+    """The run's recording, read back through Rerun's reader, shows this mission: the map, each drone's pose
+    while it flew, the leader each followed (2 just after the kill), the clusters, frontiers, targets, the explored
+    fraction to the end and the fault; and it exports to an MCAP bag with one odometry message per pose."""
+    path = out / RECORDING_NAME
+    [recording_id] = recording_ids(path)
+    assert recording_id.startswith(out.name)
+    spans = entity_spans([path])
+    end = report["duration_s"]
+    assert "/world" in spans
+    tiles = [span for entity, span in spans.items() if entity.startswith("/map/")]
+    assert len(tiles) >= 2 and sum(span.rows for span in tiles) > len(tiles), tiles  # refreshed at least once
+    assert max(span.last_s for span in tiles) >= end - 10.0, tiles
+    explored = spans["/series/explored/swarm"]
+    assert explored.first_s < 15.0 and explored.last_s >= end - 5.0, explored
+    [(_, [final])] = entity_rows([path], "/series/explored/swarm", "Scalars:scalars")[-1:]
+    assert final == pytest.approx(report["explored_fraction"], abs=1e-3)
+    observer = read_observer_status(out)
+    assert observer is not None
+    for k in (1, 2, 3):
+        flown = observer.trajectories[str(k)]
+        pose = spans[f"/drones/{k}/pose"]
+        assert pose.first_s <= flown[0][0] + 1.0 and pose.last_s >= flown[-1][0] - 1.0, (k, pose, flown[-1])
+        assert f"/series/leader/{k}" in spans and f"/series/patches_held/{k}" in spans
+    assert spans["/drones/1/pose"].last_s < kill_t + 2.0  # a killed drone sends no heartbeat
+    for k in (2, 3):  # in the 2 s after the hand-over (later, a drone that lands leaves the other on its own)
+        rows = entity_rows([path], f"/series/leader/{k}", "Scalars:scalars")
+        followed = [v for t, [v] in rows if kill_t + 3.0 < t < kill_t + 5.0]
+        assert followed and set(followed) == {2.0}, (k, sorted(set(followed)))
+    assert spans["/swarm/clusters"].rows >= 2
+    assert any(e.startswith("/frontiers/") for e in spans) and any(e.endswith("/target") for e in spans), spans
+    events = [text for _, [text] in entity_rows([path], "/events", "TextLog:text")]
+    assert any(e.startswith("fault kill:agent=1@6: start: killed") for e in events), events
+    counts = export_mcap(out, bag)
+    for k in (1, 2, 3):
+        assert counts[f"/drone{k}/odom"] == spans[f"/drones/{k}/pose"].rows
+    assert counts["/map"] == 1
 
 
 @pytest.mark.parametrize("strategy", ["uncoordinated", "frontier-only"])
