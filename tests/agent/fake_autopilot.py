@@ -28,6 +28,7 @@ class FakeAutopilot:
         self.climbs = climbs
         self.silent = False
         self.commands: list[str] = []
+        self.taken_over_mode: str | None = None
         self.visited: list[Vec3] = []  # every setpoint, in order
         self.on_command: dict[str, Callable[[], None]] = {}
         self.on_status_text: Callable[[str, str], None] | None = None
@@ -42,6 +43,18 @@ class FakeAutopilot:
             "RTL_RETURN_ALT": 60.0,
             "COM_OF_LOSS_T": 1.0,
         }
+
+    def taken_over_by(self) -> str | None:
+        """The mode someone else switched to (`take_over`), once; None while the agent has the vehicle."""
+        mode, self.taken_over_mode = self.taken_over_mode, None
+        return mode
+
+    def take_over(self, mode: str) -> None:
+        """As a pilot's mode switch: the vehicle now flies `mode` (LAND comes down, disarmed, at once)."""
+        self.taken_over_mode = mode
+        self.telemetry.flight_mode = mode
+        if mode == "LAND":
+            self.telemetry.landed_state, self.telemetry.armed = "ON_GROUND", False
 
     def _command(self, name: str) -> None:
         self.commands.append(name)

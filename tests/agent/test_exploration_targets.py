@@ -196,6 +196,9 @@ async def test_waiting_for_a_target_ends_as_soon_as_one_comes() -> None:
         async def set_setpoint(self, position: Any, yaw: float) -> None:
             pass
 
+        def taken_over_by(self) -> None:
+            return None
+
     flight = Flight.__new__(Flight)  # only what `face` reads
     flight.ap = AP()  # type: ignore[assignment]
     flight._carrot = None

@@ -177,6 +177,15 @@ def _scenario_resumed_in_the_air() -> Any:
     return _fly(FakeAutopilot(in_air=True))
 
 
+def _scenario_taken_over_while_hovering() -> Any:
+    ap = FakeAutopilot()
+
+    async def mission(flight: Flight, stop: asyncio.Event) -> None:
+        asyncio.get_running_loop().call_later(0.2, ap.take_over, "LAND")
+
+    return _fly(ap, mission=mission, hover_s=2.0)
+
+
 UP_AND_DOWN = [P.CONNECTING, P.READY, P.TAKEOFF, P.FLYING, P.LANDING, P.LANDED]
 SCENARIOS: dict[str, tuple[Callable[[], Any], list[Phase]]] = {
     "normal": (_scenario_normal, [P.CONNECTING, P.READY, P.TAKEOFF, P.FLYING, P.HOVERING, P.LANDING, P.LANDED]),
@@ -200,6 +209,10 @@ SCENARIOS: dict[str, tuple[Callable[[], Any], list[Phase]]] = {
     ),
     "land refused": (_scenario_land_refused, [P.CONNECTING, P.READY, P.TAKEOFF, P.FLYING, P.LANDING, P.FAILED]),
     "resumed in the air": (_scenario_resumed_in_the_air, UP_AND_DOWN),
+    "taken over while hovering": (
+        _scenario_taken_over_while_hovering,
+        [P.CONNECTING, P.READY, P.TAKEOFF, P.FLYING, P.HOVERING, P.FAILSAFE],
+    ),
 }
 
 

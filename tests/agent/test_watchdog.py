@@ -58,7 +58,9 @@ async def test_a_blocked_loop_is_deaf_even_before_the_monitor_wakes_to_record_it
 def _airborne_flight(last_sample: float) -> Flight:
     """Only what `_check` reads: an airborne drone whose last position sample came at `last_sample`."""
     telemetry = SimpleNamespace(updated=last_sample)
-    ap = SimpleNamespace(telemetry=telemetry, telemetry_age_s=time.monotonic() - last_sample)
+    ap = SimpleNamespace(
+        telemetry=telemetry, telemetry_age_s=time.monotonic() - last_sample, taken_over_by=lambda: None
+    )
     flight = Flight(ap, load_config().agent, lambda *a, **k: None)  # type: ignore[arg-type]
     flight.airborne = True
     return flight
