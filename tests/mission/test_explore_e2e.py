@@ -31,7 +31,14 @@ def test_killing_the_leader_hands_over_within_3_s_and_the_others_finish(
 ) -> None:
     out = tmp_path / "run"
     config = _config(
-        out, swarm_ports, **{"mission.drones": 3, "mission.max_time_s": 240.0, "mission.faults": ["kill:agent=1@6"]}
+        out,
+        swarm_ports,
+        **{
+            "mission.drones": 3,
+            "mission.max_time_s": 240.0,
+            "mission.faults": ["kill:agent=1@6"],
+            "mission.rrd": True,  # the default of swarm run, which the other mission tests turn off
+        },
     )
     report = run_mission(config, live=False)
     assert report["status"] == "complete", report["reason"]
