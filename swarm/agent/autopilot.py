@@ -40,6 +40,7 @@ from swarm.errors import SwarmError
 from swarm.geo import enu_to_ned, geo_to_world, ned_to_enu, yaw_enu_to_ned_deg, yaw_ned_to_enu_deg
 
 _logs_silenced = False
+CALL_SLICE_S = 0.25  # a MAVSDK call's timeout is counted in slices of this (`Autopilot._call`)
 OFFBOARD_MODE_SETTLE_S = 2.0  # after entering offboard, the reported mode may lag this long
 
 
@@ -288,12 +289,23 @@ class Autopilot:
     # -- plumbing ----------------------------------------------------------------------------------------
 
     async def _call(self, what: str, fn: Callable[[], Awaitable[Any]], timeout_s: float | None = None) -> Any:
+        """Await one MAVSDK call; FlightError when it has not answered within `timeout_s` of time this process
+        ran. The wait is cut in slices and a slice that overran by far (the process stopped or starved) counts
+        only twice its length: a process frozen during a call would otherwise find it timed out on waking,
+        while the autopilot, frozen with it or not, was never given the time to answer."""
+        budget = timeout_s or self.command_timeout_s
         task = asyncio.ensure_future(fn())
-        done, _ = await asyncio.wait({task}, timeout=timeout_s or self.command_timeout_s)
-        if not done:
-            self._stragglers.add(task)
-            task.add_done_callback(self._stragglers.discard)
-            raise FlightError(f"{what}: no answer from the autopilot within {timeout_s or self.command_timeout_s:g} s")
+        waited = 0.0
+        while True:
+            started = time.monotonic()
+            done, _ = await asyncio.wait({task}, timeout=min(CALL_SLICE_S, budget - waited))
+            if done:
+                break
+            waited += min(time.monotonic() - started, 2 * CALL_SLICE_S)
+            if waited >= budget:
+                self._stragglers.add(task)
+                task.add_done_callback(self._stragglers.discard)
+                raise FlightError(f"{what}: no answer from the autopilot within {budget:g} s")
         try:
             return task.result()
         except (ActionError, OffboardError, ParamError) as exc:

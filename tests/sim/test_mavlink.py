@@ -272,6 +272,8 @@ def test_status_file_and_endpoints(port_base: int, box_world: World, tmp_path) -
             "landed_state",
             "distance_m",
             "battery",
+            "global_position",
+            "local_origin",
             "collisions",
             "closest_world_m",
             "closest_world_at",
