@@ -89,6 +89,7 @@ def project(tmp_path: Path, image: str) -> Iterator[Path]:
         cwd=REPO,
     )
     assert done.returncode == 0, done.stderr
+    tables_before = _nft_tables()
     try:
         yield out
     finally:  # whatever happened: down, then remove by label anything down left
@@ -100,6 +101,15 @@ def project(tmp_path: Path, image: str) -> Iterator[Path]:
             _podman("network", "rm", "-f", *left["networks"], check=False)
         if left["volumes"]:
             _podman("volume", "rm", "-f", *left["volumes"], check=False)
+        # Podman's CNI backend puts its base chains (CNI-FORWARD, CNI-ADMIN) in iptables-nft tables it creates
+        # (ip filter, ip nat) and never removes them; tables that were not there before the swarm came up go
+        for family, name in sorted(_nft_tables() - tables_before):
+            subprocess.run(["nft", "delete", "table", family, name], capture_output=True)
+
+
+def _nft_tables() -> set[tuple[str, str]]:
+    listed = subprocess.run(["nft", "list", "tables"], capture_output=True, text=True).stdout
+    return {(words[1], words[2]) for words in (line.split() for line in listed.splitlines()) if len(words) == 3}
 
 
 def test_three_drones_with_loss_and_tls_run_to_the_end_and_leave_nothing(project: Path) -> None:
