@@ -101,7 +101,10 @@ def test_set_writes_hold_values_a_frozen_or_killed_agents_drone_holds(tmp_path: 
         assert params(server) == {**PX4_DEFAULTS, "COM_OBL_RC_ACT": 5, "NAV_RCL_ACT": 1}  # simulator truth
         [written] = [e for e in log_events(log) if e["event"] == "px4_params_set"]
         assert written["read_back"] == written["written"] == {"COM_OBL_RC_ACT": 5, "NAV_RCL_ACT": 1}
-        # frozen, the agent sends no setpoints: the vehicle holds and says so; woken, the agent logs it
+        # frozen, the agent sends no setpoints: the vehicle holds and says so; woken, the agent logs it. The agent
+        # logs FLYING before its first setpoint, while the vehicle still holds after the take-off: freezing it then
+        # would find HOLD at once, with no offboard to lose
+        wait_until(lambda: server.status()["vehicles"][0]["mode"] == "OFFBOARD", 10, "offboard")
         agent.send_signal(signal.SIGSTOP)
         try:
             wait_until(lambda: server.status()["vehicles"][0]["mode"] == "HOLD", 5, "offboard loss while frozen")

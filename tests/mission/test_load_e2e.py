@@ -17,14 +17,14 @@ import pytest
 
 from swarm.bus.phase import Phase
 from swarm.config import load_config
-from swarm.mission.report import read_sim_status
 from swarm.mission.run import RunState, run_mission
 from tests.helpers import SwarmPorts, kill_all, log_events, processes_mentioning
 
 pytestmark = [pytest.mark.timeout(300), pytest.mark.mission]
 
 LOAD_S = 3.0
-LOAD_AFTER_TAKEOFF_S = 6.0  # every drone has been in the air this long when the load starts
+LOAD_AFTER_FLYING_S = 1.0  # every agent has been in its FLYING phase this long when the load starts
+# (the box is explored within about 10 s of that, so a later load would race the end of the mission)
 BUSY_LOOP = (
     "import sys, time\n"
     "end = time.monotonic() + float(sys.argv[1])\n"
@@ -43,12 +43,14 @@ def _cpu_jiffies() -> tuple[int, int]:
 
 @dataclass
 class Load:
-    """Busy loops started once every drone has flown LOAD_AFTER_TAKEOFF_S, two per core, each for LOAD_S."""
+    """Busy loops started once every agent has logged its FLYING phase LOAD_AFTER_FLYING_S ago, two per core,
+    each for LOAD_S."""
 
-    sim_status: Path
+    logs: Path
+    drones: int
     per_core: int = 2
     procs: list[subprocess.Popen[str]] = field(default_factory=list)
-    all_airborne_at: float | None = None
+    all_flying_at: float | None = None
     started_wall: float | None = None
     ended_wall: float | None = None
     jiffies: list[tuple[int, int]] = field(default_factory=list)
@@ -56,12 +58,10 @@ class Load:
 
     def __call__(self, state: RunState) -> None:
         now = time.monotonic()
-        if self.all_airborne_at is None:
-            sim = read_sim_status(self.sim_status.parent)
-            vehicles = sim.vehicles if sim is not None else []
-            if vehicles and all(v.landed_state == "in_air" for v in vehicles):
-                self.all_airborne_at = now
-        elif not self.procs and now - self.all_airborne_at >= LOAD_AFTER_TAKEOFF_S:
+        if self.all_flying_at is None:
+            if all(self._flying(i) for i in range(1, self.drones + 1)):
+                self.all_flying_at = now
+        elif not self.procs and now - self.all_flying_at >= LOAD_AFTER_FLYING_S:
             self.jiffies.append(_cpu_jiffies())
             self.started_wall = time.time()
             self.procs = [
@@ -72,6 +72,10 @@ class Load:
             self.ended_wall = time.time()
             self.jiffies.append(_cpu_jiffies())
             self.cpu_s = [float(p.stdout.read()) for p in self.procs if p.stdout is not None]
+
+    def _flying(self, agent_id: int) -> bool:
+        log = self.logs / f"agent-{agent_id}.log"
+        return log.exists() and any(e.get("phase") == Phase.FLYING for e in log_events(log))
 
     @property
     def busy_fraction(self) -> float:
@@ -92,7 +96,7 @@ def mission_under_load(
             **overrides,
         }
     )
-    load = Load(out / "sim.json", per_core)
+    load = Load(out / "logs", config.mission.drones, per_core)
     try:
         report = run_mission(config, live=False, on_tick=load)
     finally:
