@@ -346,9 +346,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     compose.add_argument(
         "--tls",
-        action="store_true",
-        help="mutual TLS with access control on every Zenoh session; certificates in OUT/certs, each container "
-        "mounts only its own key",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="mutual TLS with access control on every Zenoh session (the default; --no-tls for plain TCP): "
+        "certificates in OUT/certs, each container mounts only its own key",
     )
     _add_config_flags(compose)
     image = deploy_sub.add_parser("image", help="build the swarm image from Debian packages and PyPI (no registry)")

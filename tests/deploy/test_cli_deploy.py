@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 
+from swarm.config import load_config
 from tests.deploy.parser import compose_config
 
 pytestmark = pytest.mark.sim
@@ -41,6 +42,20 @@ def test_compose_writes_a_valid_deployment(tmp_path: Path) -> None:
         "sim.toml",
     ]
     assert compose_config(out / "docker-compose.yml", "-q").returncode == 0
+    # secure by default: mutual TLS on every bus endpoint, a certificate per drone and the observer
+    assert {p.name for p in (out / "certs").iterdir()} >= {"ca.pem", "drone-1.key", "drone-2.key", "observer.key"}
+    bus = load_config(out / "config" / "agent-1.toml").bus
+    assert bus.tls_name == "drone-1" and all(e.startswith("tls/") for e in bus.listen + bus.connect)
+
+
+def test_compose_no_tls_writes_plain_tcp_and_no_keys(tmp_path: Path) -> None:
+    done = swarm(tmp_path, "deploy", "compose", "--drones", "2", "--world", "box", "--out", "d", "--no-tls")
+    assert done.returncode == 0, done.stderr
+    out = tmp_path / "d"
+    assert not (out / "certs").exists()
+    bus = load_config(out / "config" / "agent-1.toml").bus
+    assert bus.tls_dir is None and bus.listen and all(e.startswith("tcp/") for e in bus.listen + bus.connect)
+    assert "--no-tls" in (out / "docker-compose.yml").read_text()  # the header says how it was made
 
 
 def test_compose_takes_config_flags(tmp_path: Path) -> None:
