@@ -26,8 +26,9 @@ Networks (fixed subnets, static addresses, both `internal`: nothing reaches outs
   radio addresses of lower ids only (one connection per pair, as `swarm run`), and the observer connects to
   every agent's control address in `peer` mode: a peer never relays, so the observer cannot bridge a broken
   radio link, while it still hears every agent whatever the radio does.
-- With TLS (the CLI's default; --no-tls turns it off) every endpoint is `tls/` and each session checks its peers' certificates against the CA, under
-  the access control of `swarm run --tls` (swarm/bus/session.py: drone-K speaks only as agent K).
+- With TLS (the CLI's default; --no-tls turns it off) every endpoint is `tls/` and each session checks its
+  peers' certificates against the CA, under the access control of `swarm run --tls` (swarm/bus/session.py:
+  drone-K speaks only as agent K).
 
 MAVLink: the simulator binds 0.0.0.0 in its container; agent k uses `udpout://<sim>:<vehicle_port(k)>` (the
 simulated vehicle answers whoever last sent it MAVLink), so no agent address needs to be known in advance.
