@@ -7,8 +7,11 @@ loaded machine lowers the frame rate instead of building a queue.
 
 Every sealed patch goes to the private store and to the agent's fused map, to `on_sealed` (the patch sync, which
 pushes it), and, when the agent has an output directory, to `<out_dir>/patches/<id>.patch` in the wire format
-(the mission observer's referee view of what was mapped), and with `agent.state_dir` there too: an agent
-started again reloads its own patches of earlier runs from it (`recover`). Patches received from peers are decoded,
+(the mission observer's referee view of what was mapped), and with `agent.state_dir` there too, durably (fsynced:
+`swarm.files.write_durable`): an agent started again reloads its own patches of earlier runs from it (`recover`).
+A patch that cannot be stored (a full disk, EIO, a read-only file system) is logged (`patch_store_failed`) and
+counted by errno (`patch_store_failures`), and is pushed and fused all the same: the disk is a backup of the
+map, never a condition of it. Patches received from peers are decoded,
 validated
 and fused in the same worker thread (`receive`). At the end the open patch is sealed too, so nothing seen is
 lost, and the agent writes its own fused mesh.
@@ -21,6 +24,7 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import errno
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -34,7 +38,7 @@ from swarm.agent.sensing import DepthFrame, StreamSource
 from swarm.aio import wait_event
 from swarm.config import SwarmConfig, Vec3
 from swarm.explore.frontiers import ExplorationGrid, Frontier, ViewModel
-from swarm.files import write_atomic
+from swarm.files import write_atomic, write_durable
 from swarm.patches.fused import OCCUPIED
 from swarm.patches.mapper import Mapper
 from swarm.patches.patch import Patch, PatchId
@@ -92,8 +96,12 @@ class MappingTask:
         if self.patches_dir is not None:
             self.patches_dir.mkdir(parents=True, exist_ok=True)
         self.state_dir = config.agent.state_dir
+        self.store_failures: dict[str, int] = {}  # errno name -> patch files not stored
         if self.state_dir is not None:
-            self.state_dir.mkdir(parents=True, exist_ok=True)
+            try:
+                self.state_dir.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:  # a read-only or full disk: map on, every store will fail and be counted
+                self.log("state_dir_failed", state_dir=str(self.state_dir), errno=errno_name(exc), error=str(exc))
         self.out_dir = out_dir
         self.frames = 0
         self.frames_skipped = 0
@@ -169,12 +177,22 @@ class MappingTask:
         self.log("patch_sealed", patch=str(patch.id), blocks=patch.block_count, frames=patch.span.frames)
         data = self.mapper.data(patch.id)
         assert data is not None  # a sealed patch is in the private store
-        if self.patches_dir is not None:
-            write_atomic(self.patches_dir / f"{patch.id}.patch", data)
-        if self.state_dir is not None:
-            write_atomic(self.state_dir / f"{patch.id}.patch", data)
+        if self.patches_dir is not None:  # the harness's view, read while the run lasts: atomic is enough
+            self._store(patch.id, self.patches_dir, data, durable=False)
+        if self.state_dir is not None:  # read back after a restart, maybe after a power cut
+            self._store(patch.id, self.state_dir, data, durable=True)
         if self.on_sealed is not None:
             self.on_sealed(patch.id, data)
+
+    def _store(self, pid: PatchId, directory: Path, data: bytes, durable: bool) -> None:
+        """Write a sealed patch's file; a failure is logged and counted, never raised (the patch is fused and
+        will be pushed whatever the disk does)."""
+        try:
+            (write_durable if durable else write_atomic)(directory / f"{pid}.patch", data)
+        except OSError as exc:
+            name = errno_name(exc)
+            self.store_failures[name] = self.store_failures.get(name, 0) + 1
+            self.log("patch_store_failed", patch=str(pid), errno=name, dir=str(directory), error=str(exc))
 
     async def recover(self) -> tuple[list[tuple[PatchId, bytes]], int]:
         """This drone's patches from earlier runs in `agent.state_dir`, fused into the map: (recovered, rejected)."""
@@ -284,6 +302,7 @@ class MappingTask:
             }
             if self.stream_counters is not None
             else None,
+            "patch_store_failures": dict(self.store_failures),
             "known_voxels": int(self.mapper.fused.voxel_count),
             "patches_received": self.patches_received,
             "fused_digest": self.mapper.fused.digest(),
@@ -293,6 +312,11 @@ class MappingTask:
                 "bytes": self.baseline_bytes,
             },
         }
+
+
+def errno_name(exc: OSError) -> str:
+    """The name of the error's errno (ENOSPC, EIO, EROFS, ...); "unknown" for an OSError without one."""
+    return errno.errorcode.get(exc.errno, "unknown") if exc.errno is not None else "unknown"
 
 
 def interpolated_bytes(previous: int, size: int, loops: int) -> int:
