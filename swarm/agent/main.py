@@ -153,11 +153,18 @@ class Agent:
             self.exploration.start()
             mission, homeward = self.exploration.fly, self.exploration.fly_home
         if mapping is not None:
-            recovered, rejected = await mapping.recover()
-            for pid, data in recovered:
+            found = await mapping.recover()
+            for pid, data in found.patches:
                 self.sync.add_recovered(pid, data)
-            if recovered or rejected:
-                self.log("recovered", patches=len(recovered), rejected=rejected, state_dir=str(mapping.state_dir))
+            if found.patches or found.rejected or found.stale_temp:
+                self.log(
+                    "recovered",
+                    patches=len(found.patches),
+                    rejected=sum(found.rejected.values()),
+                    reasons=found.rejected,
+                    stale_temp_removed=found.stale_temp,
+                    state_dir=str(mapping.state_dir),
+                )
         bus.declare_token(keys.alive(self.id))
         bus.subscribe(keys.all_states, AgentState, self._on_state)
         bus.watch_liveliness(keys.all_alive, self._on_token_join, self._on_token_leave)

@@ -23,8 +23,10 @@ map would cost (`FusedMap.wire_size`): the whole-map baseline patch sharing is c
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import dataclasses
 import errno
+import os
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -38,7 +40,7 @@ from swarm.agent.sensing import DepthFrame, StreamSource
 from swarm.aio import wait_event
 from swarm.config import SwarmConfig, Vec3
 from swarm.explore.frontiers import ExplorationGrid, Frontier, ViewModel
-from swarm.files import write_atomic, write_durable
+from swarm.files import TEMP_SUFFIX, write_atomic, write_durable
 from swarm.patches.fused import OCCUPIED
 from swarm.patches.mapper import Mapper
 from swarm.patches.patch import Patch, PatchId
@@ -52,27 +54,69 @@ CAMERA_SILENT_S = 3.0  # in the air this long without a frame from the stream: l
 BASELINE_SAMPLE_LOOPS = 5  # the whole-map baseline is measured every this many exploration loops
 
 
-def recover_patches(state_dir: Path, mapper: Mapper, max_bytes: int) -> tuple[list[tuple[PatchId, bytes]], int]:
-    """Fuse the patches of `mapper`'s producer from earlier epochs kept in `state_dir`; returns them and how many
-    files were rejected (a name that is no patch id, unreadable, or bytes that do not decode as that patch)."""
-    recovered: list[tuple[PatchId, bytes]] = []
-    rejected = 0
-    for path in sorted(state_dir.glob("*.patch")):
+@dataclasses.dataclass
+class Recovery:
+    """What `recover_patches` found in the state directory."""
+
+    patches: list[tuple[PatchId, bytes]] = dataclasses.field(default_factory=list)  # own, earlier epochs, fused
+    rejected: dict[str, int] = dataclasses.field(default_factory=dict)  # files that are no usable patch, by reason
+    stale_temp: int = 0  # temp files of writes a crash interrupted, removed
+
+
+def recover_patches(state_dir: Path, mapper: Mapper, max_bytes: int) -> Recovery:
+    """Fuse the patches of `mapper`'s producer from earlier epochs kept in `state_dir`. A file is rejected, by
+    reason, when its name is no patch id ("name"), it is empty ("empty_file": what a power cut can leave of a file
+    written without fsync), larger than `max_bytes` ("too_large", not read), unreadable ("unreadable"), or its
+    bytes are not that patch (the decoder's reason: a file cut short fails its msgpack or its checksum).
+
+    Never raises for what is in the directory. Hidden temp files of other processes (a write that a crash
+    interrupted) are removed: a patch file only ever appears whole, by rename, so they hold nothing stored."""
+    found = Recovery()
+
+    def reject(reason: str) -> None:
+        found.rejected[reason] = found.rejected.get(reason, 0) + 1
+
+    own_temp = f".{os.getpid()}{TEMP_SUFFIX}"
+    for path in _listing(state_dir, f".*{TEMP_SUFFIX}"):
+        if not path.name.endswith(own_temp):
+            with contextlib.suppress(OSError):
+                path.unlink()
+                found.stale_temp += 1
+    for path in _listing(state_dir, "*.patch"):
         try:
             pid = PatchId.parse(path.stem)
         except ValueError:
-            rejected += 1
+            reject("name")
             continue
         if pid.producer != mapper.producer or pid.epoch == mapper.epoch or mapper.holds(pid):
             continue
         try:
+            if path.stat().st_size > max_bytes:
+                reject("too_large")
+                continue
             data = path.read_bytes()
-            mapper.receive_wire(data, pid, max_bytes)
-        except (OSError, PatchDecodeError):
-            rejected += 1
+        except OSError:
+            reject("unreadable")
             continue
-        recovered.append((pid, data))
-    return recovered, rejected
+        if not data:
+            reject("empty_file")
+            continue
+        try:
+            mapper.receive_wire(data, pid, max_bytes)
+        except PatchDecodeError as exc:
+            reject(exc.reason)
+            continue
+        found.patches.append((pid, data))
+    return found
+
+
+def _listing(directory: Path, pattern: str) -> list[Path]:
+    """The directory's entries matching `pattern`, sorted; none when it cannot be listed (it is logged when the
+    first patch fails to be stored there)."""
+    try:
+        return sorted(directory.glob(pattern))
+    except OSError:
+        return []
 
 
 class MappingTask:
@@ -194,10 +238,10 @@ class MappingTask:
             self.store_failures[name] = self.store_failures.get(name, 0) + 1
             self.log("patch_store_failed", patch=str(pid), errno=name, dir=str(directory), error=str(exc))
 
-    async def recover(self) -> tuple[list[tuple[PatchId, bytes]], int]:
-        """This drone's patches from earlier runs in `agent.state_dir`, fused into the map: (recovered, rejected)."""
-        if self.state_dir is None:
-            return [], 0
+    async def recover(self) -> Recovery:
+        """This drone's patches from earlier runs in `agent.state_dir`, fused into the map (`recover_patches`)."""
+        if self.state_dir is None or not self.state_dir.is_dir():
+            return Recovery()
         return await asyncio.get_running_loop().run_in_executor(
             self._worker, recover_patches, self.state_dir, self.mapper, self.config.mapping.max_patch_bytes
         )
