@@ -86,9 +86,9 @@ def fsync_directory(directory: Path) -> None:
         os.close(fd)
 
 
-def write_model(path: Path, model: FileModel, indent: int | None = 2) -> None:
-    """Write `model` as JSON to `path` atomically."""
-    write_atomic(Path(path), model.model_dump_json(indent=indent).encode())
+def write_model(path: Path, model: FileModel, indent: int | None = 2, durable: bool = False) -> None:
+    """Write `model` as JSON to `path` atomically (and durably if asked: `write_durable`)."""
+    _write_replace(Path(path), model.model_dump_json(indent=indent).encode(), durable)
 
 
 def read_model(path: Path, model: type[M]) -> M:

@@ -28,6 +28,7 @@ import numpy as np
 import zenoh
 
 from swarm.agent.autopilot import Autopilot, local_frame
+from swarm.agent.epoch import next_epoch
 from swarm.agent.events import EventLog
 from swarm.agent.exploration import Exploration
 from swarm.agent.flight import Flight, Mission, Neighbour, parked, retrace, route_mission
@@ -80,8 +81,9 @@ class Agent:
     def __init__(self, config: SwarmConfig) -> None:
         self.config = config
         self.id = config.agent.id
-        self.epoch = time.time_ns() // 1_000_000  # changes every time the process starts
         self.log = EventLog(self.id)
+        # never one an earlier process of this drone used, and larger (swarm.agent.epoch)
+        self.epoch = next_epoch(config.agent.state_dir, self.id, time.time_ns() // 1_000_000, self.log)
         self.lattice = Lattice.from_settings(config.mapping)
         self.peers = PeerTable(self.id, timeout_s=config.agent.peer_timeout_s, on_change=self._on_membership)
         self.route_refreshes = 0  # times the bus's subscriptions were declared again for a peer we were deaf to
