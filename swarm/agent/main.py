@@ -45,6 +45,7 @@ from swarm.errors import BusError
 from swarm.files import write_model
 from swarm.patches.lattice import Lattice
 from swarm.patches.patch import PatchId
+from swarm.patches.sealer import patch_block_limit
 from swarm.patches.wire import decode_expected
 from swarm.roles.membership import PeerTable
 from swarm.sensing.frames import camera_mount
@@ -262,8 +263,18 @@ class Agent:
         background.append(asyncio.create_task(mapping.measure_baseline(stop)))
 
     async def _validate_only(self, data: bytes, pid: PatchId) -> None:
-        """The sync's sink without a map (camera "none"): validate, hold and relay, fuse nothing."""
-        await asyncio.to_thread(decode_expected, data, pid, self.lattice, self.config.mapping.max_patch_bytes)
+        """The sync's sink without a map (camera "none"): validate, hold and relay, fuse nothing; the same checks
+        as the mapper's (the mission volume when the config has one)."""
+        volume = self.config.mission.volume
+        await asyncio.to_thread(
+            decode_expected,
+            data,
+            pid,
+            self.lattice,
+            self.config.mapping.max_patch_bytes,
+            patch_block_limit(self.config.mapping, self.config.camera),
+            (volume.min, volume.max) if volume is not None else None,
+        )
 
     async def _linger(self) -> None:
         """After landing, stay until every present peer has finished (flight over, last patch sealed) and holds

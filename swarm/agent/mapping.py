@@ -44,6 +44,7 @@ from swarm.files import TEMP_SUFFIX, write_atomic, write_durable
 from swarm.patches.fused import OCCUPIED
 from swarm.patches.mapper import Mapper
 from swarm.patches.patch import Patch, PatchId
+from swarm.patches.sealer import patch_block_limit
 from swarm.patches.wire import PatchDecodeError
 from swarm.sensing.peers import PeerSighting, mask_peers
 
@@ -135,7 +136,14 @@ class MappingTask:
         self.bounds = bounds
         self.source = source
         self.log = log
-        self.mapper = Mapper(config.mapping, config.agent.id, epoch, bounds, known_weight=config.mapping.known_weight)
+        self.mapper = Mapper(
+            config.mapping,
+            config.agent.id,
+            epoch,
+            bounds,
+            known_weight=config.mapping.known_weight,
+            max_blocks=patch_block_limit(config.mapping, config.camera),
+        )
         self.patches_dir = out_dir / "patches" if out_dir is not None else None
         if self.patches_dir is not None:
             self.patches_dir.mkdir(parents=True, exist_ok=True)
@@ -347,6 +355,7 @@ class MappingTask:
             if self.stream_counters is not None
             else None,
             "patch_store_failures": dict(self.store_failures),
+            "patches_not_sealed": dict(self.mapper.sealer.not_sealed),
             "known_voxels": int(self.mapper.fused.voxel_count),
             "patches_received": self.patches_received,
             "fused_digest": self.mapper.fused.digest(),

@@ -103,6 +103,9 @@ class AgentSummary(FileModel):
     frame_rate_hz: float
     sensor_stream: dict[str, int] | None  # a streamed camera's frames, drops by reason, masked pixels, silences
     patch_store_failures: dict[str, int]  # errno name -> sealed patch files not stored (pushed and fused all the same)
+    patches_not_sealed: dict[
+        str, int
+    ]  # reason -> open patches dropped that receivers would refuse (too many blocks, ...)
     known_voxels: int
     patches_received: int
     fused_digest: str | None
@@ -130,6 +133,7 @@ NO_MAPPING: dict[str, object] = {
     "frame_rate_hz": 0.0,
     "sensor_stream": None,
     "patch_store_failures": {},
+    "patches_not_sealed": {},
     "known_voxels": 0,
     "patches_received": 0,
     "fused_digest": None,
