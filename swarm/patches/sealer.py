@@ -130,7 +130,7 @@ class PatchSealer:
         """The reason a receiver would refuse these blocks (`swarm.patches.wire`), or None."""
         if self.max_blocks is not None and blocks.block_count > self.max_blocks:
             return "too_many_blocks"
-        if self.volume is not None and outside_volume(self.lattice.block_bounds(blocks.keys), self.volume):
+        if self.volume is not None and outside_volume(self.lattice, blocks.keys, self.volume):
             return "outside_volume"
         return None
 

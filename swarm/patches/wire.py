@@ -24,7 +24,7 @@ in this order, and raises `PatchDecodeError(reason)` only:
 - "checksum": CRC-32 mismatch;
 - "decompress": zstd rejects the payload;
 - "shape": the payload's declared or actual size does not match the block count;
-- "outside_volume": when the mission volume is given, blocks that all lie outside it (the fused map ignores
+- "outside_volume": when the mission volume is given, no block in it (the fused map ignores
   blocks outside the volume, so such a patch adds nothing but would be held and served; a sealer does not seal one).
 
 A patch rejected for any reason is never fused, held or served (`swarm.sync.service` holds only what its sink,
@@ -197,10 +197,9 @@ def _decode(data: bytes, lattice: Lattice, max_bytes: int, max_blocks: int | Non
     weight = np.frombuffer(raw, dtype=lattice.weight_dtype.newbyteorder("<"), count=m * n, offset=6 * m + m * n)
     weight = weight.reshape(m, n).astype(lattice.weight_dtype, copy=False)
     _check_arrays(msg, lattice, keys, tsdf, weight, lo, hi)
-    if volume is not None:
+    if volume is not None and outside_volume(lattice, keys, volume):
         box = lattice.block_bounds(keys)
-        if outside_volume(box, volume):
-            raise PatchDecodeError("outside_volume", f"blocks span {box[0]} - {box[1]}, all outside the volume")
+        raise PatchDecodeError("outside_volume", f"no block of {box[0]} - {box[1]} is in the mission volume")
 
     pose = np.array(msg.anchor_pose, dtype=np.float64).reshape(4, 4)
     if not is_rigid(pose):
@@ -275,10 +274,14 @@ def _check_arrays(
         raise PatchDecodeError("invalid", "unobserved voxels must have tsdf 0")
 
 
-def outside_volume(box: tuple[np.ndarray, np.ndarray], volume: Bounds) -> bool:
-    """Whether the box (lo, hi) and the volume share no point (touching counts as sharing)."""
+def outside_volume(lattice: Lattice, keys: np.ndarray, volume: Bounds) -> bool:
+    """Whether no block at `keys` shares a point with the volume (a block's sample points span its box; touching
+    counts as sharing)."""
+    r = lattice.block_resolution
+    lo = lattice.voxel_to_point(np.asarray(keys, dtype=np.int64) * r)
+    hi = lo + (r - 1) * lattice.voxel_size
     vlo, vhi = np.asarray(volume[0], dtype=np.float64), np.asarray(volume[1], dtype=np.float64)
-    return bool(np.any(box[1] < vlo) or np.any(box[0] > vhi))
+    return not bool(np.any(np.all((hi >= vlo) & (lo <= vhi), axis=1)))
 
 
 def decode_expected(

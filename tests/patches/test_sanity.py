@@ -86,6 +86,8 @@ def test_a_patch_with_no_block_in_the_mission_volume_is_refused() -> None:
     assert _reason(data, volume=((1.51, -1.0, -1.0), (5.0, 5.0, 5.0))) == "outside_volume"
     assert _reason(data, volume=((-1.0, 0.71, -1.0), (5.0, 5.0, 5.0))) == "outside_volume"
     assert _reason(data, volume=((-5.0, -5.0, -5.0), (0.4, 5.0, 5.0))) is None  # partly inside
+    apart = encode_patch(_patch([(-3, 0, 0), (3, 0, 0)], [1, 1]))  # blocks on both sides of a volume between
+    assert _reason(apart, volume=((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))) == "outside_volume"
 
 
 def test_a_mapper_refuses_a_peer_patch_outside_its_volume_and_nothing_changes() -> None:
