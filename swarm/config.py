@@ -510,6 +510,13 @@ class MappingSettings(_Section):
     patch_distance_m: PositiveFloat = Field(2.0, description="... or after the drone moved this far")
     planning_resolution_m: PositiveFloat = Field(0.2, description="occupancy grid exported for planning")
     max_patch_bytes: int = Field(4 << 20, ge=1024, description="larger patches are rejected on receipt")
+    max_patch_blocks: int | None = Field(
+        None,
+        ge=1,
+        description="patches with more blocks are rejected on receipt, and the open patch is sealed at half this; "
+        "unset: twice what one frame of this agent's camera (camera.width, height, hfov_deg, max_range_m) can touch "
+        "(swarm.patches.sealer.patch_block_limit); set it for the whole mission when the drones' cameras differ",
+    )
 
 
 class SyncSettings(_Section):

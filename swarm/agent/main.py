@@ -28,6 +28,7 @@ import numpy as np
 import zenoh
 
 from swarm.agent.autopilot import Autopilot, local_frame
+from swarm.agent.epoch import next_epoch
 from swarm.agent.events import EventLog
 from swarm.agent.exploration import Exploration
 from swarm.agent.flight import Flight, Mission, Neighbour, parked, retrace, route_mission
@@ -44,6 +45,7 @@ from swarm.errors import BusError
 from swarm.files import write_model
 from swarm.patches.lattice import Lattice
 from swarm.patches.patch import PatchId
+from swarm.patches.sealer import patch_block_limit
 from swarm.patches.wire import decode_expected
 from swarm.roles.membership import PeerTable
 from swarm.sensing.frames import camera_mount
@@ -80,8 +82,9 @@ class Agent:
     def __init__(self, config: SwarmConfig) -> None:
         self.config = config
         self.id = config.agent.id
-        self.epoch = time.time_ns() // 1_000_000  # changes every time the process starts
         self.log = EventLog(self.id)
+        # never one an earlier process of this drone used, and larger (swarm.agent.epoch)
+        self.epoch = next_epoch(config.agent.state_dir, self.id, time.time_ns() // 1_000_000, self.log)
         self.lattice = Lattice.from_settings(config.mapping)
         self.peers = PeerTable(self.id, timeout_s=config.agent.peer_timeout_s, on_change=self._on_membership)
         self.route_refreshes = 0  # times the bus's subscriptions were declared again for a peer we were deaf to
@@ -153,11 +156,18 @@ class Agent:
             self.exploration.start()
             mission, homeward = self.exploration.fly, self.exploration.fly_home
         if mapping is not None:
-            recovered, rejected = await mapping.recover()
-            for pid, data in recovered:
+            found = await mapping.recover()
+            for pid, data in found.patches:
                 self.sync.add_recovered(pid, data)
-            if recovered or rejected:
-                self.log("recovered", patches=len(recovered), rejected=rejected, state_dir=str(mapping.state_dir))
+            if found.patches or found.rejected or found.stale_temp:
+                self.log(
+                    "recovered",
+                    patches=len(found.patches),
+                    rejected=sum(found.rejected.values()),
+                    reasons=found.rejected,
+                    stale_temp_removed=found.stale_temp,
+                    state_dir=str(mapping.state_dir),
+                )
         bus.declare_token(keys.alive(self.id))
         bus.subscribe(keys.all_states, AgentState, self._on_state)
         bus.watch_liveliness(keys.all_alive, self._on_token_join, self._on_token_leave)
@@ -253,8 +263,18 @@ class Agent:
         background.append(asyncio.create_task(mapping.measure_baseline(stop)))
 
     async def _validate_only(self, data: bytes, pid: PatchId) -> None:
-        """The sync's sink without a map (camera "none"): validate, hold and relay, fuse nothing."""
-        await asyncio.to_thread(decode_expected, data, pid, self.lattice, self.config.mapping.max_patch_bytes)
+        """The sync's sink without a map (camera "none"): validate, hold and relay, fuse nothing; the same checks
+        as the mapper's (the mission volume when the config has one)."""
+        volume = self.config.mission.volume
+        await asyncio.to_thread(
+            decode_expected,
+            data,
+            pid,
+            self.lattice,
+            self.config.mapping.max_patch_bytes,
+            patch_block_limit(self.config.mapping, self.config.camera),
+            (volume.min, volume.max) if volume is not None else None,
+        )
 
     async def _linger(self) -> None:
         """After landing, stay until every present peer has finished (flight over, last patch sealed) and holds

@@ -7,8 +7,11 @@ loaded machine lowers the frame rate instead of building a queue.
 
 Every sealed patch goes to the private store and to the agent's fused map, to `on_sealed` (the patch sync, which
 pushes it), and, when the agent has an output directory, to `<out_dir>/patches/<id>.patch` in the wire format
-(the mission observer's referee view of what was mapped), and with `agent.state_dir` there too: an agent
-started again reloads its own patches of earlier runs from it (`recover`). Patches received from peers are decoded,
+(the mission observer's referee view of what was mapped), and with `agent.state_dir` there too, durably (fsynced:
+`swarm.files.write_durable`): an agent started again reloads its own patches of earlier runs from it (`recover`).
+A patch that cannot be stored (a full disk, EIO, a read-only file system) is logged (`patch_store_failed`) and
+counted by errno (`patch_store_failures`), and is pushed and fused all the same: the disk is a backup of the
+map, never a condition of it. Patches received from peers are decoded,
 validated
 and fused in the same worker thread (`receive`). At the end the open patch is sealed too, so nothing seen is
 lost, and the agent writes its own fused mesh.
@@ -20,7 +23,10 @@ map would cost (`FusedMap.wire_size`): the whole-map baseline patch sharing is c
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import dataclasses
+import errno
+import os
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -34,10 +40,11 @@ from swarm.agent.sensing import DepthFrame, StreamSource
 from swarm.aio import wait_event
 from swarm.config import SwarmConfig, Vec3
 from swarm.explore.frontiers import ExplorationGrid, Frontier, ViewModel
-from swarm.files import write_atomic
+from swarm.files import TEMP_SUFFIX, write_atomic, write_durable
 from swarm.patches.fused import OCCUPIED
 from swarm.patches.mapper import Mapper
 from swarm.patches.patch import Patch, PatchId
+from swarm.patches.sealer import patch_block_limit
 from swarm.patches.wire import PatchDecodeError
 from swarm.sensing.peers import PeerSighting, mask_peers
 
@@ -48,27 +55,69 @@ CAMERA_SILENT_S = 3.0  # in the air this long without a frame from the stream: l
 BASELINE_SAMPLE_LOOPS = 5  # the whole-map baseline is measured every this many exploration loops
 
 
-def recover_patches(state_dir: Path, mapper: Mapper, max_bytes: int) -> tuple[list[tuple[PatchId, bytes]], int]:
-    """Fuse the patches of `mapper`'s producer from earlier epochs kept in `state_dir`; returns them and how many
-    files were rejected (a name that is no patch id, unreadable, or bytes that do not decode as that patch)."""
-    recovered: list[tuple[PatchId, bytes]] = []
-    rejected = 0
-    for path in sorted(state_dir.glob("*.patch")):
+@dataclasses.dataclass
+class Recovery:
+    """What `recover_patches` found in the state directory."""
+
+    patches: list[tuple[PatchId, bytes]] = dataclasses.field(default_factory=list)  # own, earlier epochs, fused
+    rejected: dict[str, int] = dataclasses.field(default_factory=dict)  # files that are no usable patch, by reason
+    stale_temp: int = 0  # temp files of writes a crash interrupted, removed
+
+
+def recover_patches(state_dir: Path, mapper: Mapper, max_bytes: int) -> Recovery:
+    """Fuse the patches of `mapper`'s producer from earlier epochs kept in `state_dir`. A file is rejected, by
+    reason, when its name is no patch id ("name"), it is empty ("empty_file": what a power cut can leave of a file
+    written without fsync), larger than `max_bytes` ("too_large", not read), unreadable ("unreadable"), or its
+    bytes are not that patch (the decoder's reason: a file cut short fails its msgpack or its checksum).
+
+    Never raises for what is in the directory. Hidden temp files of other processes (a write that a crash
+    interrupted) are removed: a patch file only ever appears whole, by rename, so they hold nothing stored."""
+    found = Recovery()
+
+    def reject(reason: str) -> None:
+        found.rejected[reason] = found.rejected.get(reason, 0) + 1
+
+    own_temp = f".{os.getpid()}{TEMP_SUFFIX}"
+    for path in _listing(state_dir, f".*{TEMP_SUFFIX}"):
+        if not path.name.endswith(own_temp):
+            with contextlib.suppress(OSError):
+                path.unlink()
+                found.stale_temp += 1
+    for path in _listing(state_dir, "*.patch"):
         try:
             pid = PatchId.parse(path.stem)
         except ValueError:
-            rejected += 1
+            reject("name")
             continue
         if pid.producer != mapper.producer or pid.epoch == mapper.epoch or mapper.holds(pid):
             continue
         try:
+            if path.stat().st_size > max_bytes:
+                reject("too_large")
+                continue
             data = path.read_bytes()
-            mapper.receive_wire(data, pid, max_bytes)
-        except (OSError, PatchDecodeError):
-            rejected += 1
+        except OSError:
+            reject("unreadable")
             continue
-        recovered.append((pid, data))
-    return recovered, rejected
+        if not data:
+            reject("empty_file")
+            continue
+        try:
+            mapper.receive_wire(data, pid, max_bytes)
+        except PatchDecodeError as exc:
+            reject(exc.reason)
+            continue
+        found.patches.append((pid, data))
+    return found
+
+
+def _listing(directory: Path, pattern: str) -> list[Path]:
+    """The directory's entries matching `pattern`, sorted; none when it cannot be listed (it is logged when the
+    first patch fails to be stored there)."""
+    try:
+        return sorted(directory.glob(pattern))
+    except OSError:
+        return []
 
 
 class MappingTask:
@@ -87,13 +136,24 @@ class MappingTask:
         self.bounds = bounds
         self.source = source
         self.log = log
-        self.mapper = Mapper(config.mapping, config.agent.id, epoch, bounds, known_weight=config.mapping.known_weight)
+        self.mapper = Mapper(
+            config.mapping,
+            config.agent.id,
+            epoch,
+            bounds,
+            known_weight=config.mapping.known_weight,
+            max_blocks=patch_block_limit(config.mapping, config.camera),
+        )
         self.patches_dir = out_dir / "patches" if out_dir is not None else None
         if self.patches_dir is not None:
             self.patches_dir.mkdir(parents=True, exist_ok=True)
         self.state_dir = config.agent.state_dir
+        self.store_failures: dict[str, int] = {}  # errno name -> patch files not stored
         if self.state_dir is not None:
-            self.state_dir.mkdir(parents=True, exist_ok=True)
+            try:
+                self.state_dir.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:  # a read-only or full disk: map on, every store will fail and be counted
+                self.log("state_dir_failed", state_dir=str(self.state_dir), errno=errno_name(exc), error=str(exc))
         self.out_dir = out_dir
         self.frames = 0
         self.frames_skipped = 0
@@ -169,17 +229,27 @@ class MappingTask:
         self.log("patch_sealed", patch=str(patch.id), blocks=patch.block_count, frames=patch.span.frames)
         data = self.mapper.data(patch.id)
         assert data is not None  # a sealed patch is in the private store
-        if self.patches_dir is not None:
-            write_atomic(self.patches_dir / f"{patch.id}.patch", data)
-        if self.state_dir is not None:
-            write_atomic(self.state_dir / f"{patch.id}.patch", data)
+        if self.patches_dir is not None:  # the harness's view, read while the run lasts: atomic is enough
+            self._store(patch.id, self.patches_dir, data, durable=False)
+        if self.state_dir is not None:  # read back after a restart, maybe after a power cut
+            self._store(patch.id, self.state_dir, data, durable=True)
         if self.on_sealed is not None:
             self.on_sealed(patch.id, data)
 
-    async def recover(self) -> tuple[list[tuple[PatchId, bytes]], int]:
-        """This drone's patches from earlier runs in `agent.state_dir`, fused into the map: (recovered, rejected)."""
-        if self.state_dir is None:
-            return [], 0
+    def _store(self, pid: PatchId, directory: Path, data: bytes, durable: bool) -> None:
+        """Write a sealed patch's file; a failure is logged and counted, never raised (the patch is fused and
+        will be pushed whatever the disk does)."""
+        try:
+            (write_durable if durable else write_atomic)(directory / f"{pid}.patch", data)
+        except OSError as exc:
+            name = errno_name(exc)
+            self.store_failures[name] = self.store_failures.get(name, 0) + 1
+            self.log("patch_store_failed", patch=str(pid), errno=name, dir=str(directory), error=str(exc))
+
+    async def recover(self) -> Recovery:
+        """This drone's patches from earlier runs in `agent.state_dir`, fused into the map (`recover_patches`)."""
+        if self.state_dir is None or not self.state_dir.is_dir():
+            return Recovery()
         return await asyncio.get_running_loop().run_in_executor(
             self._worker, recover_patches, self.state_dir, self.mapper, self.config.mapping.max_patch_bytes
         )
@@ -284,6 +354,8 @@ class MappingTask:
             }
             if self.stream_counters is not None
             else None,
+            "patch_store_failures": dict(self.store_failures),
+            "patches_not_sealed": dict(self.mapper.sealer.not_sealed),
             "known_voxels": int(self.mapper.fused.voxel_count),
             "patches_received": self.patches_received,
             "fused_digest": self.mapper.fused.digest(),
@@ -293,6 +365,11 @@ class MappingTask:
                 "bytes": self.baseline_bytes,
             },
         }
+
+
+def errno_name(exc: OSError) -> str:
+    """The name of the error's errno (ENOSPC, EIO, EROFS, ...); "unknown" for an OSError without one."""
+    return errno.errorcode.get(exc.errno, "unknown") if exc.errno is not None else "unknown"
 
 
 def interpolated_bytes(previous: int, size: int, loops: int) -> int:

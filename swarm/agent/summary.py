@@ -102,6 +102,10 @@ class AgentSummary(FileModel):
     mapping_ms_per_frame: float
     frame_rate_hz: float
     sensor_stream: dict[str, int] | None  # a streamed camera's frames, drops by reason, masked pixels, silences
+    patch_store_failures: dict[str, int]  # errno name -> sealed patch files not stored (pushed and fused all the same)
+    patches_not_sealed: dict[
+        str, int
+    ]  # reason -> open patches dropped that receivers would refuse (too many blocks, ...)
     known_voxels: int
     patches_received: int
     fused_digest: str | None
@@ -121,13 +125,15 @@ SCRIPTED_EXPLORATION = {
     "decision_ms_max": None,
 }
 
-NO_MAPPING = {
+NO_MAPPING: dict[str, object] = {
     "patches_sealed": 0,
     "frames": 0,
     "frames_skipped": 0,
     "mapping_ms_per_frame": 0.0,
     "frame_rate_hz": 0.0,
     "sensor_stream": None,
+    "patch_store_failures": {},
+    "patches_not_sealed": {},
     "known_voxels": 0,
     "patches_received": 0,
     "fused_digest": None,

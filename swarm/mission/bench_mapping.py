@@ -165,6 +165,10 @@ class _TimedBackend:
         self.inner.integrate(depth, K, T, max_range)
         self.integrate_s.append(time.perf_counter() - t0)
 
+    @property
+    def block_count(self) -> int:
+        return int(self.inner.block_count)
+
     def extract(self) -> Any:
         return self.inner.extract()
 

@@ -31,6 +31,7 @@ from swarm.files import write_model
 from swarm.mission.files import MapNodeStatus
 from swarm.patches.mapper import Mapper
 from swarm.patches.patch import PatchId
+from swarm.patches.sealer import patch_block_limit
 from swarm.roles.membership import PeerTable
 from swarm.sim.camera import DepthCamera
 from swarm.sim.worlds import load_world, mission_volume
@@ -56,7 +57,14 @@ class MapNode:
         self.epoch = time.time_ns() // 1_000_000
         self.world = load_world(config.mission.world)
         lo, hi = mission_volume(self.world, config.mission.volume)
-        self.mapper = Mapper(config.mapping, self.id, self.epoch, (lo, hi), known_weight=config.mapping.known_weight)
+        self.mapper = Mapper(
+            config.mapping,
+            self.id,
+            self.epoch,
+            (lo, hi),
+            known_weight=config.mapping.known_weight,
+            max_blocks=patch_block_limit(config.mapping, config.camera),
+        )
         self.camera = DepthCamera(self.world, config.camera, seed=self.id)
         self.centre = (lo + hi) / 2
         self.radius = 0.25 * float(min(hi[0] - lo[0], hi[1] - lo[1]))

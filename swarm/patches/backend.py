@@ -53,6 +53,11 @@ class TsdfBackend(Protocol):
         """Fuse one depth frame: (H,W) float32 z-depth in metres (0 = no return), 3x3 K, 4x4 camera-to-world."""
         ...
 
+    @property
+    def block_count(self) -> int:
+        """Blocks allocated (at least as many as `extract` returns with an observed voxel)."""
+        ...
+
     def extract(self) -> TsdfArrays:
         """Every allocated block, keys sorted (a copy)."""
         ...

@@ -33,14 +33,27 @@ class Mapper:
         origin: Vec3 = (0.0, 0.0, 0.0),
         known_weight: float = 1.0,
         backend: TsdfBackend | None = None,
+        max_blocks: int | None = None,
     ) -> None:
+        """`bounds`: the mission volume (the fused map's extent; patches with no block in it are neither sealed nor
+        accepted); `max_blocks`: the most blocks a patch may have (`swarm.patches.sealer.patch_block_limit`), None
+        for no bound."""
         self.lattice = Lattice.from_settings(settings, origin)
         backend = backend or VoxelBlockGridBackend(self.lattice)
         if backend.lattice != self.lattice:
             raise ValueError("the backend's lattice differs from the mission's")
         self.producer = producer
         self.epoch = epoch
-        self.sealer = PatchSealer(backend, producer, epoch, settings.patch_frames, settings.patch_distance_m)
+        self.max_blocks = max_blocks
+        self.sealer = PatchSealer(
+            backend,
+            producer,
+            epoch,
+            settings.patch_frames,
+            settings.patch_distance_m,
+            max_blocks=max_blocks,
+            volume=bounds,
+        )
         self.private = PatchStore(self.lattice)
         self.public = PatchStore(self.lattice)
         self.fused = FusedMap(self.lattice, bounds, known_weight)
@@ -72,8 +85,10 @@ class Mapper:
 
     def receive_wire(self, data: bytes, pid: PatchId, max_bytes: int) -> bool:
         """Decode and validate a peer's patch bytes, which must hold patch `pid`, then `receive` it; raises
-        PatchDecodeError (nothing changes) if they are unusable."""
-        return self.receive(decode_expected(data, pid, self.lattice, max_bytes), data)
+        PatchDecodeError (nothing changes) if they are unusable, or hold more than `max_blocks` blocks or none in
+        the mission volume."""
+        patch = decode_expected(data, pid, self.lattice, max_bytes, self.max_blocks, self.fused.bounds)
+        return self.receive(patch, data)
 
     def data(self, pid: PatchId) -> bytes | None:
         """Wire bytes of a held patch, own or received."""

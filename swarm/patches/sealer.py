@@ -1,17 +1,53 @@
 """The open patch: frames are integrated into a fresh TSDF until a trigger seals it into a `Patch`.
 
 Triggers (checked after each frame): `patch_frames` frames integrated, or the camera travelled `patch_distance_m`
-(path length from the patch's first frame). The open patch is never shared; `open_blocks` gives its quantised
-snapshot so that the agent's own queries can include it.
+(path length from the patch's first frame), or the open patch holds half of `max_blocks` blocks. The open patch is
+never shared; `open_blocks` gives its quantised snapshot so that the agent's own queries can include it.
+
+What the sealer seals, every receiver accepts (`swarm.patches.wire`): a patch with no observed voxel is not sealed
+(and consumes no sequence number), nor is one with more than `max_blocks` blocks or none in the mission `volume`
+(counted in `not_sealed` by the receiver's reason: a patch peers would refuse would otherwise be announced, asked
+for and refused again and again).
+
+The block bound (`patch_block_limit`): one frame touches only blocks within a block diagonal of the camera's
+frustum out to max range plus the truncation distance, widened by the truncation band around each measured point
+(`swarm.patches.carving`); those blocks are disjoint, so there are at most as many as fit in the frustum's bounding
+box widened that much. The limit is twice that, and the sealer seals once the open patch holds half the limit, so
+the frame that crosses half cannot take a patch past it. With the defaults (160x120 px, 90 degrees, 8 m, 0.1 m
+voxels, 8^3 blocks) one frame can touch at most 8,613 blocks, and the limit is 17,226 blocks (26.6 MB before
+compression with uint16 weights, under the decoder's 64 MiB for 4 MiB patches); a real 15-frame patch at 0.1 m
+touches 1-2 k blocks. It assumes the camera is what `camera` says, as the exploration's view model does.
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
+from swarm.config import CameraSettings, MappingSettings
 from swarm.patches.backend import TsdfBackend
+from swarm.patches.fused import Bounds
 from swarm.patches.lattice import Lattice
 from swarm.patches.patch import FrameSpan, Patch, PatchId, VoxelBlocks, quantise
+from swarm.patches.wire import outside_volume
+
+
+def frame_block_bound(lattice: Lattice, camera: CameraSettings) -> int:
+    """The most blocks one frame of `camera` can touch on `lattice` (module doc)."""
+    tan_h = math.tan(math.radians(camera.hfov_deg) / 2)
+    tan_v = tan_h * camera.height / camera.width  # square pixels, as the simulated camera and the view model
+    reach = camera.max_range_m + lattice.truncation_m
+    widen = math.sqrt(3) * (lattice.truncation_m + lattice.block_size)
+    volume = (2 * reach * tan_h + 2 * widen) * (2 * reach * tan_v + 2 * widen) * (reach + 2 * widen)
+    return math.ceil(volume / lattice.block_size**3)
+
+
+def patch_block_limit(mapping: MappingSettings, camera: CameraSettings) -> int:
+    """The most blocks a patch may have: `mapping.max_patch_blocks`, or twice what one frame can touch."""
+    if mapping.max_patch_blocks is not None:
+        return mapping.max_patch_blocks
+    return 2 * frame_block_bound(Lattice.from_settings(mapping), camera)
 
 
 class PatchSealer:
@@ -23,6 +59,8 @@ class PatchSealer:
         patch_frames: int = 15,
         patch_distance_m: float = 2.0,
         first_seq: int = 0,
+        max_blocks: int | None = None,
+        volume: Bounds | None = None,
     ) -> None:
         if patch_frames < 1 or patch_distance_m <= 0:
             raise ValueError("patch_frames must be >= 1 and patch_distance_m > 0")
@@ -33,6 +71,9 @@ class PatchSealer:
         self.patch_frames = patch_frames
         self.patch_distance_m = patch_distance_m
         self.next_seq = first_seq
+        self.max_blocks = max_blocks
+        self.volume = volume
+        self.not_sealed: dict[str, int] = {}  # open patches dropped because a receiver would refuse them, by reason
         self.frame_index = 0  # frames integrated since this sealer started
         self._open_frames = 0
         self._travelled = 0.0
@@ -61,22 +102,37 @@ class PatchSealer:
         self._open_frames += 1
         if self._open_frames >= self.patch_frames or self._travelled >= self.patch_distance_m:
             return self.seal()
+        if self.max_blocks is not None and 2 * self.backend.block_count >= self.max_blocks:
+            return self.seal()
         return None
 
     def seal(self) -> Patch | None:
-        """Seal the open patch now; None (and nothing consumed) if it holds no frame or no observed voxel."""
+        """Seal the open patch now; None (and nothing consumed) if it holds no frame or no observed voxel, or if a
+        receiver would refuse it (more than `max_blocks` blocks, none in `volume`: counted in `not_sealed`)."""
         if self._first is None or self._last is None:
             return None
         blocks = quantise(self.backend.extract(), self.lattice)
         first, last = self._first, self._last
         self.backend.reset()
         self._first, self._last, self._open_frames, self._travelled = None, None, 0, 0.0
-        if blocks.block_count == 0:
+        if blocks.block_count == 0:  # quantise keeps only blocks with an observed voxel: none observed
+            return None
+        refused = self._refused(blocks)
+        if refused is not None:
+            self.not_sealed[refused] = self.not_sealed.get(refused, 0) + 1
             return None
         pid = PatchId(self.producer, self.epoch, self.next_seq)
         self.next_seq += 1
         span = FrameSpan(first[0], last[0], first[1], last[1])
         return Patch.seal(pid, self.lattice, span, first[2], blocks)
+
+    def _refused(self, blocks: VoxelBlocks) -> str | None:
+        """The reason a receiver would refuse these blocks (`swarm.patches.wire`), or None."""
+        if self.max_blocks is not None and blocks.block_count > self.max_blocks:
+            return "too_many_blocks"
+        if self.volume is not None and outside_volume(self.lattice, blocks.keys, self.volume):
+            return "outside_volume"
+        return None
 
     def open_blocks(self) -> VoxelBlocks | None:
         """The open patch in wire form (a copy), or None when no frame is open."""

@@ -14,12 +14,21 @@ in this order, and raises `PatchDecodeError(reason)` only:
 - "not_msgpack": not bytes, or not a bounded msgpack document (the bus codec's limits, no extension types);
 - "version": envelope version or patch format version;
 - "invalid": not a patch envelope, a field missing, unknown, out of range or not finite (pydantic), a pose that
-  is not rigid, an unordered frame span, duplicate keys, tsdf -128, tsdf on unobserved voxels, a wrong voxel count;
+  is not rigid, an unordered frame span, duplicate keys, tsdf -128, tsdf on unobserved voxels, a wrong voxel count,
+  a block with no observed voxel (a sealer drops those);
 - "lattice": voxel size, block resolution, truncation, origin or weight law differ from ours;
 - "bounds": a bounding box that is inverted or larger than MAX_EXTENT_M, or blocks outside it;
+- "empty": no observed voxel (a sealer never seals such a patch: `PatchSealer.seal`);
+- "too_many_blocks": more blocks than `max_blocks`, when given: more than a camera can see in one seal window
+  (`swarm.patches.sealer.patch_block_limit`, which also makes the sealer seal before it gets there);
 - "checksum": CRC-32 mismatch;
 - "decompress": zstd rejects the payload;
-- "shape": the payload's declared or actual size does not match the block count.
+- "shape": the payload's declared or actual size does not match the block count;
+- "outside_volume": when the mission volume is given, no block in it (the fused map ignores
+  blocks outside the volume, so such a patch adds nothing but would be held and served; a sealer does not seal one).
+
+A patch rejected for any reason is never fused, held or served (`swarm.sync.service` holds only what its sink,
+the mapper, accepted, and counts the rest by reason).
 
 Decompression writes into a buffer of the expected size plus one byte, so it never allocates more than that.
 """
@@ -38,6 +47,7 @@ from swarm.bus import codec
 from swarm.bus.codec import WireMessage
 from swarm.bus.messages import AgentId, Counter
 from swarm.config import Vec3, WeightLaw
+from swarm.patches.fused import Bounds
 from swarm.patches.lattice import Lattice
 from swarm.patches.patch import TSDF_SCALE, FrameSpan, Patch, PatchId, VoxelBlocks, is_rigid
 
@@ -136,10 +146,13 @@ def encode_patch(patch: Patch, level: int = ZSTD_LEVEL) -> bytes:
     return codec.encode(draft.model_copy(update={"checksum": checksum}))
 
 
-def decode_patch(data: bytes, lattice: Lattice, max_bytes: int) -> Patch:
-    """A validated patch on `lattice` from wire bytes; raise PatchDecodeError (only) otherwise."""
+def decode_patch(
+    data: bytes, lattice: Lattice, max_bytes: int, max_blocks: int | None = None, volume: Bounds | None = None
+) -> Patch:
+    """A validated patch on `lattice` from wire bytes; raise PatchDecodeError (only) otherwise. `max_blocks` and
+    the mission `volume`, when given, bound what a real patch can be ("too_many_blocks", "outside_volume")."""
     try:
-        return _decode(data, lattice, max_bytes)
+        return _decode(data, lattice, max_bytes, max_blocks, volume)
     except PatchDecodeError:
         raise
     except Exception as exc:  # a gap in the checks below must still not crash the receiver
@@ -149,7 +162,7 @@ def decode_patch(data: bytes, lattice: Lattice, max_bytes: int) -> Patch:
 _CODEC_REASONS = {"bad_envelope": "invalid", "kind": "invalid"}  # the rest keep their name
 
 
-def _decode(data: bytes, lattice: Lattice, max_bytes: int) -> Patch:
+def _decode(data: bytes, lattice: Lattice, max_bytes: int, max_blocks: int | None, volume: Bounds | None) -> Patch:
     try:
         msg = codec.decode(data, PatchMessage, max_bytes)
     except codec.DecodeError as exc:
@@ -167,6 +180,10 @@ def _decode(data: bytes, lattice: Lattice, max_bytes: int) -> Patch:
     lo, hi = np.array(msg.bbox_min), np.array(msg.bbox_max)
     if np.any(lo > hi) or np.any(hi - lo > MAX_EXTENT_M):
         raise PatchDecodeError("bounds", f"bounding box {lo} - {hi}")
+    if msg.voxel_count == 0:
+        raise PatchDecodeError("empty", f"patch {msg.producer}.{msg.epoch}.{msg.seq} has no observed voxel")
+    if max_blocks is not None and msg.block_count > max_blocks:
+        raise PatchDecodeError("too_many_blocks", f"{msg.block_count} blocks, a patch has at most {max_blocks}")
     expected = _raw_size(lattice, msg.block_count)
     if expected > MAX_EXPANSION * max_bytes:
         raise PatchDecodeError("too_large", f"{msg.block_count} blocks need {expected} bytes")
@@ -180,6 +197,9 @@ def _decode(data: bytes, lattice: Lattice, max_bytes: int) -> Patch:
     weight = np.frombuffer(raw, dtype=lattice.weight_dtype.newbyteorder("<"), count=m * n, offset=6 * m + m * n)
     weight = weight.reshape(m, n).astype(lattice.weight_dtype, copy=False)
     _check_arrays(msg, lattice, keys, tsdf, weight, lo, hi)
+    if volume is not None and outside_volume(lattice, keys, volume):
+        box = lattice.block_bounds(keys)
+        raise PatchDecodeError("outside_volume", f"no block of {box[0]} - {box[1]} is in the mission volume")
 
     pose = np.array(msg.anchor_pose, dtype=np.float64).reshape(4, 4)
     if not is_rigid(pose):
@@ -245,6 +265,8 @@ def _check_arrays(
     if tsdf.size and int(tsdf.min()) < -TSDF_SCALE:
         raise PatchDecodeError("invalid", "tsdf value -128 is outside [-127, 127]")
     observed = weight > 0
+    if len(observed) and not observed.any(axis=1).all():
+        raise PatchDecodeError("invalid", "a block with no observed voxel")
     if int(np.count_nonzero(observed)) != msg.voxel_count:
         count = np.count_nonzero(observed)
         raise PatchDecodeError("invalid", f"{count} observed voxels, header says {msg.voxel_count}")
@@ -252,9 +274,26 @@ def _check_arrays(
         raise PatchDecodeError("invalid", "unobserved voxels must have tsdf 0")
 
 
-def decode_expected(data: bytes, pid: PatchId, lattice: Lattice, max_bytes: int) -> Patch:
+def outside_volume(lattice: Lattice, keys: np.ndarray, volume: Bounds) -> bool:
+    """Whether no block at `keys` shares a point with the volume (a block's sample points span its box; touching
+    counts as sharing)."""
+    r = lattice.block_resolution
+    lo = lattice.voxel_to_point(np.asarray(keys, dtype=np.int64) * r)
+    hi = lo + (r - 1) * lattice.voxel_size
+    vlo, vhi = np.asarray(volume[0], dtype=np.float64), np.asarray(volume[1], dtype=np.float64)
+    return not bool(np.any(np.all((hi >= vlo) & (lo <= vhi), axis=1)))
+
+
+def decode_expected(
+    data: bytes,
+    pid: PatchId,
+    lattice: Lattice,
+    max_bytes: int,
+    max_blocks: int | None = None,
+    volume: Bounds | None = None,
+) -> Patch:
     """`decode_patch`, and the bytes must hold patch `pid` (a chunk or request named it): else "id_mismatch"."""
-    patch = decode_patch(data, lattice, max_bytes)
+    patch = decode_patch(data, lattice, max_bytes, max_blocks, volume)
     if patch.id != pid:
         raise PatchDecodeError("id_mismatch", f"bytes hold patch {patch.id}, expected {pid}")
     return patch

@@ -166,12 +166,14 @@ def _rotation_z(angle: float) -> np.ndarray:
 
 @st.composite
 def patches(draw: st.DrawFn, lattice: Lattice | None = None) -> Patch:
-    """A small sealed patch (0-5 blocks of 64 voxels) on one of `LATTICES`."""
+    """A small sealed patch (1-5 blocks of 64 voxels, each with an observed voxel, as a sealer makes them) on one
+    of `LATTICES`."""
     lattice = lattice or draw(st.sampled_from(LATTICES))
-    m = draw(st.integers(0, 5))
+    m = draw(st.integers(1, 5))
     keys = draw(st.lists(st.tuples(*[st.integers(-40, 40)] * 3), min_size=m, max_size=m, unique=True))
     n = lattice.voxels_per_block
     weight = draw(arrays(lattice.weight_dtype, (m, n), elements=st.integers(0, 3) | st.just(255)))
+    weight[~weight.any(axis=1), draw(st.integers(0, n - 1))] = 1
     tsdf = draw(arrays(np.int8, (m, n), elements=st.integers(-127, 127))) * (weight > 0)
     pose = np.eye(4)
     pose[:3, :3] = _rotation_z(draw(st.floats(-math.pi, math.pi)))
