@@ -15,8 +15,9 @@ raises ValueError (DecodeError via the codec).
 
 from __future__ import annotations
 
+from bisect import bisect_right
 from collections.abc import Iterable, Iterator, Mapping
-from itertools import islice
+from itertools import groupby, islice
 from typing import Any
 
 from pydantic import Field, ValidationError
@@ -47,6 +48,34 @@ def _normalise(ranges: Iterable[Range]) -> tuple[Range, ...]:
         else:
             merged.append([lo, hi])
     return tuple((lo, hi) for lo, hi in merged)
+
+
+def interleave(streams: Iterable[Iterable[PatchId]]) -> Iterator[PatchId]:
+    """Round robin: the first of every stream, then the second of every stream, ...; lazy, so a stream may be
+    endless (a hostile digest's range of 2**63 seqs). The streams are taken at the call, the items lazily."""
+    return _round_robin([iter(stream) for stream in streams])
+
+
+def _round_robin(active: list[Iterator[PatchId]]) -> Iterator[PatchId]:
+    while active:
+        still = []
+        for stream in active:
+            item = next(stream, None)
+            if item is not None:
+                yield item
+                still.append(stream)
+        active = still
+
+
+def fair_order(ids: Iterable[PatchId]) -> list[PatchId]:
+    """`ids` round robin across producers, and within a producer across its epochs, each epoch's seqs in order:
+    the order in which to ask for them so that no producer's or epoch's backlog holds the others back."""
+    by_key = sorted(set(ids))
+    per_producer = [
+        interleave(list(g) for _, g in groupby(group, key=lambda p: p.epoch))
+        for _, group in groupby(by_key, key=lambda p: p.producer)
+    ]
+    return list(interleave(per_producer))
 
 
 def _subtract(ranges: tuple[Range, ...], holes: tuple[Range, ...]) -> Iterator[Range]:
@@ -128,7 +157,9 @@ class PatchDigest:
     def __contains__(self, pid: object) -> bool:
         if not isinstance(pid, PatchId):
             return False
-        return any(lo <= pid.seq <= hi for lo, hi in self._ranges.get((pid.producer, pid.epoch), ()))
+        seqs = self._ranges.get((pid.producer, pid.epoch), ())
+        i = bisect_right(seqs, (pid.seq, MAX_COUNTER + 1)) - 1  # the last range starting at or below seq
+        return i >= 0 and seqs[i][1] >= pid.seq
 
     def __len__(self) -> int:
         return self.count
@@ -170,12 +201,26 @@ class PatchDigest:
         missing = self._missing_ids(held)
         return list(missing if limit is None else islice(missing, max(limit, 0)))
 
+    def missing_fairly(self, held: PatchDigest, limit: int) -> list[PatchId]:
+        """At most `limit` of the ids this digest lists that `held` lacks, taken round robin across producers
+        and, within a producer, across its epochs (each epoch's oldest seqs first), in that order. So a digest
+        claiming 2**63 seqs of one producer's epoch yields no more of them than of any other epoch it lists that
+        still has missing ids. Costs the range count plus `limit`."""
+        per_producer = [
+            interleave(self._missing_of(key, held) for key in keys)
+            for _, keys in groupby(self._ranges, key=lambda k: k[0])
+        ]
+        return list(islice(interleave(per_producer), max(limit, 0)))
+
+    def _missing_of(self, key: _Key, held: PatchDigest) -> Iterator[PatchId]:
+        producer, epoch = key
+        for lo, hi in _subtract(self._ranges[key], held._ranges.get(key, ())):
+            for seq in range(lo, hi + 1):
+                yield PatchId(producer, epoch, seq)
+
     def _missing_ids(self, held: PatchDigest) -> Iterator[PatchId]:
-        for key, seqs in self._ranges.items():
-            producer, epoch = key
-            for lo, hi in _subtract(seqs, held._ranges.get(key, ())):
-                for seq in range(lo, hi + 1):
-                    yield PatchId(producer, epoch, seq)
+        for key in self._ranges:
+            yield from self._missing_of(key, held)
 
     # --- wire -------------------------------------------------------------------------------------------
 

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+from collections import Counter
+
 import msgpack
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
 from swarm.bus.codec import DecodeError, decode, encode
-from swarm.patches.digest import MAX_RANGES, DigestMessage, PatchDigest
+from swarm.patches.digest import MAX_RANGES, DigestMessage, PatchDigest, fair_order
 from swarm.patches.patch import PatchId
 
 
@@ -166,3 +168,16 @@ def test_missing_from_and_union_match_set_algebra(a: list[PatchId], b: list[Patc
     assert da.missing_from(db) == sorted(set(a) - set(b))
     assert da.missing_from(set(b)) == sorted(set(a) - set(b))
     assert list(da.union(db).ids()) == sorted(set(a) | set(b))
+    assert all((x in da) == (x in set(a)) for x in a + b)
+
+
+@given(st.lists(patch_ids, max_size=40), st.lists(patch_ids, max_size=40), st.integers(0, 90))
+def test_missing_fairly_is_a_fair_prefix_of_the_missing_set(a: list[PatchId], b: list[PatchId], limit: int) -> None:
+    da, db = PatchDigest.of(a), PatchDigest.of(b)
+    fair = da.missing_fairly(db, limit)
+    missing = set(a) - set(b)
+    assert len(fair) == min(limit, len(missing)) and len(set(fair)) == len(fair) and set(fair) <= missing
+    assert fair == fair_order(missing)[:limit]  # the same order as fair_order of the whole set
+    per_producer = Counter(p.producer for p in fair)  # no producer with ids left got two fewer than another
+    left = {p.producer for p in missing - set(fair)}
+    assert all(per_producer[q] >= max(per_producer.values(), default=0) - 1 for q in left)
