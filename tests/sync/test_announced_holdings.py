@@ -45,3 +45,12 @@ def test_a_peer_holding_the_same_beyond_the_bound_is_in_step() -> None:
     peer = _finished_state(2).model_copy(update={"holdings": sync.holdings})
     sync.on_state(peer)
     assert sync.settled(now=100.0)
+
+
+def test_a_heartbeat_claiming_2_to_the_63_patches_is_counted_in_the_stats() -> None:
+    sync = _sync()
+    claim = PatchDigest({(2, 0): [(0, 2**63 - 1)]}).to_wire_model()
+    sync.on_state(_finished_state(2).model_copy(update={"holdings": claim}))
+    tracked = sync.scheduler.missing()  # what the pull loop's next pass looks at
+    assert len(tracked) == sync.settings.max_missing_tracked  # its share: it is the only peer
+    assert sync.stats()["limits"]["pull_claims_over_quota"] == 1
