@@ -28,6 +28,7 @@ def sync_stats(held_seqs: tuple[int, ...] = (0, 1)) -> dict[str, Any]:
         "push_chunks_dropped_on_purpose": 0,
         "rejected": {},
         "assembly_dropped": {},
+        "limits": {},
         "received_from": {"2": 1},
         "served_to": {"2": 1},
         "holdings": PatchDigest.of(PatchId(1, 1, s) for s in held_seqs).to_wire(),

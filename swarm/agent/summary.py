@@ -47,7 +47,8 @@ class SyncStats(FileModel):
     assembly_dropped: dict[str, int]
     received_from: dict[str, int]  # peer id (as a JSON key) -> patches
     served_to: dict[str, int]
-    holdings: DigestWire
+    holdings: DigestWire  # what it announced (`PatchDigest.announced`: all it held unless beyond the wire bounds)
+    limits: dict[str, int]  # bounds that cut hostile or excessive input: pull claims, unannounced holdings
 
 
 class GivenUpFrontier(FileModel):

@@ -4,7 +4,9 @@ A producer numbers its patches 0, 1, 2, ... within an epoch, so what an agent ho
 (producer, epoch): ``{"entries": [{"producer": p, "epoch": e, "ranges": [[lo, hi], ...]}, ...]}``, entries
 sorted by (producer, epoch) and unique, ranges sorted, disjoint, non-adjacent and inclusive. Received digests
 are hostile: validation checks every bound (`MAX_PRODUCERS` producers, `MAX_EPOCHS_PER_PRODUCER` epochs each,
-`MAX_RANGES` ranges in all, ints in range, strict types). The set logic lives in `swarm.patches.digest`.
+`MAX_ENTRIES` (producer, epoch) entries and `MAX_RANGES` ranges in all, ints in range, strict types). What an
+agent announces is cut to these bounds (`PatchDigest.announced`), so holding more never stops its heartbeat.
+The set logic lives in `swarm.patches.digest`.
 """
 
 from __future__ import annotations
@@ -16,7 +18,9 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from swarm.bus.keys import MAX_AGENT_ID, MIN_AGENT_ID
 
 MAX_PRODUCERS = 64
-MAX_EPOCHS_PER_PRODUCER = 16
+# A producer takes a new epoch each time its process starts: 64 covers restarts, the entry bound the receiver's cost.
+MAX_EPOCHS_PER_PRODUCER = 64
+MAX_ENTRIES = 1024
 MAX_RANGES = 4096
 MAX_COUNTER = 2**63 - 1
 
@@ -54,7 +58,7 @@ class DigestWire(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    entries: Annotated[list[DigestEntry], Field(max_length=MAX_PRODUCERS * MAX_EPOCHS_PER_PRODUCER)]
+    entries: Annotated[list[DigestEntry], Field(max_length=MAX_ENTRIES)]
 
     @model_validator(mode="after")
     def _bounded(self) -> DigestWire:

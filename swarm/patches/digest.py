@@ -9,14 +9,16 @@ On the wire (`to_wire` / `from_wire`, and `DigestMessage` for the bus) a digest 
 ``{"entries": [{"producer": p, "epoch": e, "ranges": [[lo, hi], ...]}, ...]}``, entries sorted by
 (producer, epoch) and unique, ranges in the canonical form above. Received digests are hostile: both are
 validated by `swarm.bus.holdings.DigestWire` (the heartbeat carries it too), bounded (`MAX_PRODUCERS`
-producers, `MAX_EPOCHS_PER_PRODUCER` epochs each, `MAX_RANGES` ranges in all, ints in range) and anything else
-raises ValueError (DecodeError via the codec).
+producers, `MAX_EPOCHS_PER_PRODUCER` epochs each, `MAX_ENTRIES` entries and `MAX_RANGES` ranges in all, ints in
+range) and anything else raises ValueError (DecodeError via the codec). `to_wire` refuses a digest beyond the
+bounds; `announced` is the part of a digest that fits them, which is what an agent puts in its heartbeat.
 """
 
 from __future__ import annotations
 
+from bisect import bisect_right
 from collections.abc import Iterable, Iterator, Mapping
-from itertools import islice
+from itertools import groupby, islice
 from typing import Any
 
 from pydantic import Field, ValidationError
@@ -24,6 +26,7 @@ from pydantic import Field, ValidationError
 from swarm.bus.codec import WireMessage
 from swarm.bus.holdings import (  # noqa: F401  (the wire model and its bounds, re-exported)
     MAX_COUNTER,
+    MAX_ENTRIES,
     MAX_EPOCHS_PER_PRODUCER,
     MAX_PRODUCERS,
     MAX_RANGES,
@@ -47,6 +50,41 @@ def _normalise(ranges: Iterable[Range]) -> tuple[Range, ...]:
         else:
             merged.append([lo, hi])
     return tuple((lo, hi) for lo, hi in merged)
+
+
+def interleave(streams: Iterable[Iterable[PatchId]]) -> Iterator[PatchId]:
+    """Round robin: the first of every stream, then the second of every stream, ...; lazy, so a stream may be
+    endless (a hostile digest's range of 2**63 seqs). The streams are taken at the call, the items lazily."""
+    return _round_robin([iter(stream) for stream in streams])
+
+
+def _round_robin(active: list[Iterator[PatchId]]) -> Iterator[PatchId]:
+    while active:
+        still = []
+        for stream in active:
+            item = next(stream, None)
+            if item is not None:
+                yield item
+                still.append(stream)
+        active = still
+
+
+def fair_order(ids: Iterable[PatchId]) -> list[PatchId]:
+    """`ids` round robin across producers, and within a producer across its epochs, each epoch's seqs in order:
+    the order in which to ask for them so that no producer's or epoch's backlog holds the others back."""
+    by_key = sorted(set(ids))
+    per_producer = [
+        interleave(list(g) for _, g in groupby(group, key=lambda p: p.epoch))
+        for _, group in groupby(by_key, key=lambda p: p.producer)
+    ]
+    return list(interleave(per_producer))
+
+
+def _round_robin_keys(lists: list[list[_Key]]) -> Iterator[_Key]:
+    for depth in range(max((len(keys) for keys in lists), default=0)):
+        for keys in lists:
+            if depth < len(keys):
+                yield keys[depth]
 
 
 def _subtract(ranges: tuple[Range, ...], holes: tuple[Range, ...]) -> Iterator[Range]:
@@ -128,7 +166,9 @@ class PatchDigest:
     def __contains__(self, pid: object) -> bool:
         if not isinstance(pid, PatchId):
             return False
-        return any(lo <= pid.seq <= hi for lo, hi in self._ranges.get((pid.producer, pid.epoch), ()))
+        seqs = self._ranges.get((pid.producer, pid.epoch), ())
+        i = bisect_right(seqs, (pid.seq, MAX_COUNTER + 1)) - 1  # the last range starting at or below seq
+        return i >= 0 and seqs[i][1] >= pid.seq
 
     def __len__(self) -> int:
         return self.count
@@ -170,12 +210,60 @@ class PatchDigest:
         missing = self._missing_ids(held)
         return list(missing if limit is None else islice(missing, max(limit, 0)))
 
+    def missing_fairly(self, held: PatchDigest, limit: int) -> list[PatchId]:
+        """At most `limit` of the ids this digest lists that `held` lacks, taken round robin across producers
+        and, within a producer, across its epochs (each epoch's oldest seqs first), in that order. So a digest
+        claiming 2**63 seqs of one producer's epoch yields no more of them than of any other epoch it lists that
+        still has missing ids. Costs the range count plus `limit`."""
+        per_producer = [
+            interleave(self._missing_of(key, held) for key in keys)
+            for _, keys in groupby(self._ranges, key=lambda k: k[0])
+        ]
+        return list(islice(interleave(per_producer), max(limit, 0)))
+
+    def _missing_of(self, key: _Key, held: PatchDigest) -> Iterator[PatchId]:
+        producer, epoch = key
+        for lo, hi in _subtract(self._ranges[key], held._ranges.get(key, ())):
+            for seq in range(lo, hi + 1):
+                yield PatchId(producer, epoch, seq)
+
     def _missing_ids(self, held: PatchDigest) -> Iterator[PatchId]:
-        for key, seqs in self._ranges.items():
-            producer, epoch = key
-            for lo, hi in _subtract(seqs, held._ranges.get(key, ())):
-                for seq in range(lo, hi + 1):
-                    yield PatchId(producer, epoch, seq)
+        for key in self._ranges:
+            yield from self._missing_of(key, held)
+
+    def announced(self) -> PatchDigest:
+        """The part of this digest that fits the wire bounds, chosen from its content alone (two agents holding
+        the same ids announce the same): a subset, so a receiver never takes an id for held that is not.
+
+        Per producer its newest `MAX_EPOCHS_PER_PRODUCER` epochs; of more than `MAX_PRODUCERS` producers, those
+        with the most ids (ties to the lower id); then entries are taken round robin across the producers, each
+        producer's newest epoch first, while `MAX_ENTRIES` entries and `MAX_RANGES` ranges allow (an entry with
+        more ranges than are left keeps its first ones). What is left out is still served on request; it is
+        only not advertised, so a peer that never saw it listed does not ask for it."""
+        per_producer: dict[int, list[_Key]] = {}
+        for key in self._ranges:
+            per_producer.setdefault(key[0], []).append(key)
+        if (
+            len(per_producer) <= MAX_PRODUCERS
+            and len(self._ranges) <= MAX_ENTRIES
+            and self.range_count <= MAX_RANGES
+            and all(len(keys) <= MAX_EPOCHS_PER_PRODUCER for keys in per_producer.values())
+        ):
+            return self
+        size = {p: sum(hi - lo + 1 for k in keys for lo, hi in self._ranges[k]) for p, keys in per_producer.items()}
+        kept = sorted(per_producer, key=lambda p: (-size[p], p))[:MAX_PRODUCERS]
+        newest = [sorted(per_producer[p], reverse=True)[:MAX_EPOCHS_PER_PRODUCER] for p in sorted(kept)]
+        table: dict[_Key, tuple[Range, ...]] = {}
+        ranges_left = MAX_RANGES
+        for key in _round_robin_keys(newest):
+            if len(table) >= MAX_ENTRIES or ranges_left == 0:
+                break
+            seqs = self._ranges[key][:ranges_left]
+            table[key] = seqs
+            ranges_left -= len(seqs)
+        digest = PatchDigest.__new__(PatchDigest)
+        digest._ranges = dict(sorted(table.items()))
+        return digest
 
     # --- wire -------------------------------------------------------------------------------------------
 

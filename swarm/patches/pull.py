@@ -29,10 +29,20 @@ State machine of one patch id (only ids some alive peer lists and the agent lack
 - A removed peer's in-flight ids fail over at once (they count as failures in the stats) and its back-offs
   are forgotten: it is no longer a holder, and comes back fresh with its next heartbeat.
 
+Fairness: a peer's digest is a claim, and a hostile or broken peer may claim ids nobody holds (seqs 0 to 2**63
+of a real producer) to crowd real patches out. So every peer's claims are tracked under a quota of their own:
+of ``max_missing_tracked``, each alive peer gets an equal share, filled round robin across the producers its
+digest lists and, within a producer, across its epochs (`PatchDigest.missing_fairly`); the tracked ids are the
+union of the peers' shares, and an id's holders are every peer whose digest lists it. A claim beyond its quota
+is cut and counted (`PullStats.over_quota`, once per digest). Requests are handed out the same way: each
+holder's ids in round-robin order (`fair_order`), and the free request slots round robin across the holders,
+the one with the fewest requests in flight first (ties to the one whose next id is oldest). So a holder that
+never answers holds at most its share of the slots, its ids fail and back off, and every other holder's ids are
+still asked for; an id it claims and an honest peer holds fails over to that peer by the back-off above.
+
 Bounds: at most ``max_in_flight`` requests in flight of at most ``batch_size`` ids each; at most
-``max_missing_tracked`` missing ids are tracked, the oldest in PatchId order (a peer digest listing 10^9 ids
-costs its range count, through `PatchDigest.missing_from` with a limit); back-offs are kept only for tracked
-ids and known peers.
+``max_missing_tracked`` missing ids are tracked (a peer digest listing 10^9 ids costs its range count plus its
+share, through `PatchDigest.missing_fairly`); back-offs are kept only for tracked ids and known peers.
 """
 
 from __future__ import annotations
@@ -43,7 +53,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 from swarm.config import SyncSettings, Vec3
-from swarm.patches.digest import PatchDigest
+from swarm.patches.digest import PatchDigest, fair_order
 from swarm.patches.patch import PatchId
 
 
@@ -64,6 +74,7 @@ class PullStats:
     timeouts: int  # requests expired past their deadline
     failures: dict[int, int]  # holder -> ids that failed with it (timeout, missing from a reply, removal)
     in_flight: int  # requests in flight now
+    over_quota: dict[int, int]  # peer -> its digests whose missing ids were cut at its share of the tracking
 
 
 @dataclass
@@ -92,6 +103,7 @@ class _Counters:
     received: int = 0
     timeouts: int = 0
     failures: dict[int, int] = field(default_factory=dict)
+    over_quota: dict[int, int] = field(default_factory=dict)
 
 
 class PullScheduler:
@@ -111,6 +123,7 @@ class PullScheduler:
         self._in_flight: dict[int, _InFlight] = {}  # token -> request
         self._token_of: dict[PatchId, int] = {}  # in-flight id -> token
         self._backoff: dict[tuple[PatchId, int], _Backoff] = {}
+        self._over_quota_digest: dict[int, PatchDigest] = {}  # peer -> its last digest counted over quota
         self._next_token = 1
         self._counters = _Counters()
 
@@ -169,9 +182,9 @@ class PullScheduler:
     # --- outputs ----------------------------------------------------------------------------------------
 
     def next_requests(self, own_position: Iterable[float]) -> list[PullRequest]:
-        """The requests to send now (marked in flight): missing ids not in flight and not backing off, oldest
-        first, grouped per chosen holder into batches of at most `batch_size`, while fewer than
-        `max_in_flight` requests are in flight."""
+        """The requests to send now (marked in flight): missing ids not in flight and not backing off, grouped
+        per chosen holder (the nearest) into batches of at most `batch_size` in round-robin order across
+        producers and epochs, the free slots of `max_in_flight` handed out round robin across the holders."""
         slots = self.settings.max_in_flight - len(self._in_flight)
         if slots <= 0:
             return []
@@ -179,23 +192,31 @@ class PullScheduler:
         now = self._clock()
         here = tuple(float(c) for c in own_position)
         distance = {pid: _distance(here, peer.position) for pid, peer in self._peers.items()}
-        open_batch: dict[int, list[PatchId]] = {}
-        batches: list[tuple[int, list[PatchId]]] = []
+        wanted: dict[int, list[PatchId]] = {}
         young = now - self.settings.grace_s
-        for pid in sorted(self._holders):
+        for pid in self._holders:
             if pid in self._token_of or self._first_seen.get(pid, now) > young:
                 continue
             holder = self._choose(pid, self._holders[pid], distance, now)
-            if holder is None:
-                continue
-            batch = open_batch.get(holder)
-            if batch is None or len(batch) >= self.settings.batch_size:
-                if slots == 0:
-                    continue  # no new request; an open batch of another holder may still take ids
-                slots -= 1
-                batch = open_batch[holder] = []
-                batches.append((holder, batch))
-            batch.append(pid)
+            if holder is not None:
+                wanted.setdefault(holder, []).append(pid)
+        size = self.settings.batch_size
+        queues: dict[int, list[list[PatchId]]] = {}
+        for holder, ids in wanted.items():
+            ordered = fair_order(ids)
+            queues[holder] = [ordered[i : i + size] for i in range(0, len(ordered), size)]
+        busy = {holder: 0 for holder in queues}
+        for pending in self._in_flight.values():
+            if pending.holder in busy:
+                busy[pending.holder] += 1
+        batches: list[tuple[int, list[PatchId]]] = []
+        while slots > 0 and queues:
+            holder = min(queues, key=lambda h: (busy[h], min(queues[h][0]), h))
+            batches.append((holder, queues[holder].pop(0)))
+            busy[holder] += 1
+            slots -= 1
+            if not queues[holder]:
+                del queues[holder]
         requests = []
         for holder, ids in batches:
             request = PullRequest(holder, tuple(ids), self._next_token, now + self.settings.request_timeout_s)
@@ -227,7 +248,9 @@ class PullScheduler:
     @property
     def stats(self) -> PullStats:
         c = self._counters
-        return PullStats(c.requested, c.received, c.timeouts, dict(c.failures), len(self._in_flight))
+        return PullStats(
+            c.requested, c.received, c.timeouts, dict(c.failures), len(self._in_flight), dict(c.over_quota)
+        )
 
     def missing(self) -> list[PatchId]:
         """The tracked missing ids (in flight or not), sorted."""
@@ -246,25 +269,27 @@ class PullScheduler:
     # --- internals --------------------------------------------------------------------------------------
 
     def _refresh(self) -> None:
-        """Recompute the tracked missing ids and their holders, bounded by max_missing_tracked.
-
-        Each peer contributes its `limit` oldest missing ids; the `limit` oldest of their union are exact
-        (an id among them has fewer than `limit` older missing ids in any peer's digest), so are its holders.
-        """
+        """Recompute the tracked missing ids and their holders: each peer's share of max_missing_tracked, filled
+        fairly from its digest; an id's holders are every peer whose digest lists it."""
         if not self._dirty:
             return
-        limit = self.settings.max_missing_tracked
-        holders: dict[PatchId, set[int]] = {}
-        for peer_id, peer in self._peers.items():
-            for pid in peer.digest.missing_from(self._held, limit=limit):
-                holders.setdefault(pid, set()).add(peer_id)
-        if len(holders) > limit:
-            holders = {pid: holders[pid] for pid in sorted(holders)[:limit]}
-        self._holders = holders
+        quota = max(1, self.settings.max_missing_tracked // max(1, len(self._peers)))
+        tracked: set[PatchId] = set()
+        for peer_id, peer in sorted(self._peers.items()):
+            share = peer.digest.missing_fairly(self._held, limit=quota + 1)
+            if len(share) > quota:
+                share = share[:quota]
+                if self._over_quota_digest.get(peer_id) != peer.digest:
+                    self._over_quota_digest[peer_id] = peer.digest
+                    self._counters.over_quota[peer_id] = self._counters.over_quota.get(peer_id, 0) + 1
+            tracked.update(share)
+        peers = sorted(self._peers.items())
+        self._holders = {pid: {p for p, peer in peers if pid in peer.digest} for pid in sorted(tracked)}
         now = self._clock()
-        self._first_seen = {pid: self._first_seen.get(pid, now) for pid in holders}
+        self._first_seen = {pid: self._first_seen.get(pid, now) for pid in self._holders}
         self._dirty = False
-        self._backoff = {k: v for k, v in self._backoff.items() if k[0] in holders and k[1] in self._peers}
+        self._backoff = {k: v for k, v in self._backoff.items() if k[0] in self._holders and k[1] in self._peers}
+        self._over_quota_digest = {p: d for p, d in self._over_quota_digest.items() if p in self._peers}
 
     def _choose(self, pid: PatchId, holders: set[int], distance: dict[int, float], now: float) -> int | None:
         best: tuple[float, int] | None = None

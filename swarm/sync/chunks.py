@@ -8,8 +8,11 @@ the patch's total size and CRC-32, so the `Reassembler` can mix chunks of the sa
 received) and tell when they cannot belong together.
 
 The reassembler is bounded: at most `max_bytes` of incomplete patches (the oldest is dropped to make room; a
-single one may reach `max_patch_bytes`), and an assembly that gets no chunk for `timeout_s` is dropped. Either
-way the digests show the patch missing and it is pulled again. A chunk that contradicts its assembly (another
+single one may reach `max_patch_bytes`), at most `max_assemblies` incomplete patches, at most `max_per_sender` of
+them started by one sender, and an assembly that gets no chunk for `timeout_s` is dropped. A sender over its
+count drops its own oldest assembly, so one sender's stream of one-byte chunks of ever new patches cannot push
+out the others'; past the total count the oldest assembly of the sender that started the most goes. Every way,
+the digests show the patch missing and it is pulled again. A chunk that contradicts its assembly (another
 size, CRC or count, or more bytes than the size leaves room for) restarts it, so no assembly holds more than its
 patch's size.
 """
@@ -18,6 +21,7 @@ from __future__ import annotations
 
 import time
 import zlib
+from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -28,6 +32,11 @@ from swarm.bus.messages import AgentId, Counter
 from swarm.patches.patch import PatchId
 
 MAX_CHUNKS = 4096  # a patch of more chunks than this is not a patch (4096 x 8 kB = 32 MB)
+# Incomplete patches at once: an honest sender has at most its unfinished pushes (one patch a second, kept up to
+# `assembly_timeout_s`) and the replies to one requester's requests (`max_in_flight` x `batch_size` <= 64 x 64)
+# in progress; the swarm has at most a few dozen senders.
+MAX_ASSEMBLIES = 1024
+MAX_ASSEMBLIES_PER_SENDER = 256
 
 
 class PatchChunk(WireMessage):
@@ -84,6 +93,7 @@ def split_patch(sender: int, pid: PatchId, data: bytes, chunk_bytes: int) -> lis
 
 @dataclass
 class _Assembly:
+    sender: int  # the sender of its first chunk, which the per-sender bound charges
     count: int
     total_bytes: int
     crc32: int
@@ -101,19 +111,32 @@ class Reassembler:
     """Collects chunks into whole patches; `add` returns the patch's bytes once the last chunk arrives.
 
     Counts what it throws away in `dropped` (reason -> chunks or assemblies): "mismatch" (a chunk contradicting
-    or overfilling its assembly, which restarts it), "overflow" (an assembly evicted for room), "expired",
-    "corrupt" (all chunks arrived but the CRC-32 or size is wrong), "oversize" (a patch larger than
-    `max_patch_bytes`).
+    or overfilling its assembly, which restarts it), "overflow" (an assembly evicted for room), "sender_limit"
+    (a sender's oldest assembly, evicted when it starts one more than `max_per_sender`), "count_limit" (evicted
+    to stay within `max_assemblies`), "expired", "corrupt" (all chunks arrived but the CRC-32 or size is wrong),
+    "oversize" (a patch larger than `max_patch_bytes`).
     """
 
     def __init__(
-        self, max_bytes: int, timeout_s: float, max_patch_bytes: int, clock: Callable[[], float] = time.monotonic
+        self,
+        max_bytes: int,
+        timeout_s: float,
+        max_patch_bytes: int,
+        clock: Callable[[], float] = time.monotonic,
+        max_assemblies: int = MAX_ASSEMBLIES,
+        max_per_sender: int = MAX_ASSEMBLIES_PER_SENDER,
     ) -> None:
+        if max_assemblies < 1 or max_per_sender < 1:
+            raise ValueError("the assembly bounds must be at least 1")
         self.max_bytes = max_bytes
         self.timeout_s = timeout_s
         self.max_patch_bytes = max_patch_bytes
+        self.max_assemblies = max_assemblies
+        self.max_per_sender = max_per_sender
         self._clock = clock
         self._assemblies: dict[PatchId, _Assembly] = {}
+        # sender -> the assemblies it started, least recently touched first
+        self._by_sender: dict[int, OrderedDict[PatchId, None]] = {}
         self._bytes = 0
         self.dropped: dict[str, int] = {}
 
@@ -129,7 +152,11 @@ class Reassembler:
             self._discard(pid)
             assembly = None
         if assembly is None:
-            assembly = self._assemblies[pid] = _Assembly(chunk.count, chunk.total_bytes, chunk.crc32)
+            self._make_count_room(chunk.sender)
+            assembly = self._assemblies[pid] = _Assembly(chunk.sender, chunk.count, chunk.total_bytes, chunk.crc32)
+            self._by_sender.setdefault(chunk.sender, OrderedDict())[pid] = None
+        else:
+            self._by_sender[assembly.sender].move_to_end(pid)
         assembly.touched = self._clock()
         if chunk.index in assembly.parts:
             return None  # a duplicate (push and pull overlapped)
@@ -166,6 +193,10 @@ class Reassembler:
     def pending_bytes(self) -> int:
         return self._bytes
 
+    def per_sender(self) -> dict[int, int]:
+        """Sender -> incomplete patches it started."""
+        return {sender: len(pids) for sender, pids in self._by_sender.items()}
+
     def __len__(self) -> int:
         return len(self._assemblies)
 
@@ -175,10 +206,26 @@ class Reassembler:
             self._count("overflow")
             self._discard(oldest)
 
+    def _make_count_room(self, sender: int) -> None:
+        """Before `sender` starts an assembly: evict its own oldest if it is at its bound, and the oldest of the
+        sender that started the most (ties to the higher id) if the total is."""
+        own = self._by_sender.get(sender)
+        if own is not None and len(own) >= self.max_per_sender:
+            self._count("sender_limit")
+            self._discard(next(iter(own)))
+        if len(self._assemblies) >= self.max_assemblies:
+            largest = max(self._by_sender, key=lambda s: (len(self._by_sender[s]), s))
+            self._count("count_limit")
+            self._discard(next(iter(self._by_sender[largest])))
+
     def _discard(self, pid: PatchId) -> None:
         assembly = self._assemblies.pop(pid, None)
         if assembly is not None:
             self._bytes -= assembly.received_bytes
+            own = self._by_sender[assembly.sender]
+            del own[pid]
+            if not own:
+                del self._by_sender[assembly.sender]
 
     def _count(self, reason: str) -> None:
         self.dropped[reason] = self.dropped.get(reason, 0) + 1

@@ -91,6 +91,7 @@ class PatchSync:
         self.held_at: dict[PatchId, float] = {}  # wall-clock time each patch was first held
         self._held: dict[PatchId, bytes] = {}
         self._digest = PatchDigest()
+        self._announced = PatchDigest()  # the part of _digest that fits a heartbeat (PatchDigest.announced)
         self._holdings: DigestWire = EMPTY_DIGEST
         self._peers: dict[int, tuple[PatchDigest, bool]] = {}  # peer -> (holdings, finished), from heartbeats
         # peer -> (monotonic time it left, its last holdings and finished flag); judged against what we hold
@@ -156,10 +157,8 @@ class PatchSync:
         self._held[pid] = data
         self.held_at[pid] = time.time()
         self._digest = self._digest.union((pid,))
-        try:
-            self._holdings = self._digest.to_wire_model()
-        except ValueError as exc:  # beyond the wire bounds: keep announcing the last digest that fits
-            log.warning("holdings no longer fit a heartbeat: %s", exc)
+        self._announced = self._digest.announced()
+        self._holdings = self._announced.to_wire_model()
         self.scheduler.note_received(pid)
         self.reassembler.forget(pid)
         if self._on_holdings_changed is not None:
@@ -187,7 +186,7 @@ class PatchSync:
             self._departed[peer_id] = (now, *self._departed[peer_id][1:])
 
     def _in_step(self, digest: PatchDigest, finished: bool) -> bool:
-        return finished and digest == self._digest
+        return finished and digest == self._announced  # a peer holding what we hold announces the same part
 
     def settled(self, now: float | None = None) -> bool:
         """Every peer heard from has finished (sealed its last patch) and holds exactly what this agent holds:
@@ -323,5 +322,9 @@ class PatchSync:
             "assembly_dropped": dict(self.reassembler.dropped),
             "received_from": {str(k): v for k, v in sorted(self.received_from.items())},
             "served_to": {str(k): v for k, v in sorted(self.served_to.items())},
-            "holdings": self._digest.to_wire() if self._held else {"entries": []},
+            "holdings": self._announced.to_wire(),
+            "limits": {
+                "pull_claims_over_quota": sum(pull.over_quota.values()),
+                "holdings_unannounced": self._digest.count - self._announced.count,
+            },
         }

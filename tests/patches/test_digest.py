@@ -2,13 +2,23 @@
 
 from __future__ import annotations
 
+from collections import Counter
+
 import msgpack
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
 from swarm.bus.codec import DecodeError, decode, encode
-from swarm.patches.digest import MAX_RANGES, DigestMessage, PatchDigest
+from swarm.patches.digest import (
+    MAX_ENTRIES,
+    MAX_EPOCHS_PER_PRODUCER,
+    MAX_PRODUCERS,
+    MAX_RANGES,
+    DigestMessage,
+    PatchDigest,
+    fair_order,
+)
 from swarm.patches.patch import PatchId
 
 
@@ -108,7 +118,8 @@ HOSTILE = {
     "duplicate entries": {"entries": [entry(), entry()]},
     "unsorted entries": {"entries": [entry(producer=4), entry(producer=3)]},
     "too many producers": {"entries": [entry(producer=p) for p in range(1, 66)]},
-    "too many epochs": {"entries": [entry(epoch=e) for e in range(17)]},
+    "too many epochs": {"entries": [entry(epoch=e) for e in range(MAX_EPOCHS_PER_PRODUCER + 1)]},
+    "too many entries": {"entries": [entry(producer=p, epoch=e) for p in range(1, 18) for e in range(61)]},
     "too many ranges": {"entries": [entry(ranges=[[2 * i, 2 * i] for i in range(MAX_RANGES + 1)])]},
     "too many ranges in all": {
         "entries": [entry(producer=p, ranges=[[2 * i, 2 * i] for i in range(1000)]) for p in range(1, 6)]
@@ -166,3 +177,45 @@ def test_missing_from_and_union_match_set_algebra(a: list[PatchId], b: list[Patc
     assert da.missing_from(db) == sorted(set(a) - set(b))
     assert da.missing_from(set(b)) == sorted(set(a) - set(b))
     assert list(da.union(db).ids()) == sorted(set(a) | set(b))
+    assert all((x in da) == (x in set(a)) for x in a + b)
+
+
+@given(st.lists(patch_ids, max_size=40), st.lists(patch_ids, max_size=40), st.integers(0, 90))
+def test_missing_fairly_is_a_fair_prefix_of_the_missing_set(a: list[PatchId], b: list[PatchId], limit: int) -> None:
+    da, db = PatchDigest.of(a), PatchDigest.of(b)
+    fair = da.missing_fairly(db, limit)
+    missing = set(a) - set(b)
+    assert len(fair) == min(limit, len(missing)) and len(set(fair)) == len(fair) and set(fair) <= missing
+    assert fair == fair_order(missing)[:limit]  # the same order as fair_order of the whole set
+    per_producer = Counter(p.producer for p in fair)  # no producer with ids left got two fewer than another
+    left = {p.producer for p in missing - set(fair)}
+    assert all(per_producer[q] >= max(per_producer.values(), default=0) - 1 for q in left)
+
+
+def test_announced_is_the_whole_digest_within_the_bounds() -> None:
+    digest = PatchDigest({(p, e): [(0, 9), (20, 29)] for p in range(1, 5) for e in range(MAX_EPOCHS_PER_PRODUCER)})
+    assert digest.announced() is digest
+
+
+def test_announced_keeps_the_newest_epochs_the_largest_producers_and_fits_the_wire() -> None:
+    epochs = PatchDigest({(3, e): [(0, 0)] for e in range(100)})
+    assert sorted(e for _, e in epochs.announced().ranges) == list(range(100 - MAX_EPOCHS_PER_PRODUCER, 100))
+    producers = PatchDigest({(p, 0): [(0, p)] for p in range(1, 100)})  # producer p holds p + 1 ids
+    assert sorted(p for p, _ in producers.announced().ranges) == list(range(100 - MAX_PRODUCERS, 100))
+    entries = PatchDigest({(p, e): [(0, 0)] for p in range(1, 41) for e in range(40)})  # 1600 entries
+    kept = entries.announced().ranges
+    assert len(kept) == MAX_ENTRIES and {p for p, _ in kept} == set(range(1, 41))  # 25 or 26 each
+    assert all(sum(1 for q, _ in kept if q == p) in (25, 26) for p in range(1, 41))
+    fragmented = PatchDigest({(2, 0): [(2 * i, 2 * i) for i in range(MAX_RANGES)], (1, 5): [(0, 3)]})
+    cut = fragmented.announced()
+    assert cut.range_count == MAX_RANGES and (1, 5) in cut.ranges  # the round robin takes producer 1 first
+    for big in (epochs, producers, entries, fragmented):
+        small = big.announced()
+        assert PatchDigest.from_wire(small.to_wire()) == small  # fits
+        assert small.missing_from(big) == []  # a subset: nothing announced that is not held
+
+
+def test_announced_depends_only_on_the_content() -> None:
+    a = PatchDigest({(1, e): [(0, 1)] for e in range(80)})
+    b = PatchDigest.of(reversed(list(a.ids())))
+    assert a.announced() == b.announced()

@@ -61,26 +61,33 @@ def test_batching_and_in_flight_bound() -> None:
     s.update_peer(2, (1, 0, 0), digest(*range(10)))
     s.update_peer(3, (5, 0, 0), digest(100, 101))
     first = s.next_requests(HERE)
-    assert [(r.holder, r.ids) for r in first] == [(2, (pid(0), pid(1), pid(2))), (2, (pid(3), pid(4), pid(5)))]
+    assert [(r.holder, r.ids) for r in first] == [(2, (pid(0), pid(1), pid(2))), (3, (pid(100), pid(101)))]
     assert all(r.deadline == clock.t + 2.0 for r in first) and len({r.token for r in first}) == 2
     assert s.next_requests(HERE) == [] and s.stats.in_flight == 2
     s.on_reply(first[0].token, first[0].ids)
     [third] = s.next_requests(HERE)
-    assert third.holder == 2 and third.ids == (pid(6), pid(7), pid(8))
-    assert s.stats.in_flight == 2 and s.stats.requested == 9 and s.stats.received == 3
+    assert third.holder == 2 and third.ids == (pid(3), pid(4), pid(5))
+    assert s.stats.in_flight == 2 and s.stats.requested == 8 and s.stats.received == 3
 
 
-def test_oldest_ids_first_and_open_batches_take_ids_when_no_slot_is_left() -> None:
+def test_slots_go_round_robin_across_holders_each_holders_ids_oldest_first_in_full_batches() -> None:
     s, _ = make(batch_size=2, max_in_flight=2)
     s.update_peer(2, (1, 0, 0), digest(0, 2, 4))
     s.update_peer(3, (1, 0, 0), digest(1, 3, 5, producer=8))
-    reqs = s.next_requests(HERE)
-    assert [(r.holder, r.ids) for r in reqs] == [(3, (pid(1, 8), pid(3, 8))), (3, (pid(5, 8),))]
+    reqs = s.next_requests(HERE)  # (oldest first alone gave both slots to holder 3)
+    assert [(r.holder, r.ids) for r in reqs] == [(3, (pid(1, 8), pid(3, 8))), (2, (pid(0), pid(2)))]
     s2, _ = make(batch_size=3, max_in_flight=2)
     s2.update_peer(2, (1, 0, 0), digest(1, 3, 5, 7))
     s2.update_peer(3, (1, 0, 0), digest(0, 2, 4, producer=8))  # older ids
     reqs = s2.next_requests(HERE)
     assert [(r.holder, r.ids) for r in reqs] == [(3, (pid(0, 8), pid(2, 8), pid(4, 8))), (2, (pid(1), pid(3), pid(5)))]
+
+
+def test_one_holders_ids_go_round_robin_across_producers_and_epochs() -> None:
+    s, _ = make(batch_size=4, max_in_flight=1)
+    s.update_peer(2, (1, 0, 0), PatchDigest({(2, 0): [(0, 9)], (2, 5): [(0, 9)], (9, 0): [(0, 9)]}))
+    [r] = s.next_requests(HERE)
+    assert r.ids == (PatchId(2, 0, 0), PatchId(9, 0, 0), PatchId(2, 5, 0), PatchId(9, 0, 1))
 
 
 def test_timeout_fails_over_to_the_next_nearest_then_backs_off_doubling_to_the_max() -> None:
@@ -190,7 +197,7 @@ def test_nothing_missing_nothing_requested_and_ids_nobody_holds_are_not_requeste
     assert s.stats.requested == 1
 
 
-def test_hostile_digest_listing_a_billion_ids_is_tracked_bounded() -> None:
+def test_hostile_digest_listing_a_billion_ids_is_tracked_bounded_and_fairly() -> None:
     s, _ = make(max_missing_tracked=50, batch_size=8, max_in_flight=4)
     huge = PatchDigest({(9, 0): [(0, 10**9 - 1)], (2, 0): [(0, 10**9 - 1)]})
     s.update_peer(2, (1, 0, 0), huge)
@@ -198,13 +205,14 @@ def test_hostile_digest_listing_a_billion_ids_is_tracked_bounded() -> None:
     start = time.perf_counter()
     reqs = s.next_requests(HERE)
     assert time.perf_counter() - start < 1.0
-    missing = s.missing()
-    assert len(missing) == 50 and missing == sorted(missing)
-    assert missing[0] == PatchId(2, 0, 0) and missing[-1] == PatchId(2, 0, 49)  # oldest in PatchId order
-    assert sum(len(r.ids) for r in reqs) == 32 and all(r.holder == 2 for r in reqs)
+    missing = s.missing()  # peer 2's share, half of the 50 (2 peers), round robin across its two producers
+    assert missing == [PatchId(2, 0, i) for i in range(13)] + [PatchId(9, 0, i) for i in range(12)]
+    assert s.stats.over_quota == {2: 1}  # peer 3's claim fits its share
+    assert sum(len(r.ids) for r in reqs) == 25 and all(r.holder == 2 for r in reqs)
     for pid_ in missing[:10]:
         s.note_received(pid_)
-    assert len(s.missing()) == 50 and s.missing()[-1] == PatchId(2, 0, 59)
+    assert s.missing() == [PatchId(2, 0, i) for i in range(10, 23)] + [PatchId(9, 0, i) for i in range(12)]
+    assert s.stats.over_quota == {2: 1}  # the same digest is counted once
 
 
 def test_settings_are_validated() -> None:
@@ -228,3 +236,31 @@ def test_grace_delays_the_first_request_of_a_newly_advertised_id() -> None:
     now[0] = 1.0
     [request] = scheduler.next_requests((0.0, 0.0, 0.0))
     assert request.ids == (PatchId(2, 0, 0),) and request.holder == 2
+
+
+def _serve_honestly(s: PullScheduler, clock: Clock, holds: dict[int, PatchDigest], seconds: float) -> None:
+    """Run the pull loop for `seconds`: every holder in `holds` answers at once with what it really holds, any
+    other peer never answers (its requests time out)."""
+    end = clock.t + seconds
+    while clock.t < end:
+        s.expire()
+        for request in s.next_requests(HERE):
+            if request.holder in holds:
+                s.on_reply(request.token, [i for i in request.ids if i in holds[request.holder]])
+        clock.t += 0.25
+
+
+def test_a_digest_claiming_2_to_the_63_ids_of_real_producers_does_not_crowd_out_real_patches() -> None:
+    s, clock = make()  # the defaults: 4096 ids tracked, 4 requests of 4 ids in flight, 3 s timeout
+    real_9 = PatchDigest({(9, 1795340000000): [(0, 9)]})
+    real_3 = PatchDigest({(3, 1795340000000): [(0, 4)]})
+    everything = PatchDigest({(2, 0): [(0, 2**63 - 1)], (9, 1795340000000): [(0, 2**63 - 1)]})
+    s.update_peer(5, (0.5, 0, 0), everything)  # the nearest peer claims seqs 0 to 2**63 of producers 2 and 9
+    s.update_peer(9, (5, 0, 0), real_9)
+    s.update_peer(3, (6, 0, 0), real_3)
+    tracked = s.missing()
+    assert len(tracked) <= 4096 and set(real_3.ids()) <= set(tracked) and set(real_9.ids()) <= set(tracked)
+    _serve_honestly(s, clock, {9: real_9, 3: real_3}, seconds=30.0)
+    assert s.stats.received == 15  # every real patch, from the honest holders
+    assert s.stats.over_quota == {5: 1}  # the claim was cut at peer 5's quota (once: its digest never changed)
+    assert s.stats.failures.get(5, 0) > 0 and set(s.stats.failures) == {5}

@@ -135,3 +135,22 @@ def test_request_parameters_round_trip() -> None:
 def test_malformed_requests_are_refused(params: dict) -> None:
     with pytest.raises(ValueError):
         parse_request(params)
+
+
+def test_a_flood_of_one_byte_chunks_of_new_patches_is_bounded_in_count_per_sender_and_in_total() -> None:
+    clock = Clock()
+    r = Reassembler(64 << 20, 30.0, 1 << 20, clock=clock, max_assemblies=300, max_per_sender=100)
+    honest = split_patch(2, PatchId(2, 1, 0), _data(3000), 1000)
+    assert r.add(honest[0]) is None
+    flood = PatchChunk(sender=7, producer=3, epoch=1, seq=0, index=0, count=2, total_bytes=2, crc32=0, data=b"x")
+    for seq in range(100_000):  # each the first of two one-byte chunks of a patch that never completes
+        clock.now += 1e-6
+        r.add(flood.model_copy(update={"seq": seq}))  # (a valid chunk, only its seq differs)
+    assert len(r) == 101 and r.per_sender() == {7: 100, 2: 1}
+    assert r.dropped == {"sender_limit": 99_900}
+    assert r.add(honest[1]) is None and r.add(honest[2]) == _data(3000)  # the honest patch still completes
+    for sender in (4, 5, 6, 8):  # many senders: the total holds, the one that started the most gives way
+        for seq in range(100):
+            r.add(flood.model_copy(update={"sender": sender, "producer": sender, "epoch": 2, "seq": seq}))
+    assert len(r) == 300 and r.dropped["count_limit"] == 200
+    assert r.per_sender() == {7: 60, 4: 60, 5: 60, 6: 60, 8: 60}

@@ -177,5 +177,6 @@ def test_hostile_input_is_counted_and_dropped_and_maps_do_not_change(swarm: Node
         assert sync["rejected"].get("not_msgpack", 0) + sync["rejected"].get("invalid", 0) > 0, sync["rejected"]
         assert sync["assembly_dropped"].get("oversize", 0) > 0
         assert sync["requests_refused"] > 0
+        assert sync["limits"]["pull_claims_over_quota"] > 0  # the fake holder's 10**15 ids, cut at its share
         assert traffic["store"]["dropped"], traffic["store"]  # the fake holder's garbage replies
         assert all(not pid.startswith(f"{FAKE_ID}.") for pid in status["held"])
