@@ -1,7 +1,11 @@
 """The asyncio face of the bus: validated messages in and out of a Zenoh session.
 
 Zenoh calls back on its own threads. Every callback here only counts, decodes and hands the result to the
-event loop with `call_soon_threadsafe`; it never blocks and never lets an exception into Zenoh. Handlers,
+event loop with `call_soon_threadsafe`; it never blocks and never lets an exception into Zenoh. Before decoding,
+each sample passes its key's token buckets (`swarm.bus.limits.ReceiveLimiter`, settings `bus.receive`):
+messages a second, and the CPU time its key's earlier messages took to decode; a sample over either is dropped
+and counted ("rate", "rate_total", "decode_budget") at the cost of a dictionary look-up. Decoding holds the GIL,
+so without them a member sending costly messages fast starves the event loop that flies the drone. Handlers,
 liveliness callbacks included, run on the loop thread; an exception in a handler is logged and counted.
 
 Always close the bus (`await bus.close()`, or ``async with await AsyncBus.open(...) as bus``). A bus still
@@ -52,8 +56,9 @@ import zenoh
 from swarm.bus.codec import DEFAULT_MAX_BYTES, DecodeError, WireMessage, decode, encode
 from swarm.bus.counters import TrafficCounters
 from swarm.bus.keys import Keys
+from swarm.bus.limits import ReceiveLimiter
 from swarm.bus.session import open_session, zenoh_error_text
-from swarm.config import BusSettings
+from swarm.config import BusSettings, ReceiveLimits
 from swarm.errors import BusError
 
 log = logging.getLogger(__name__)
@@ -144,9 +149,12 @@ class AsyncBus:
     publications reach this session's own subscribers too (Zenoh's default): filter by id if needed.
     """
 
-    def __init__(self, session: zenoh.Session, loop: asyncio.AbstractEventLoop, keys: Keys) -> None:
+    def __init__(
+        self, session: zenoh.Session, loop: asyncio.AbstractEventLoop, keys: Keys, limits: ReceiveLimits | None = None
+    ) -> None:
         self.session = session
         self.keys = keys
+        self.limits = limits if limits is not None else ReceiveLimits()
         self.counters = TrafficCounters()
         self.closed_cleanly: bool | None = None
         self._loop = loop
@@ -168,7 +176,7 @@ class AsyncBus:
         keys = Keys(mission)
         loop = asyncio.get_running_loop()
         session = await asyncio.to_thread(open_session, bus)
-        return cls(session, loop, keys)
+        return cls(session, loop, keys, bus.receive)
 
     async def __aenter__(self) -> AsyncBus:
         return self
@@ -235,25 +243,36 @@ class AsyncBus:
     ) -> None:
         """Call `handler(key, message)` on the loop for every valid `model` message on `key_expr`.
 
-        Invalid payloads never reach the handler; they are counted as dropped with the DecodeError reason.
+        Invalid payloads never reach the handler; they are counted as dropped with the DecodeError reason, and
+        payloads beyond their key's limits (`bus.receive`) as "rate", "rate_total" or "decode_budget", undecoded.
         """
         if inspect.iscoroutinefunction(handler):
             raise TypeError("handler must be a plain function; start a task from it for async work")
         kind = model.KIND
+        limits = self.limits
+        limiter = ReceiveLimiter(limits.hz(kind), limits.decode_cpu, limits.total_keys, limits.max_keys)
 
         def on_sample(sample: zenoh.Sample) -> None:
             try:
                 if sample.kind != zenoh.SampleKind.PUT:
                     return
+                key = str(sample.key_expr)
+                self.counters.received(kind, len(sample.payload))
+                refused = limiter.admit(key)
+                if refused is not None:
+                    self.counters.dropped(kind, refused)
+                    return
                 data = sample.payload.to_bytes()
-                self.counters.received(kind, len(data))
+                start = time.thread_time()
                 try:
                     msg = decode(data, model, max_bytes)
                 except DecodeError as exc:
                     self.counters.dropped(kind, exc.reason)
-                    log.debug("dropped %s on %s: %s", kind, sample.key_expr, exc)
+                    log.debug("dropped %s on %s: %s", kind, key, exc)
                     return
-                self._deliver(kind, len(data), handler, str(sample.key_expr), msg)
+                finally:
+                    limiter.charge(key, time.thread_time() - start)
+                self._deliver(kind, len(data), handler, key, msg)
             except Exception:
                 log.exception("subscriber callback for %s failed", key_expr)
 
