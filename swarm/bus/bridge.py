@@ -65,7 +65,8 @@ log = logging.getLogger(__name__)
 
 T = TypeVar("T", bound=WireMessage)
 R = TypeVar("R")
-QueryHandler = Callable[[str, dict[str, str]], "bytes | list[bytes] | None"]
+ReplyBuilder = Callable[[], list[bytes]]
+QueryHandler = Callable[[str, dict[str, str]], "bytes | list[bytes] | ReplyBuilder | None"]
 
 CLOSE_TIMEOUT_S = 5.0
 MAX_RELIABLE_BACKLOG_BYTES = 16 << 20
@@ -313,7 +314,9 @@ class AsyncBus:
 
         `key` is the query's key expression, `parameters` its selector parameters (``?a=1;b=2``). The handler
         returns the reply payload, a list of payloads (sent as that many replies, in order: e.g. the chunks of a
-        large answer), or None for "not held" (answered with an error reply, which the querier counts as
+        large answer), a function returning such a list (a `ReplyBuilder`: called on a worker thread, which
+        then sends the replies, so a large answer is built and sent off the loop; it must not touch state the
+        loop changes), or None for "not held" (answered with an error reply, which the querier counts as
         "query_error"). An exception in the handler is logged, counted as "handler_error" and
         answered with an error reply. Only remote sessions' queries arrive here (see the module docstring).
         The reply goes out on the query's key expression when it is concrete, else on `key_expr`.
@@ -362,6 +365,10 @@ class AsyncBus:
         try:
             key = str(query.key_expr)
             data = handler(key, dict(query.parameters))  # type: ignore[call-overload]  # stub's __iter__ gives a list
+            if callable(data):
+                reply_key = key if "*" not in key else key_expr
+                self._loop.run_in_executor(None, self._build_and_reply, kind, reply_key, data, query)
+                return
             payloads = [data] if isinstance(data, (bytes, bytearray, memoryview)) else data
             if payloads is not None and not (
                 isinstance(payloads, list) and all(isinstance(p, (bytes, bytearray, memoryview)) for p in payloads)
@@ -376,7 +383,27 @@ class AsyncBus:
             self.counters.dropped(kind, "not_held")
             _reply_err(query, b"not held")
             return
-        reply_key = key if "*" not in key else key_expr
+        self._reply_all(kind, key if "*" not in key else key_expr, payloads, query)
+
+    def _build_and_reply(self, kind: str, reply_key: str, build: ReplyBuilder, query: zenoh.Query) -> None:
+        """A worker thread: build a ReplyBuilder's payloads and send them."""
+        try:
+            payloads = build()
+            if not (
+                isinstance(payloads, list) and all(isinstance(p, (bytes, bytearray, memoryview)) for p in payloads)
+            ):
+                raise TypeError(f"reply builder returned {type(payloads).__name__}, expected a list of bytes")
+        except Exception:
+            self.counters.dropped(kind, "handler_error")
+            log.exception("reply builder for %s on %s failed", kind, reply_key)
+            _reply_err(query, b"handler error")
+            return
+        if self._closed:
+            self.counters.dropped(kind, "closed")
+            return
+        self._reply_all(kind, reply_key, payloads, query)
+
+    def _reply_all(self, kind: str, reply_key: str, payloads: list[Any], query: zenoh.Query) -> None:
         for payload in payloads:
             try:
                 query.reply(reply_key, bytes(payload))
