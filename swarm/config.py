@@ -340,6 +340,30 @@ def tls_drone_name(agent_id: int) -> str:
     return f"drone-{agent_id}"
 
 
+class ReceiveLimits(_Section):
+    """Received messages per key expression, counted and dropped before any decoding past these (a flood, or a
+    member whose messages are costly to decode). Each key has a token bucket of messages and one of decode CPU
+    time; the subscription as a whole has the same, `total_keys` times larger, for floods spread over many keys.
+    Legitimate rates, far below: heartbeats at most 50 Hz (`agent.heartbeat_hz` <= 50, extra ones >= 50 ms
+    apart); patch chunks in bursts of at most 512 (a patch of `mapping.max_patch_bytes`, 4 MiB, in 8 kB chunks)
+    about every 1.5 s; frontier reports and assignments about once per `explore.loop_s`. Decoding a heartbeat
+    costs 0.03 ms (7 ms with holdings at every bound), a chunk 0.02 ms."""
+
+    per_key_hz: dict[str, PositiveFloat] = Field(
+        default_factory=lambda: {"state": 200.0, "patch_chunk": 2000.0},
+        description="messages a second per key, by message kind; burst: one second's worth",
+    )
+    default_hz: PositiveFloat = Field(50.0, description="messages a second per key of any other kind")
+    decode_cpu: float = Field(
+        0.1, gt=0.0, le=1.0, description="CPU a key's messages may take to decode, as a fraction of a core"
+    )
+    total_keys: int = Field(32, ge=1, le=1024, description="the subscription's buckets are this many keys' worth")
+    max_keys: int = Field(1024, ge=1, le=1 << 16, description="keys with a bucket of their own; the rest share one")
+
+    def hz(self, kind: str) -> float:
+        return self.per_key_hz.get(kind, self.default_hz)
+
+
 class BusSettings(_Section):
     """The Zenoh session of a swarm process."""
 
@@ -370,6 +394,7 @@ class BusSettings(_Section):
         pattern=r"^(drone-[1-9][0-9]{0,2}|observer)$",
         description="which certificate in tls_dir: drone-<id> (an agent's default) or observer",
     )
+    receive: ReceiveLimits = Field(default_factory=ReceiveLimits)
 
     @model_validator(mode="after")
     def _tls_endpoints_only(self) -> BusSettings:
@@ -558,6 +583,16 @@ class SyncSettings(_Section):
     )
     push_drop_fraction: float = Field(
         0.0, ge=0.0, le=1.0, description="experiments only: drop this fraction of outgoing push chunks on purpose"
+    )
+    # Serving the store. A requester names itself (`from=`), so these hold per name and for all together.
+    # Legitimate: a requester asks at most max_in_flight requests of batch_size patches per period_s (16 a
+    # second by default), of patches of typically 10-300 kB.
+    serve_requests_hz: PositiveFloat = Field(40.0, description="store queries a second per requester; burst: 1 s")
+    serve_bytes_per_s: int = Field(
+        8 << 20, ge=1 << 16, description="reply bytes a second per requester; burst: one second's worth"
+    )
+    serve_total_factor: float = Field(
+        3.0, ge=1.0, le=256.0, description="all requesters together get this many requesters' worth"
     )
 
     @model_validator(mode="after")

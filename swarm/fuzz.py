@@ -3,16 +3,21 @@
 `fuzz_one(data)` routes ``data[0]`` to one of `DECODERS` and feeds it ``data[1:]``. A decoder either accepts
 the input (and then checks that the result re-encodes to the same message) or raises its documented error
 (`DecodeError`, `PatchDecodeError`, `ValueError` for pull requests), which is swallowed; any other exception
-propagates. The pull-request route reads its bytes as selector parameters (``ids=...;from=...``), the
-reassembly route as a sequence of honest and lying chunks fed to a `Reassembler` (see `_reassembly`). Bytes in,
-nothing out, so an atheris-style harness can drive it as is::
+propagates, and so does a `FuzzFailure` when one input took more than `TIME_LIMIT_S` of CPU time a decode
+(measured twice, so a garbage collection or a preempted thread is not taken for a slow decoder; the time
+includes the re-encoding check of an accepted input): a decoder of network input holds the GIL, so a slow one
+starves the receiving loop (issue 25). The pull-request route reads its bytes as selector parameters
+(``ids=...;from=...``), the reassembly route as a sequence of honest and lying chunks fed to a `Reassembler`
+(see `_reassembly`; the limit holds per chunk). Bytes in, nothing out, so an atheris-style harness can drive
+it as is::
 
     atheris.Setup(sys.argv, fuzz_one)
     atheris.Fuzz()
 
-``python -m swarm.fuzz --iterations N --seed S`` runs it over N inputs of its own (random bytes, valid
-messages, valid messages with bytes flipped, inserted or cut), prints how many inputs each decoder accepted
-and rejected, and exits 1 with the input in hex on the first unexpected exception.
+``python -m swarm.fuzz --iterations N --seed S`` (or ``--seconds T``) runs it over inputs of its own (random
+bytes, valid messages, valid messages with bytes flipped, inserted or cut), prints how many inputs each decoder
+accepted and rejected, the throughput and the slowest input, and exits 1 with the input in hex on the first
+unexpected exception or input over the time limit (``--time-limit-ms``).
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ from __future__ import annotations
 import argparse
 import random
 import sys
+import time
 import traceback
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -46,6 +52,7 @@ CHUNK_MAX_BYTES = 8192 + 512  # the sync service's bound for default settings
 ASSEMBLY_CHUNK = 512
 ASSEMBLY_SIZES = (1, 700, 1500, 3000)  # patch sizes the reassembly route mixes; 3000 is over its limit
 ASSEMBLY_MAX_BYTES = 2048
+TIME_LIMIT_S = 0.005  # CPU time one input may take (the slowest seen: about 1 ms)
 
 
 class FuzzFailure(AssertionError):
@@ -57,13 +64,19 @@ def _require(condition: bool, what: str) -> None:
         raise FuzzFailure(what)
 
 
+def _one(data: bytes) -> int:
+    return 1
+
+
 @dataclass(frozen=True)
 class Decoder:
-    """One decoder: `run` returns True (accepted), False (rejected with the documented error) or raises."""
+    """One decoder: `run` returns True (accepted), False (rejected with the documented error) or raises.
+    `decodes(data)`: how many decodes `run(data)` does, each allowed the time limit (1 but for reassembly)."""
 
     name: str
     run: Callable[[bytes], bool]
     seed: Callable[[], bytes]
+    decodes: Callable[[bytes], int] = _one
 
 
 def _codec(model: type[WireMessage], max_bytes: int) -> Callable[[bytes], bool]:
@@ -254,7 +267,7 @@ DECODERS: tuple[Decoder, ...] = (
     Decoder("patch", _patch(None), _seed_patch_bytes),
     Decoder("patch_expected", _patch(SEED_PATCH_ID), _seed_patch_bytes),
     Decoder("request", _request, _seed_request),
-    Decoder("reassembly", _reassembly, _seed_assembly),
+    Decoder("reassembly", _reassembly, _seed_assembly, lambda data: max(1, len(data) // 3)),  # a chunk per record
 )
 
 
@@ -263,14 +276,38 @@ def route(data: bytes) -> tuple[Decoder, bytes]:
     return DECODERS[data[0] % len(DECODERS) if data else 0], data[1:]
 
 
-def run_one(data: bytes) -> tuple[str, bool]:
-    """(decoder name, accepted) for one fuzz input; an unexpected exception propagates."""
+def timed_run(data: bytes) -> tuple[str, bool, float]:
+    """(decoder name, accepted, CPU seconds per decode) for one fuzz input; an unexpected exception propagates."""
     decoder, rest = route(data)
-    return decoder.name, decoder.run(rest)
+    start = time.thread_time()
+    accepted = decoder.run(rest)
+    return decoder.name, accepted, (time.thread_time() - start) / decoder.decodes(rest)
+
+
+def checked_run(data: bytes, time_limit_s: float | None = TIME_LIMIT_S) -> tuple[str, bool, float]:
+    """`timed_run`, measured again when over `time_limit_s` (None: no limit): the CPU time is the lesser of the
+    two, and FuzzFailure names an input over the limit both times."""
+    name, accepted, cpu_s = timed_run(data)
+    if time_limit_s is not None and cpu_s > time_limit_s:
+        cpu_s = min(cpu_s, timed_run(data)[2])
+        if cpu_s > time_limit_s:
+            raise FuzzFailure(
+                f"{name} took {cpu_s * 1000:.1f} ms of CPU a decode, over {time_limit_s * 1000:g} ms, "
+                f"on input {data.hex()}"
+            )
+    return name, accepted, cpu_s
+
+
+def run_one(data: bytes, time_limit_s: float | None = TIME_LIMIT_S) -> tuple[str, bool]:
+    """(decoder name, accepted) for one fuzz input; an unexpected exception propagates, and FuzzFailure names
+    an input whose decodes took more than `time_limit_s` of CPU each, twice running (None: no limit)."""
+    name, accepted, _ = checked_run(data, time_limit_s)
+    return name, accepted
 
 
 def fuzz_one(data: bytes) -> None:
-    """The atheris-style entry point: bytes in, nothing out, only unexpected exceptions escape."""
+    """The atheris-style entry point: bytes in, nothing out, only unexpected exceptions (and inputs over the
+    time limit) escape."""
     run_one(data)
 
 
@@ -314,14 +351,21 @@ def make_input(rng: random.Random) -> bytes:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m swarm.fuzz", description="Fuzz every network decoder.")
     parser.add_argument("--iterations", type=int, default=10_000)
+    parser.add_argument("--seconds", type=float, default=None, help="run this long instead of --iterations")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--time-limit-ms", type=float, default=TIME_LIMIT_S * 1000, help="CPU time per input")
     args = parser.parse_args(argv)
     rng = random.Random(args.seed)
+    limit_s = args.time_limit_ms / 1000
     counts = {decoder.name: [0, 0] for decoder in DECODERS}
-    for done in range(args.iterations):
+    slowest = (0.0, "", b"")
+    start = time.monotonic()
+    deadline = None if args.seconds is None else start + args.seconds
+    done = 0
+    while done < args.iterations if deadline is None else time.monotonic() < deadline:
         data = make_input(rng)
         try:
-            name, accepted = run_one(data)
+            name, accepted, cpu_s = checked_run(data, limit_s)
         except Exception:
             traceback.print_exc()
             print(
@@ -329,11 +373,19 @@ def main(argv: Sequence[str] | None = None) -> int:
                 file=sys.stderr,
             )
             return 1
+        if cpu_s > slowest[0]:
+            slowest = (cpu_s, name, data)
         counts[name][0 if accepted else 1] += 1
-    print(f"iterations: {args.iterations} (seed {args.seed})")
+        done += 1
+    elapsed = time.monotonic() - start
+    print(f"iterations: {done} (seed {args.seed})")
     print(f"{'decoder':<16}{'accepted':>10}{'rejected':>10}")
     for name, (n_accepted, n_rejected) in counts.items():
         print(f"{name:<16}{n_accepted:>10}{n_rejected:>10}")
+    print(f"throughput: {done / max(elapsed, 1e-9):.0f} inputs/s ({done} in {elapsed:.1f} s)")
+    print(f"slowest: {slowest[0] * 1000:.2f} ms of CPU a decode in {slowest[1]} (limit {args.time_limit_ms:g} ms)")
+    if slowest[2]:
+        print(f"slowest input: {slowest[2].hex()}")
     return 0
 
 

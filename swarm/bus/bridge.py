@@ -1,7 +1,11 @@
 """The asyncio face of the bus: validated messages in and out of a Zenoh session.
 
 Zenoh calls back on its own threads. Every callback here only counts, decodes and hands the result to the
-event loop with `call_soon_threadsafe`; it never blocks and never lets an exception into Zenoh. Handlers,
+event loop with `call_soon_threadsafe`; it never blocks and never lets an exception into Zenoh. Before decoding,
+each sample passes its key's token buckets (`swarm.bus.limits.ReceiveLimiter`, settings `bus.receive`):
+messages a second, and the CPU time its key's earlier messages took to decode; a sample over either is dropped
+and counted ("rate", "rate_total", "decode_budget") at the cost of a dictionary look-up. Decoding holds the GIL,
+so without them a member sending costly messages fast starves the event loop that flies the drone. Handlers,
 liveliness callbacks included, run on the loop thread; an exception in a handler is logged and counted.
 
 Always close the bus (`await bus.close()`, or ``async with await AsyncBus.open(...) as bus``). A bus still
@@ -52,15 +56,17 @@ import zenoh
 from swarm.bus.codec import DEFAULT_MAX_BYTES, DecodeError, WireMessage, decode, encode
 from swarm.bus.counters import TrafficCounters
 from swarm.bus.keys import Keys
+from swarm.bus.limits import ReceiveLimiter
 from swarm.bus.session import open_session, zenoh_error_text
-from swarm.config import BusSettings
+from swarm.config import BusSettings, ReceiveLimits
 from swarm.errors import BusError
 
 log = logging.getLogger(__name__)
 
 T = TypeVar("T", bound=WireMessage)
 R = TypeVar("R")
-QueryHandler = Callable[[str, dict[str, str]], "bytes | list[bytes] | None"]
+ReplyBuilder = Callable[[], list[bytes]]
+QueryHandler = Callable[[str, dict[str, str]], "bytes | list[bytes] | ReplyBuilder | None"]
 
 CLOSE_TIMEOUT_S = 5.0
 MAX_RELIABLE_BACKLOG_BYTES = 16 << 20
@@ -144,9 +150,12 @@ class AsyncBus:
     publications reach this session's own subscribers too (Zenoh's default): filter by id if needed.
     """
 
-    def __init__(self, session: zenoh.Session, loop: asyncio.AbstractEventLoop, keys: Keys) -> None:
+    def __init__(
+        self, session: zenoh.Session, loop: asyncio.AbstractEventLoop, keys: Keys, limits: ReceiveLimits | None = None
+    ) -> None:
         self.session = session
         self.keys = keys
+        self.limits = limits if limits is not None else ReceiveLimits()
         self.counters = TrafficCounters()
         self.closed_cleanly: bool | None = None
         self._loop = loop
@@ -168,7 +177,7 @@ class AsyncBus:
         keys = Keys(mission)
         loop = asyncio.get_running_loop()
         session = await asyncio.to_thread(open_session, bus)
-        return cls(session, loop, keys)
+        return cls(session, loop, keys, bus.receive)
 
     async def __aenter__(self) -> AsyncBus:
         return self
@@ -235,25 +244,36 @@ class AsyncBus:
     ) -> None:
         """Call `handler(key, message)` on the loop for every valid `model` message on `key_expr`.
 
-        Invalid payloads never reach the handler; they are counted as dropped with the DecodeError reason.
+        Invalid payloads never reach the handler; they are counted as dropped with the DecodeError reason, and
+        payloads beyond their key's limits (`bus.receive`) as "rate", "rate_total" or "decode_budget", undecoded.
         """
         if inspect.iscoroutinefunction(handler):
             raise TypeError("handler must be a plain function; start a task from it for async work")
         kind = model.KIND
+        limits = self.limits
+        limiter = ReceiveLimiter(limits.hz(kind), limits.decode_cpu, limits.total_keys, limits.max_keys)
 
         def on_sample(sample: zenoh.Sample) -> None:
             try:
                 if sample.kind != zenoh.SampleKind.PUT:
                     return
+                key = str(sample.key_expr)
+                self.counters.received(kind, len(sample.payload))
+                refused = limiter.admit(key)
+                if refused is not None:
+                    self.counters.dropped(kind, refused)
+                    return
                 data = sample.payload.to_bytes()
-                self.counters.received(kind, len(data))
+                start = time.thread_time()
                 try:
                     msg = decode(data, model, max_bytes)
                 except DecodeError as exc:
                     self.counters.dropped(kind, exc.reason)
-                    log.debug("dropped %s on %s: %s", kind, sample.key_expr, exc)
+                    log.debug("dropped %s on %s: %s", kind, key, exc)
                     return
-                self._deliver(kind, len(data), handler, str(sample.key_expr), msg)
+                finally:
+                    limiter.charge(key, time.thread_time() - start)
+                self._deliver(kind, len(data), handler, key, msg)
             except Exception:
                 log.exception("subscriber callback for %s failed", key_expr)
 
@@ -294,7 +314,9 @@ class AsyncBus:
 
         `key` is the query's key expression, `parameters` its selector parameters (``?a=1;b=2``). The handler
         returns the reply payload, a list of payloads (sent as that many replies, in order: e.g. the chunks of a
-        large answer), or None for "not held" (answered with an error reply, which the querier counts as
+        large answer), a function returning such a list (a `ReplyBuilder`: called on a worker thread, which
+        then sends the replies, so a large answer is built and sent off the loop; it must not touch state the
+        loop changes), or None for "not held" (answered with an error reply, which the querier counts as
         "query_error"). An exception in the handler is logged, counted as "handler_error" and
         answered with an error reply. Only remote sessions' queries arrive here (see the module docstring).
         The reply goes out on the query's key expression when it is concrete, else on `key_expr`.
@@ -343,6 +365,10 @@ class AsyncBus:
         try:
             key = str(query.key_expr)
             data = handler(key, dict(query.parameters))  # type: ignore[call-overload]  # stub's __iter__ gives a list
+            if callable(data):
+                reply_key = key if "*" not in key else key_expr
+                self._loop.run_in_executor(None, self._build_and_reply, kind, reply_key, data, query)
+                return
             payloads = [data] if isinstance(data, (bytes, bytearray, memoryview)) else data
             if payloads is not None and not (
                 isinstance(payloads, list) and all(isinstance(p, (bytes, bytearray, memoryview)) for p in payloads)
@@ -357,7 +383,27 @@ class AsyncBus:
             self.counters.dropped(kind, "not_held")
             _reply_err(query, b"not held")
             return
-        reply_key = key if "*" not in key else key_expr
+        self._reply_all(kind, key if "*" not in key else key_expr, payloads, query)
+
+    def _build_and_reply(self, kind: str, reply_key: str, build: ReplyBuilder, query: zenoh.Query) -> None:
+        """A worker thread: build a ReplyBuilder's payloads and send them."""
+        try:
+            payloads = build()
+            if not (
+                isinstance(payloads, list) and all(isinstance(p, (bytes, bytearray, memoryview)) for p in payloads)
+            ):
+                raise TypeError(f"reply builder returned {type(payloads).__name__}, expected a list of bytes")
+        except Exception:
+            self.counters.dropped(kind, "handler_error")
+            log.exception("reply builder for %s on %s failed", kind, reply_key)
+            _reply_err(query, b"handler error")
+            return
+        if self._closed:
+            self.counters.dropped(kind, "closed")
+            return
+        self._reply_all(kind, reply_key, payloads, query)
+
+    def _reply_all(self, kind: str, reply_key: str, payloads: list[Any], query: zenoh.Query) -> None:
         for payload in payloads:
             try:
                 query.reply(reply_key, bytes(payload))

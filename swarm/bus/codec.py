@@ -2,8 +2,10 @@
 
 Every message on the bus is a `WireMessage` subclass with a `KIND`. On the wire it is one msgpack map,
 the envelope ``{"v": SCHEMA_VERSION, "k": KIND, "d": <fields>}``. `decode` treats its input as hostile:
-the size is checked before unpacking, msgpack runs with bounded lengths and no extension types, and the
-fields are validated by the model (finite floats, bounded strings, bounded arrays). Whatever the input,
+the size is checked before unpacking, then the structure (`check_structure`: nesting depth and the sum of the
+declared container lengths, walked over the headers without building anything), then msgpack runs with bounded
+lengths and no extension types, and the fields are validated by the model (finite floats, bounded strings,
+bounded arrays). Whatever the input,
 `decode` returns a valid model or raises `DecodeError`, never anything else.
 
 numpy arrays go through `NDArray` (or `Annotated[np.ndarray, ArraySpec(...)]` for tighter limits): on the
@@ -26,12 +28,16 @@ from swarm.errors import validation_problem
 
 SCHEMA_VERSION = 1
 DEFAULT_MAX_BYTES = 1 << 20
-# Bounds the element count of any msgpack array or map: the unpacker allocates for the count it reads before
-# the elements arrive, at each of up to 1024 nesting levels (so at most 1024 * 16384 * 8 B = 128 MiB, mostly
-# untouched, for a hostile 80 kB input). Big numeric data belongs in an NDArray. Strings and bytes are
-# bounded by the input itself.
+# Bounds the element count of any one msgpack array or map. msgpack allocates for the count it reads before the
+# elements arrive; `check_structure` first makes sure every count is backed by bytes of the input. Big numeric
+# data belongs in an NDArray. Strings and bytes are bounded by the input itself.
 MAX_CONTAINER_LEN = 1 << 14
 MAX_STR_LEN = 4096  # default bound of every str field; a field may set its own max_length
+# Bounds of a message's structure, checked before msgpack builds anything (`check_structure`). The deepest
+# message is 8 levels (envelope, fields, holdings, entries, entry, ranges, range); the most items a legitimate
+# message declares is 19,501 (a heartbeat whose holdings are at every bound of swarm.bus.holdings).
+MAX_DEPTH = 16
+MAX_ITEMS = 1 << 15
 
 ALLOWED_DTYPES = frozenset(
     {"bool", "int8", "int16", "int32", "int64", "uint8", "uint16", "uint32", "uint64", "float32", "float64"}
@@ -182,6 +188,81 @@ def _reject_ext(code: int, data: bytes) -> Any:
     raise ValueError(f"msgpack extension type {code} is not allowed")
 
 
+# check_structure's tables, by a value's first byte. _FIXED: the whole size of a value whose size the first
+# byte tells (fixint, nil, bool, float, int, fixstr), else 0. _CONTAINER: (bytes of the length field, items
+# per entry: 2 for a map's key and value) of an array or map header. _SIZED: bytes of the length field of a
+# str or bin. A byte in none of them (0xc1, every extension type) is refused.
+_FIXED_SIZES = {0xC0: 1, 0xC2: 1, 0xC3: 1, 0xCA: 5, 0xCB: 9, 0xCC: 2, 0xCD: 3, 0xCE: 5, 0xCF: 9}
+_FIXED_SIZES |= {0xD0: 2, 0xD1: 3, 0xD2: 5, 0xD3: 9}
+_FIXED = tuple(
+    1 if b < 0x80 or b >= 0xE0 else 1 + (b & 0x1F) if 0xA0 <= b < 0xC0 else _FIXED_SIZES.get(b, 0) for b in range(256)
+)
+_CONTAINER_HEADERS = {0xDC: (2, 1), 0xDD: (4, 1), 0xDE: (2, 2), 0xDF: (4, 2)}
+_CONTAINER = tuple(
+    (0, 2) if 0x80 <= b < 0x90 else (0, 1) if 0x90 <= b < 0xA0 else _CONTAINER_HEADERS.get(b) for b in range(256)
+)
+_SIZED = {0xC4: 1, 0xC5: 2, 0xC6: 4, 0xD9: 1, 0xDA: 2, 0xDB: 4}
+
+
+def check_structure(
+    data: bytes | bytearray | memoryview, max_depth: int = MAX_DEPTH, max_items: int = MAX_ITEMS
+) -> None:
+    """Raise DecodeError("not_msgpack") unless `data` is one msgpack value nested at most `max_depth` containers
+    deep whose containers declare at most min(`max_items`, len(data)) items in all (a map's entry is two).
+
+    Why: msgpack allocates every array it reads a header for, at the length the header claims, before the items
+    arrive, at each of up to 1024 levels. 3 kB of nested array headers cost 70-80 ms of CPU with the GIL held
+    (measured on the 2-core machine) and are then rejected anyway; about 20 such heartbeats a second starve the
+    event loop that flies the drone. Every item takes at least one byte, so a document declaring more items than
+    it has bytes is a lie, and once this check has passed msgpack allocates at most 8 bytes per input byte.
+    msgpack-python has no option for depth or total length (only per-container ones), so this walks the headers
+    by hand: str, bin and scalars are skipped by their size, nothing is built, and the walk stops at the first
+    bound crossed. Cost: about 0.13 us per item (2.5 ms for the largest legitimate heartbeat, 20 us for a
+    typical one, 3 us for a patch chunk). It does not check what msgpack checks anyway (UTF-8, map keys).
+    """
+    view = data if isinstance(data, bytes) else bytes(data)
+    end = len(view)
+    budget = min(max_items, end)
+    pos = 0
+    left = 1  # items still to read in the innermost open container (the top level: one value)
+    stack: list[int] = []  # the items left in each enclosing container
+    fixed, container = _FIXED, _CONTAINER
+    try:
+        while True:
+            first = view[pos]
+            size = fixed[first]
+            if size:
+                pos += size
+            elif (header := container[first]) is not None:
+                width, per = header
+                count = int.from_bytes(view[pos + 1 : pos + 1 + width], "big") if width else first & 0x0F
+                pos += 1 + width
+                if count:
+                    budget -= count * per
+                    if budget < 0:
+                        raise DecodeError("not_msgpack", f"more than {min(max_items, end)} items declared")
+                    if len(stack) >= max_depth:
+                        raise DecodeError("not_msgpack", f"nested more than {max_depth} deep")
+                    stack.append(left - 1)
+                    left = count * per
+                    continue
+            elif (length_bytes := _SIZED.get(first)) is not None:
+                pos += 1 + length_bytes + int.from_bytes(view[pos + 1 : pos + 1 + length_bytes], "big")
+            else:
+                raise DecodeError("not_msgpack", f"byte 0x{first:02x} at {pos} starts no allowed msgpack value")
+            left -= 1
+            while not left:
+                if not stack:
+                    if pos < end:
+                        raise DecodeError("not_msgpack", f"{end - pos} bytes after the message")
+                    if pos > end:
+                        raise IndexError
+                    return
+                left = stack.pop()
+    except IndexError:
+        raise DecodeError("not_msgpack", "truncated") from None
+
+
 def _unpack(data: bytes | bytearray | memoryview, max_bytes: int) -> Any:
     return msgpack.unpackb(
         data,
@@ -206,6 +287,7 @@ def decode(data: bytes, model: type[T], max_bytes: int = DEFAULT_MAX_BYTES) -> T
     size = memoryview(data).nbytes
     if size > max_bytes:
         raise DecodeError("too_large", f"{size} bytes > {max_bytes}")
+    check_structure(data)
     try:
         envelope = _unpack(data, max_bytes)
     except Exception as exc:

@@ -85,21 +85,31 @@ def _settings(bus: BusSettings) -> dict[str, Any]:
 
 
 # Access control (Zenoh ACL; subjects are the common names of the peers' TLS certificates). Every authenticated
-# session may subscribe and query, and is sent everything; a session may only publish, serve, reply or hold a
+# session may subscribe, and is sent everything; only drones may query (a store query of 1.2 kB asks for up to
+# 4 MiB of replies, and the observer has no use for one); a session may only publish, serve, reply or hold a
 # liveliness token under its own drone id. The observer certificate grants listening only.
-_LISTEN_MESSAGES = ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query", "query"]
+_LISTEN_MESSAGES = ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query"]
+_ASK_MESSAGES = ["query"]
 _SPEAK_MESSAGES = ["put", "delete", "declare_queryable", "reply", "liveliness_token"]
-_ALL_MESSAGES = _LISTEN_MESSAGES + _SPEAK_MESSAGES
+_ALL_MESSAGES = _LISTEN_MESSAGES + _ASK_MESSAGES + _SPEAK_MESSAGES
 
 
 def access_control(max_id: int = MAX_AGENT_ID) -> dict[str, Any]:
-    """The ACL of a swarm session: drone-<k> speaks only under agent/<k>/ and alive/<k>, for every k."""
+    """The ACL of a swarm session: drone-<k> speaks only under agent/<k>/ and alive/<k>, for every k; drones
+    may query, the observer may not."""
     rules: list[dict[str, Any]] = [
         {
             "id": "listen",
             "permission": "allow",
             "flows": ["ingress"],
             "messages": _LISTEN_MESSAGES,
+            "key_exprs": ["swarm/**"],
+        },
+        {
+            "id": "ask",
+            "permission": "allow",
+            "flows": ["ingress"],
+            "messages": _ASK_MESSAGES,
             "key_exprs": ["swarm/**"],
         },
         {
@@ -124,7 +134,7 @@ def access_control(max_id: int = MAX_AGENT_ID) -> dict[str, Any]:
             }
         )
         subjects.append({"id": name, "cert_common_names": [name]})
-        policies.append({"rules": ["listen", "send", f"speak-{k}"], "subjects": [name]})
+        policies.append({"rules": ["listen", "ask", "send", f"speak-{k}"], "subjects": [name]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
 
 

@@ -8,7 +8,13 @@
   requested from the nearest alive holder with a query on ``agent/<holder>/store``; the reply is the patches'
   chunks.
 - **Serve:** the queryable answers for every held patch, own or received, with the exact bytes it holds, so any
-  holder relays and a healed partition converges by store and forward.
+  holder relays and a healed partition converges by store and forward. A 1.2 kB query asks for up to 64
+  patches (4 MiB of replies: 3400 times the query), so serving is bounded per requester and for all of them
+  together: a token bucket of queries (`serve_requests_hz`) and one of reply bytes (`serve_bytes_per_s`).
+  The requester names itself (``from=``, or nobody), so a liar can take another's share but not more than
+  the total (`serve_total_factor` requesters' worth). Patches past the byte budget are left out of the reply;
+  the requester asks again after its back-off. The chunks are built and sent on a worker thread. With TLS the
+  observer's certificate may not query at all (swarm/bus/session.py).
 
 Received chunks are reassembled (`Reassembler`), the whole patch is handed to the `sink` (decode, validate,
 fuse; in the mapper's thread), and only a patch the sink accepted is held, announced and served. A patch held
@@ -29,6 +35,7 @@ from typing import Any
 from swarm.bus.bridge import AsyncBus
 from swarm.bus.codec import DecodeError, decode, encode
 from swarm.bus.holdings import EMPTY_DIGEST, DigestWire
+from swarm.bus.limits import KeyedBuckets
 from swarm.bus.messages import AgentState
 from swarm.config import SyncSettings, Vec3
 from swarm.patches.digest import PatchDigest
@@ -60,6 +67,9 @@ class SyncCounters:
     served: int = 0  # patches sent in replies
     requests_served: int = 0
     requests_refused: int = 0  # malformed requests
+    # also in the bus counters: "store" dropped "rate", "rate_total", "budget"; "withheld" for a reply left short
+    requests_limited: int = 0  # over the requester's (or everybody's) query rate or byte budget: nothing served
+    patches_withheld: int = 0  # held and asked for, left out of a reply by the byte budget
 
 
 class PatchSync:
@@ -73,6 +83,7 @@ class PatchSync:
         max_patch_bytes: int,
         on_holdings_changed: Callable[[], None] | None = None,
         share: bool = True,
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.bus = bus
         self.share = share  # False: hold and announce own patches only (the frontier-only strategy)
@@ -101,6 +112,10 @@ class PatchSync:
         self._tasks: set[asyncio.Task[Any]] = set()
         self._loop_task: asyncio.Task[None] | None = None
         self._random = random.Random(own_id)
+        factor = settings.serve_total_factor
+        rate, budget = settings.serve_requests_hz, settings.serve_bytes_per_s
+        self._serve_requests = KeyedBuckets(rate, rate, factor, 1024, clock)
+        self._serve_bytes = KeyedBuckets(budget, budget, factor, 1024, clock)
 
     # --- lifecycle --------------------------------------------------------------------------------------
 
@@ -249,28 +264,43 @@ class PatchSync:
 
     # --- serving ----------------------------------------------------------------------------------------
 
-    def _serve(self, key: str, parameters: dict[str, str]) -> list[bytes] | None:
+    def _serve(self, key: str, parameters: dict[str, str]) -> Callable[[], list[bytes]] | None:
+        """Pick what to serve (on the loop) and return the function that builds the chunks (on a worker)."""
         try:
             ids, requester = parse_request(parameters)
         except ValueError:
             self.counters.requests_refused += 1
             self.bus.counters.dropped(STORE_KIND, "bad_request")
             return None
-        replies: list[bytes] = []
-        served = 0
-        for pid in ids:
-            data = self._held.get(pid)
-            if data is None:
-                continue
-            served += 1
-            replies.extend(encode(c) for c in split_patch(self.own_id, pid, data, self.settings.chunk_bytes))
-        if not served:
+        held = [(pid, data) for pid in ids if (data := self._held.get(pid)) is not None]
+        if not held:
             return None
+        who = str(requester) if requester is not None else "-"
+        refused = self._serve_requests.take(who)
+        chosen: list[tuple[PatchId, bytes]] = []
+        if refused is None:
+            for pid, data in held:  # in debt past the budget by one patch at most; the next query waits
+                if self._serve_bytes.take(who, len(data), allow_debt=True) is not None:
+                    break
+                chosen.append((pid, data))
+            refused = None if chosen else "budget"
+        if refused is not None:
+            self.counters.requests_limited += 1
+            self.bus.counters.dropped(STORE_KIND, refused)
+            return None
+        if len(chosen) < len(held):
+            self.counters.patches_withheld += len(held) - len(chosen)
+            self.bus.counters.dropped(STORE_KIND, "withheld")
         self.counters.requests_served += 1
-        self.counters.served += served
+        self.counters.served += len(chosen)
         if requester is not None:
-            self.served_to[requester] = self.served_to.get(requester, 0) + served
-        return replies
+            self.served_to[requester] = self.served_to.get(requester, 0) + len(chosen)
+        own_id, chunk_bytes = self.own_id, self.settings.chunk_bytes
+
+        def build() -> list[bytes]:  # a worker thread: only the immutable bytes picked above
+            return [encode(c) for pid, data in chosen for c in split_patch(own_id, pid, data, chunk_bytes)]
+
+        return build
 
     # --- pulling ----------------------------------------------------------------------------------------
 

@@ -14,8 +14,10 @@ from __future__ import annotations
 import functools
 import math
 import random
+import re
 import subprocess
 import sys
+import time
 import tracemalloc
 import zlib
 from collections.abc import Callable
@@ -690,13 +692,13 @@ def test_a_patch_at_the_expansion_cap_allocates_at_most_the_cap() -> None:
 
 
 def test_nested_length_claims_stay_within_the_codecs_documented_bound() -> None:
-    """Each nested array claims MAX_CONTAINER_LEN items and none arrive. msgpack allocates every claimed list
-    up front, up to its 1024 nesting levels: the codec documents at most 1024 * MAX_CONTAINER_LEN * 8 bytes
-    (128 MiB). Not "a few MB", but bounded: this pins the bound."""
+    """Each nested array claims MAX_CONTAINER_LEN items and none arrive. msgpack would allocate every claimed
+    list up front, at each of its 1024 nesting levels (128 MiB); the codec's structure check refuses a document
+    declaring more items than it has bytes before msgpack runs, so nothing of the sort is allocated."""
     data = (b"\xdc" + MAX_CONTAINER_LEN.to_bytes(2, "big")) * 2000
     peak = peak_bytes(lambda: decoded_or_none(CASES["state"], data))
     assert decoded_or_none(CASES["state"], data) is None
-    assert peak < 1024 * MAX_CONTAINER_LEN * 8 + SMALL_PEAK
+    assert peak < SMALL_PEAK
 
 
 def test_a_chunk_claiming_a_huge_patch_is_not_stored() -> None:
@@ -923,7 +925,10 @@ def test_fuzz_main_runs_2000_iterations() -> None:
     assert proc.returncode == 0, proc.stderr
     lines = proc.stdout.splitlines()
     assert lines[0] == "iterations: 2000 (seed 7)"
-    counts = {line.split()[0]: (int(line.split()[1]), int(line.split()[2])) for line in lines[2:]}
+    assert re.fullmatch(r"throughput: \d+ inputs/s \(2000 in [0-9.]+ s\)", lines[-3]), lines[-3]
+    assert re.fullmatch(r"slowest: [0-9.]+ ms of CPU a decode in \w+ \(limit 5 ms\)", lines[-2]), lines[-2]
+    assert lines[-1].startswith("slowest input: "), lines[-1]
+    counts = {line.split()[0]: (int(line.split()[1]), int(line.split()[2])) for line in lines[2:-3]}
     assert list(counts) == [d.name for d in fuzz.DECODERS]
     assert sum(a + r for a, r in counts.values()) == 2000
     assert all(accepted > 0 and rejected > 0 for accepted, rejected in counts.values()), counts
@@ -942,6 +947,62 @@ def test_fuzz_main_stops_on_an_unexpected_exception(
     assert "KeyError: 'boom'" in err and "unexpected exception in request" in err
     hex_input = err.strip().rsplit("input: ", 1)[1]
     assert fuzz.route(bytes.fromhex(hex_input))[0].name == "request"
+
+
+def burn(seconds: float) -> None:
+    end = time.thread_time() + seconds
+    while time.thread_time() < end:
+        pass
+
+
+def slow_decoders(slow: Callable[[bytes], bool]) -> tuple[fuzz.Decoder, ...]:
+    return tuple(fuzz.Decoder(d.name, slow if d.name == "request" else d.run, d.seed) for d in fuzz.DECODERS)
+
+
+def test_an_input_over_the_time_limit_is_a_failure_naming_it(monkeypatch: pytest.MonkeyPatch) -> None:
+    def slow(data: bytes) -> bool:
+        burn(0.008)
+        return False
+
+    monkeypatch.setattr(fuzz, "DECODERS", slow_decoders(slow))
+    index = [d.name for d in fuzz.DECODERS].index("request")
+    with pytest.raises(
+        fuzz.FuzzFailure, match=rf"request took [0-9.]+ ms of CPU a decode, over 5 ms, on input {index:02x}ab"
+    ):
+        fuzz.run_one(bytes([index, 0xAB]))
+    assert fuzz.run_one(bytes([index, 0xAB]), time_limit_s=None) == ("request", False)
+    with pytest.raises(fuzz.FuzzFailure):
+        fuzz.fuzz_one(bytes([index, 0xAB]))
+
+
+def test_an_input_slow_only_once_is_measured_again_and_passes(monkeypatch: pytest.MonkeyPatch) -> None:
+    calls: list[int] = []
+
+    def slow_once(data: bytes) -> bool:
+        calls.append(1)
+        burn(0.008 if len(calls) == 1 else 0.0)
+        return False
+
+    monkeypatch.setattr(fuzz, "DECODERS", slow_decoders(slow_once))
+    index = [d.name for d in fuzz.DECODERS].index("request")
+    assert fuzz.run_one(bytes([index, 0xAB])) == ("request", False) and len(calls) == 2
+
+
+def test_the_reassembly_route_has_the_limit_per_chunk() -> None:
+    reassembly = next(d for d in fuzz.DECODERS if d.name == "reassembly")
+    assert reassembly.decodes(bytes(300)) == 100 and reassembly.decodes(b"") == 1
+    assert all(d.decodes(bytes(300)) == 1 for d in fuzz.DECODERS if d is not reassembly)
+
+
+def test_fuzz_main_stops_on_a_slow_input(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    def slow(data: bytes) -> bool:
+        burn(0.003)
+        return False
+
+    monkeypatch.setattr(fuzz, "DECODERS", slow_decoders(slow))
+    assert fuzz.main(["--iterations", "200", "--seed", "3", "--time-limit-ms", "1"]) == 1
+    err = capsys.readouterr().err
+    assert "FuzzFailure: request took" in err and "over 1 ms" in err
 
 
 def test_every_seed_is_accepted() -> None:

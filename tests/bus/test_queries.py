@@ -224,3 +224,37 @@ def test_patch_and_store_keys() -> None:
         assert keys.agent_id_of(bad) is None
     with pytest.raises(ValueError):
         keys.store(0)
+
+
+@pytest.mark.bus
+async def test_a_reply_builder_runs_off_the_loop_and_its_payloads_arrive_in_order(
+    bus_pair: tuple[AsyncBus, AsyncBus],
+) -> None:
+    a, b = bus_pair
+    built_on: list[int] = []
+
+    def build() -> list[bytes]:
+        built_on.append(threading.get_ident())
+        return [b"chunk %d" % i for i in range(5)]
+
+    a.declare_queryable(a.keys.store(1), KIND, lambda key, params: b"pong" if "ping" in params else build)
+    await wait_for_queryable(b, a.keys.store(1))
+    replies = await b.get(f"{b.keys.store(1)}?ids=1", KIND, 2.0)
+    assert [payload for _, payload in replies] == [b"chunk %d" % i for i in range(5)]
+    assert built_on and threading.get_ident() not in built_on
+
+
+@pytest.mark.bus
+async def test_a_reply_builder_that_fails_is_counted_and_answered_with_an_error(
+    bus_pair: tuple[AsyncBus, AsyncBus],
+) -> None:
+    a, b = bus_pair
+
+    def build() -> list[bytes]:
+        raise RuntimeError("boom")
+
+    a.declare_queryable(a.keys.store(1), KIND, lambda key, params: b"pong" if "ping" in params else build)
+    await wait_for_queryable(b, a.keys.store(1))
+    assert await b.get(f"{b.keys.store(1)}?ids=1", KIND, 2.0) == []
+    assert a.counters.dropped_count(KIND, "handler_error") == 1
+    assert b.counters.dropped_count(KIND, "query_error") == 1

@@ -138,3 +138,34 @@ def test_an_agent_takes_its_own_certificate_and_a_missing_one_is_one_clear_error
     missing = load_config(overrides={"bus.tls_dir": str(tmp_path), "agent.id": 2})
     with pytest.raises(BusError, match=r"TLS ca .*ca.pem not found \(write them with `swarm deploy certs`\)"):
         zenoh_config(missing.agent_bus())
+
+
+@pytest.mark.bus
+async def test_the_observer_certificate_cannot_query_a_store_and_a_drones_can(certs: Path) -> None:
+    """Issue 25: a store query of 1.2 kB asks for up to 4 MiB of replies; the listen-only observer may not ask."""
+    drone1, endpoint = await _listening(certs, "drone-1")
+    asked: list[str] = []
+
+    def serve(key: str, params: dict[str, str]) -> bytes:
+        asked.append(params.get("from", "?"))
+        return b"patch bytes"
+
+    drone1.declare_queryable(drone1.keys.store(1), "store", serve)
+    drone2 = await AsyncBus.open(_settings(certs, "drone-2", listen=[], connect=[endpoint]), MISSION)
+    observer = await AsyncBus.open(_settings(certs, "observer", listen=[], connect=[endpoint]), MISSION)
+    try:
+        selector = f"{drone1.keys.store(1)}?ids=1.0.0;from="
+        for _ in range(100):  # the positive control: the queryable's declaration takes a moment to arrive
+            if await drone2.get(selector + "2", "store", 0.5):
+                break
+            await asyncio.sleep(0.05)
+        else:
+            raise AssertionError("drone 2's store query was never answered")
+        observer_replies = [await observer.get(selector + "9", "store", 0.5) for _ in range(5)]
+        drone_replies = await drone2.get(selector + "2", "store", 0.5)
+        assert observer_replies == [[]] * 5, "the observer's store query was answered"
+        assert [payload for _, payload in drone_replies] == [b"patch bytes"]
+        assert "9" not in asked, "the observer's query reached the store"
+    finally:
+        for bus in (observer, drone2, drone1):
+            await bus.close()
