@@ -107,7 +107,7 @@ class ReportLimits:
     The defaults check nothing (a core built without a mission, as in tests of other rules)."""
 
     volume: tuple[Vec3, Vec3] | None = None  # the mission volume (min, max corners)
-    margin_m: float = 0.0  # planning cells reach past the volume by up to one cell: their centres by half
+    margin_m: float = 0.0  # planning cells reach past the volume by up to a cell (from_config grows it by one)
     max_gain_m3: float = math.inf
 
     @classmethod
