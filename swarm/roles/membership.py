@@ -109,9 +109,10 @@ class PeerTable:
             return
         peer = self._known(peer_id, "heartbeat")
         peer.last_heard = self.last_heartbeat[peer_id] = self.clock()
-        jumps = peer.track_jumps
-        peer.follow(peer.last_heard, position)
-        self.track_jumps += peer.track_jumps - jumps
+        if phase != Phase.CONNECTING:  # before its first telemetry a peer says (0, 0, 0): no place it was
+            jumps = peer.track_jumps
+            peer.follow(peer.last_heard, position)
+            self.track_jumps += peer.track_jumps - jumps
         peer.position, peer.velocity, peer.heading_to = position, velocity, heading_to
         peer.phase, peer.epoch = phase, epoch
         peer.heartbeats += 1

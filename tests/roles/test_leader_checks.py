@@ -216,6 +216,14 @@ def test_a_peers_track_keeps_breadcrumbs_and_leaves_out_a_teleport_until_it_coul
     assert table.track_jumps == 1 and tuple(table.peers[2].track_array()[-1]) == (80.0, 0.0, 1.5)
 
 
+def test_a_connecting_peers_origin_is_not_on_its_track() -> None:
+    """Before its first telemetry an agent's heartbeats say (0, 0, 0): the first real position is no jump."""
+    table = PeerTable(1, clock=lambda: 0.0)
+    table.heard(2, (0.0, 0.0, 0.0), Phase.CONNECTING, 1)
+    table.heard(2, (30.0, 4.0, 0.1), Phase.READY, 1)
+    assert table.track_jumps == 0 and table.peers[2].track_array().tolist() == [[30.0, 4.0, 0.1]]
+
+
 def test_a_peers_track_is_bounded() -> None:
     table = PeerTable(1, clock=lambda: 0.0)
     for step in range(TRACK_POINTS + 10):
