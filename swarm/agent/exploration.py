@@ -31,7 +31,7 @@ from swarm.explore.frontiers import ExplorationGrid
 from swarm.explore.planner import NoPathError, path_is_free, plan_path
 from swarm.roles.membership import PeerTable
 from swarm.roles.messages import FrontierReport, TargetAssignment
-from swarm.roles.protocol import Effects, ExplorationCore, Situation, Target
+from swarm.roles.protocol import Effects, ExplorationCore, ReportLimits, Situation, Target
 
 PLAN_EXPANSIONS = 150_000
 STATUS_EVERY_LOOPS = 10
@@ -68,7 +68,9 @@ class Exploration:
         self.top_z = top_z
         self.log = log
         self.obstacles = obstacles
-        self.core = ExplorationCore(config.explore, self.id, epoch, time.monotonic())
+        self.core = ExplorationCore(
+            config.explore, self.id, epoch, time.monotonic(), limits=ReportLimits.from_config(config)
+        )
         self.grid: ExplorationGrid | None = None
         self.flight: Flight | None = None  # set when the mission starts
         self.wake = asyncio.Event()  # run a decision now
@@ -152,6 +154,7 @@ class Exploration:
             frontiers=frontiers,
             map=self.grid,
             in_pocket=self.grid.in_pocket(here),
+            tracks={k: self.peers.peers[k].track_array() for k in members if k in self.peers.peers},
         )
         self._apply(self.core.decide(time.monotonic(), situation))
         self.decision_ms.append((time.perf_counter() - started) * 1000)
@@ -331,8 +334,11 @@ class Exploration:
 
     def summary(self) -> dict[str, Any]:
         ms = sorted(self.decision_ms)
+        core = self.core.summary()
+        # heartbeat positions farther than a peer could have flown: left out of its track (swarm.roles.membership)
+        core["exploration_rejected"] = {**core["exploration_rejected"], "heartbeat_jump": self.peers.track_jumps}
         return {
-            **self.core.summary(),
+            **core,
             "decision_ms_p50": round(ms[len(ms) // 2], 1) if ms else None,
             "decision_ms_max": round(ms[-1], 1) if ms else None,
         }

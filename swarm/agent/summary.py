@@ -94,6 +94,8 @@ class AgentSummary(FileModel):
     exploration_done_reason: str
     targets_visited: int
     frontiers_given_up: list[GivenUpFrontier]
+    # other members' input left out, by kind (swarm.roles.protocol.REJECTED_KINDS, and heartbeat_jump)
+    exploration_rejected: dict[str, int]
     decision_ms_p50: float | None
     decision_ms_max: float | None
     # mapping (`MappingTask.summary`; an agent without a camera: zeros and None)
@@ -122,6 +124,7 @@ SCRIPTED_EXPLORATION = {
     "exploration_done_reason": "",
     "targets_visited": 0,
     "frontiers_given_up": [],
+    "exploration_rejected": {},
     "decision_ms_p50": None,
     "decision_ms_max": None,
 }

@@ -14,20 +14,36 @@ A peer whose token is alive but whose heartbeats do not arrive is one this agent
 reaches ours (liveliness is routed) but its publications are not routed to our subscriptions. Zenoh 1.10 routers
 can be left in that state after a link is re-established (measured: about half the times a router is frozen past
 its lease); `deaf` names such peers so the agent can re-declare its subscriptions, which repairs the routes.
+
+Each peer's heartbeat positions make its `track`: breadcrumbs TRACK_SPACING_M apart, the last TRACK_POINTS of
+them, so every position heard is within TRACK_SPACING_M of one. A position farther from the last one heard
+than TRACK_MAX_SPEED_M_S allows in the time since (plus TRACK_JUMP_SLACK_M) is not added: a peer cannot
+teleport its track; the allowance grows with the time since, so a real jump (an estimator reset, heartbeats
+lost) is taken a few seconds later. The leader trusts a member's reported looks only near its track
+(`swarm.roles.protocol`).
 """
 
 from __future__ import annotations
 
+import math
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Literal
+
+import numpy as np
 
 from swarm.bus.phase import RETIRED_PHASES, Phase
 from swarm.config import Vec3
 
 Role = Literal["leader", "explorer"]
 MembershipEvent = Literal["joined", "left"]
+
+TRACK_SPACING_M = 0.25  # a heartbeat position this far from the track's last point is a new breadcrumb
+TRACK_POINTS = 4096  # breadcrumbs kept per peer: a kilometre of flight at TRACK_SPACING_M
+TRACK_MAX_SPEED_M_S = 12.0  # no drone this runtime flies goes faster (PX4's default MPC_XY_VEL_MAX)
+TRACK_JUMP_SLACK_M = 1.0  # position noise and heartbeats delivered together
 
 
 @dataclass
@@ -42,6 +58,27 @@ class Peer:
     epoch: int = 0
     token_alive: bool = False
     heartbeats: int = 0
+    track: deque[Vec3] = field(default_factory=lambda: deque(maxlen=TRACK_POINTS))
+    track_last: tuple[float, Vec3] | None = None  # the last position taken into the track's motion, and when
+    track_jumps: int = 0  # heartbeat positions left out of the track: farther than the peer could have flown
+
+    def follow(self, now: float, position: Vec3) -> None:
+        """Take a heartbeat position into the track (see the module docstring)."""
+        if not all(math.isfinite(v) for v in position):
+            self.track_jumps += 1
+            return
+        if self.track_last is not None:
+            since, last = self.track_last
+            if math.dist(last, position) > TRACK_MAX_SPEED_M_S * max(now - since, 0.0) + TRACK_JUMP_SLACK_M:
+                self.track_jumps += 1
+                return
+        self.track_last = (now, position)
+        if not self.track or math.dist(self.track[-1], position) >= TRACK_SPACING_M:
+            self.track.append(position)
+
+    def track_array(self) -> np.ndarray:
+        """(N, 3) the track's breadcrumbs, oldest first."""
+        return np.asarray(self.track, dtype=float).reshape(-1, 3)
 
 
 @dataclass
@@ -56,6 +93,7 @@ class PeerTable:
     # since is what `deaf` looks for
     tokens_since: dict[int, float] = field(default_factory=dict)
     last_heartbeat: dict[int, float] = field(default_factory=dict)
+    track_jumps: int = 0  # heartbeat positions left out of a track, over every peer (the agent's summary)
 
     def heard(
         self,
@@ -71,6 +109,10 @@ class PeerTable:
             return
         peer = self._known(peer_id, "heartbeat")
         peer.last_heard = self.last_heartbeat[peer_id] = self.clock()
+        if phase != Phase.CONNECTING:  # before its first telemetry a peer says (0, 0, 0): no place it was
+            jumps = peer.track_jumps
+            peer.follow(peer.last_heard, position)
+            self.track_jumps += peer.track_jumps - jumps
         peer.position, peer.velocity, peer.heading_to = position, velocity, heading_to
         peer.phase, peer.epoch = phase, epoch
         peer.heartbeats += 1

@@ -27,6 +27,16 @@ Invariants:
   counts as given up for the cluster only when no member may be sent there (`given_up` says which and why).
 - Failures from a pocket (`Situation.in_pocket`: the drone's own cell is shut in by its map) are not counted: the
   drone gets out first.
+- The leader checks what it is told (docs/security.md, "The leader checks what it is told"): a member's
+  candidate whose viewpoint lies outside the mission volume (`ReportLimits.volume`, grown by `margin_m`) or whose
+  point lies farther out than that plus LOOK_AHEAD_M is dropped, and so is a look from outside it; a gain above
+  the most a view can hold (`ReportLimits.max_gain_m3`) is clamped to it, a non-finite or negative one drops its
+  candidate; with shared maps each member's OWN_GAIN_PER_MEMBER best candidates are ranked by the smaller of the
+  reported gain and the gain the leader's own fused map gives them, the rest by no more than the least of those;
+  a member's look counts only within `visited_radius_m + arrive_tolerance_m` of its heartbeat track
+  (`Situation.tracks`), so a member can exhaust candidates only along where it flew. Each kind of input left out
+  is counted (`rejected`, the summary's `exploration_rejected`), once per report the leader uses. An explorer
+  does not fly an assignment outside the mission volume.
 - Done means the cluster's fused map has no reachable frontier left with gain: the leader's merged set minus what
   no member can reach is empty while the leader is not in a pocket, and it stays so for a whole loop in which
   every member reported afresh, in pockets none of them (patches in flight can hide frontiers for a moment). Only
@@ -36,16 +46,18 @@ Invariants:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from swarm.bus.codec import WireMessage
-from swarm.config import ExploreSettings, Vec3
-from swarm.explore.frontiers import Frontier
+from swarm.config import ExploreSettings, SwarmConfig, Vec3
+from swarm.explore.frontiers import LOOK_AHEAD_M, Frontier, ViewModel
 from swarm.roles.assignment import Candidate, assign_targets, merge_candidates, remove_overlapped
 from swarm.roles.messages import MAX_CANDIDATES, MAX_VISITED, FrontierReport, TargetAssignment, as_points
 
@@ -56,6 +68,7 @@ UNREACHABLE_GIVE_UP = 3  # ... and after this many failures not until the map ne
 MAP_CHANGE_M3 = 0.3  # the unknown volume round a given-up viewpoint moved this much: the map changed, try again
 LOOK_HALF_ANGLE_DEG = 30.0  # a look covers candidates this far either side of its direction (a third of the FOV)
 BLIND_M = 0.1  # a point this close to straight above or below its viewpoint has no direction to look in
+OWN_GAIN_PER_MEMBER = 32  # a member's candidates the leader ray-casts on its own map per decision (0.35 ms each)
 
 Source = Literal["leader", "self"]
 
@@ -83,7 +96,46 @@ class MapQueries(Protocol):
 
     def gain_at(self, points: np.ndarray) -> np.ndarray: ...
 
+    def view_gain(self, viewpoints: np.ndarray, points: np.ndarray) -> np.ndarray: ...
+
     def is_frontier_near(self, point: Vec3, radius: float) -> bool: ...
+
+
+@dataclass(frozen=True)
+class ReportLimits:
+    """What a member's report can hold: where its viewpoints can be, and the most unknown volume a gain can say.
+    The defaults check nothing (a core built without a mission, as in tests of other rules)."""
+
+    volume: tuple[Vec3, Vec3] | None = None  # the mission volume (min, max corners)
+    margin_m: float = 0.0  # planning cells reach past the volume by up to a cell (from_config grows it by one)
+    max_gain_m3: float = math.inf
+
+    @classmethod
+    def from_config(cls, config: SwarmConfig) -> ReportLimits:
+        """The mission volume, and the gain bound of `explore.gain_model`: a view sees at most its frustum's
+        volume to the camera's range (plus a grid cell: the ray samples' last interval), a box gain at most its
+        cube; neither more than the mission volume."""
+        res = config.mapping.planning_resolution_m
+        volume = config.mission.volume
+        if config.explore.gain_model == "view":
+            _, solid = ViewModel.from_camera(config.camera).rays()
+            bound = float(solid.sum()) * (config.camera.max_range_m + res) ** 3 / 3.0
+        else:
+            bound = (2 * round(config.explore.gain_radius_m / res) + 1) ** 3 * res**3
+        if volume is None:
+            return cls(None, res, bound)
+        bound = min(bound, math.prod(hi - lo for lo, hi in zip(volume.min, volume.max)))
+        return cls((volume.min, volume.max), res, bound)
+
+    def inside(self, points: np.ndarray, extra_m: float = 0.0) -> np.ndarray:
+        """(N,) which of (N, 3) points lie in the volume grown by margin_m + extra_m (all, without a volume)."""
+        rows = np.asarray(points, dtype=float).reshape(-1, 3)
+        if self.volume is None:
+            return np.ones(len(rows), dtype=bool)
+        grow = self.margin_m + extra_m
+        lo, hi = np.asarray(self.volume[0], dtype=float) - grow, np.asarray(self.volume[1], dtype=float) + grow
+        inside: np.ndarray = np.all((rows >= lo) & (rows <= hi), axis=1)
+        return inside
 
 
 @dataclass
@@ -97,6 +149,7 @@ class Situation:
     frontiers: list[Frontier]
     map: MapQueries
     in_pocket: bool = False  # this drone's own cell is shut in by its map: nothing is unreachable from here
+    tracks: dict[int, np.ndarray] = field(default_factory=dict)  # (N, 3) each member's heartbeat track
 
 
 @dataclass
@@ -119,9 +172,33 @@ class _Unreachable:
     unknown_m3: float  # the box gain round it when it failed: when that moves, the map changed near it
 
 
+@dataclass
+class _Checked:
+    """A member's report as the leader uses it: what passed its checks."""
+
+    report: FrontierReport
+    candidates: list[Candidate]
+    looks: list[tuple[Vec3, Vec3]]
+
+
+REJECTED_KINDS = (
+    "candidate_outside_volume",  # a candidate's viewpoint or point outside the mission volume
+    "gain_invalid",  # non-finite or negative (the wire already refuses these)
+    "gain_clamped",  # above the most a view can see
+    "visited_outside_volume",
+    "visited_off_track",  # a look far from every heartbeat position the member sent
+    "assignment_outside_volume",  # an explorer's: a target its leader sent outside the mission volume
+)
+
+
 class ExplorationCore:
-    def __init__(self, settings: ExploreSettings, drone: int, epoch: int, now: float) -> None:
+    def __init__(
+        self, settings: ExploreSettings, drone: int, epoch: int, now: float, limits: ReportLimits | None = None
+    ) -> None:
         self.settings = settings
+        self.limits = limits or ReportLimits()
+        self.rejected = dict.fromkeys(REJECTED_KINDS, 0)
+        self._checked: dict[int, _Checked] = {}
         self.strategy = settings.strategy
         self.id = drone
         self.epoch = epoch
@@ -175,7 +252,12 @@ class ExplorationCore:
             self.finish(effects, f"leader {assignment.leader} declared the cluster done")
             return effects
         mine = assignment.target_of(self.id)
-        if mine is not None:
+        if mine is not None and not (
+            self.limits.inside(np.asarray([mine[0]])).all() and self.limits.inside(np.asarray([mine[1]]), LOOK_AHEAD_M)
+        ):
+            self.rejected["assignment_outside_volume"] += 1
+            effects.log("assignment_outside_volume", leader=assignment.leader, viewpoint=_r(mine[0]))
+        elif mine is not None:
             self.set_target(effects, Target(mine[0], mine[1], "leader"))
         return effects
 
@@ -267,8 +349,9 @@ class ExplorationCore:
             return
         fresh_after = now - REPORT_FRESH_LOOPS * self.settings.loop_s
         reports = {k: r for k, (t, r) in self.reports.items() if k in members and t >= fresh_after}
-        received = {k: _report_candidates(r) for k, r in reports.items()}
-        looks = [*self.looks, *(look for r in reports.values() for look in _report_looks(r))]
+        checked = {k: self._check(r, situation.tracks.get(k)) for k, r in reports.items()}
+        received = {k: c.candidates for k, c in checked.items()}
+        looks = [*self.looks, *(look for c in checked.values() for look in c.looks)]
         radius = self.settings.visited_radius_m
         if self.strategy == "frontier-only":
             pooled = remove_overlapped({self.id: self.own, **received})
@@ -284,7 +367,7 @@ class ExplorationCore:
         else:
             merged = merge_candidates(
                 self.own,
-                received,
+                {k: self._own_gains(c, situation.map) for k, c in received.items()},
                 gain_now=situation.map.gain_at,
                 min_gain=self.settings.min_gain_m3,
                 exhausted=[],
@@ -347,6 +430,57 @@ class ExplorationCore:
         mine = assigned.get(self.id)
         if mine is not None:
             self.set_target(effects, Target(mine.viewpoint, mine.point, "leader", mine.gain))
+
+    def _check(self, report: FrontierReport, track: np.ndarray | None) -> _Checked:
+        """The report's candidates and looks that pass the leader's checks (the module docstring), counted once
+        per report: a report is checked when the leader first uses it, against the track heard by then."""
+        known = self._checked.get(report.id)
+        if known is not None and known.report is report:
+            return known
+        limits, count = self.limits, self.rejected
+        gains = np.asarray(report.gains, dtype=float)
+        valid = np.isfinite(gains) & (gains >= 0.0)
+        inside = limits.inside(report.viewpoints) & limits.inside(report.points, LOOK_AHEAD_M)
+        count["gain_invalid"] += int(np.count_nonzero(~valid))
+        count["candidate_outside_volume"] += int(np.count_nonzero(valid & ~inside))
+        keep = valid & inside
+        count["gain_clamped"] += int(np.count_nonzero(keep & (gains > limits.max_gain_m3)))
+        candidates = [
+            Candidate(_vec(v), _vec(p), min(float(g), limits.max_gain_m3), report.id)
+            for v, p, g, k in zip(report.viewpoints, report.points, gains, keep)
+            if k
+        ]
+        looks = _report_looks(report)
+        eyes = np.asarray([v for v, _ in looks], dtype=float).reshape(-1, 3)
+        placed = limits.inside(eyes)
+        count["visited_outside_volume"] += int(np.count_nonzero(~placed))
+        reach = self.settings.visited_radius_m + self.settings.arrive_tolerance_m
+        near = _near_track(eyes, track, reach)
+        count["visited_off_track"] += int(np.count_nonzero(placed & ~near))
+        checked = self._checked[report.id] = _Checked(
+            report, candidates, [look for look, ok in zip(looks, placed & near) if ok]
+        )
+        return checked
+
+    def _own_gains(self, candidates: list[Candidate], grid: MapQueries) -> list[Candidate]:
+        """A member's candidates with each gain no more than the leader's own map gives it: ray cast (the view
+        gain) for the OWN_GAIN_PER_MEMBER best as reported, the rest no more than the least of those (a member
+        that reports hundreds must not stall the leader's loop). The box gain is cheap: every one is computed."""
+        if not candidates:
+            return []
+        order = sorted(candidates, key=lambda c: -c.gain)
+        if self.settings.gain_model == "view":
+            head = order[:OWN_GAIN_PER_MEMBER]
+            own = np.asarray(
+                grid.view_gain(_array([c.viewpoint for c in head]), _array([c.point for c in head])), dtype=float
+            )
+        else:
+            head = order
+            own = np.asarray(grid.gain_at(_array([c.point for c in head])), dtype=float)
+        own = np.where(np.isfinite(own) & (own >= 0.0), own, 0.0).reshape(len(head))
+        floor = float(own.min())
+        gains = [*own.tolist(), *([floor] * (len(order) - len(head)))]
+        return [dataclasses.replace(c, gain=min(c.gain, g)) for c, g in zip(order, gains)]
 
     def _trip_gain(self) -> float:
         """The least gain worth a trip, in the unit of the candidates' gains."""
@@ -485,6 +619,7 @@ class ExplorationCore:
             "exploration_done_reason": self.done_reason,
             "targets_visited": len(self.looks),
             "frontiers_given_up": [_given_up_dict(g) for g in self.given_up],
+            "exploration_rejected": dict(self.rejected),
         }
 
 
@@ -512,11 +647,17 @@ def _near(point: Vec3, centres: Sequence[Vec3] | np.ndarray, radius: float) -> b
     return bool(np.any(np.linalg.norm(np.asarray(centres, dtype=float) - np.asarray(point), axis=1) <= radius))
 
 
-def _report_candidates(report: FrontierReport) -> list[Candidate]:
-    return [
-        Candidate(_vec(v), _vec(p), float(g), report.id)
-        for v, p, g in zip(report.viewpoints, report.points, report.gains)
-    ]
+def _near_track(eyes: np.ndarray, track: np.ndarray | None, radius: float) -> np.ndarray:
+    """(N,) which eyes lie within radius of a point of the track (none, without one)."""
+    if track is None or len(track) == 0 or len(eyes) == 0:
+        return np.zeros(len(eyes), dtype=bool)
+    distance, _ = cKDTree(np.asarray(track, dtype=float).reshape(-1, 3)).query(eyes, distance_upper_bound=radius)
+    near: np.ndarray = np.isfinite(distance)
+    return near
+
+
+def _array(points: Sequence[Vec3]) -> np.ndarray:
+    return np.asarray(points, dtype=float).reshape(-1, 3)
 
 
 def _report_looks(report: FrontierReport) -> list[tuple[Vec3, Vec3]]:

@@ -28,14 +28,20 @@ LOOP = ExploreSettings().loop_s
 
 
 class Map:
-    """The two map queries: the box gain everywhere (settable), and whether a frontier is still near a point."""
+    """The map queries: the box gain everywhere (settable), the view gain per viewpoint (settable; unset, more
+    than any report says), and whether a frontier is still near a point."""
 
     def __init__(self, gain: float = 5.0) -> None:
         self.gain = gain
         self.explored: list[Vec3] = []
+        self.views: dict[Vec3, float] = {}
 
     def gain_at(self, points: np.ndarray) -> np.ndarray:
         return np.full(len(np.asarray(points).reshape(-1, 3)), self.gain)
+
+    def view_gain(self, viewpoints: np.ndarray, points: np.ndarray) -> np.ndarray:
+        rows = np.asarray(viewpoints, dtype=float).reshape(-1, 3)
+        return np.array([self.views.get(tuple(float(v) for v in row), 1e6) for row in rows])
 
     def is_frontier_near(self, point: Vec3, radius: float) -> bool:
         return not any(np.linalg.norm(np.subtract(point, e)) <= radius for e in self.explored)
