@@ -370,9 +370,7 @@ class AsyncBus:
                 self._loop.run_in_executor(None, self._build_and_reply, kind, reply_key, data, query)
                 return
             payloads = [data] if isinstance(data, (bytes, bytearray, memoryview)) else data
-            if payloads is not None and not (
-                isinstance(payloads, list) and all(isinstance(p, (bytes, bytearray, memoryview)) for p in payloads)
-            ):
+            if payloads is not None and not _is_payload_list(payloads):
                 raise TypeError(f"handler returned {type(data).__name__}, expected bytes, a list of bytes or None")
         except Exception:
             self.counters.dropped(kind, "handler_error")
@@ -389,9 +387,7 @@ class AsyncBus:
         """A worker thread: build a ReplyBuilder's payloads and send them."""
         try:
             payloads = build()
-            if not (
-                isinstance(payloads, list) and all(isinstance(p, (bytes, bytearray, memoryview)) for p in payloads)
-            ):
+            if not _is_payload_list(payloads):
                 raise TypeError(f"reply builder returned {type(payloads).__name__}, expected a list of bytes")
         except Exception:
             self.counters.dropped(kind, "handler_error")
@@ -628,6 +624,11 @@ def _resolve(future: asyncio.Future[R], result: R) -> None:
     """Set `future`'s result unless it is done already (on the loop's thread)."""
     if not future.done():
         future.set_result(result)
+
+
+def _is_payload_list(payloads: object) -> bool:
+    """What a query handler or reply builder must return: a list of bytes-like payloads."""
+    return isinstance(payloads, list) and all(isinstance(p, (bytes, bytearray, memoryview)) for p in payloads)
 
 
 def _reply_err(query: zenoh.Query, text: bytes) -> None:
