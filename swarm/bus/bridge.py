@@ -373,15 +373,19 @@ class AsyncBus:
             if payloads is not None and not _is_payload_list(payloads):
                 raise TypeError(f"handler returned {type(data).__name__}, expected bytes, a list of bytes or None")
         except Exception:
-            self.counters.dropped(kind, "handler_error")
-            log.exception("query handler for %s on %s failed", kind, key_expr)
-            _reply_err(query, b"handler error")
+            self._handler_failed(kind, "query handler", key_expr, query)
             return
         if payloads is None:
             self.counters.dropped(kind, "not_held")
             _reply_err(query, b"not held")
             return
         self._reply_all(kind, key if "*" not in key else key_expr, payloads, query)
+
+    def _handler_failed(self, kind: str, what: str, key: str, query: zenoh.Query) -> None:
+        """Count and log a query handler's or reply builder's exception (called in its except), answer an error."""
+        self.counters.dropped(kind, "handler_error")
+        log.exception("%s for %s on %s failed", what, kind, key)
+        _reply_err(query, b"handler error")
 
     def _build_and_reply(self, kind: str, reply_key: str, build: ReplyBuilder, query: zenoh.Query) -> None:
         """A worker thread: build a ReplyBuilder's payloads and send them."""
@@ -390,9 +394,7 @@ class AsyncBus:
             if not _is_payload_list(payloads):
                 raise TypeError(f"reply builder returned {type(payloads).__name__}, expected a list of bytes")
         except Exception:
-            self.counters.dropped(kind, "handler_error")
-            log.exception("reply builder for %s on %s failed", kind, reply_key)
-            _reply_err(query, b"handler error")
+            self._handler_failed(kind, "reply builder", reply_key, query)
             return
         if self._closed:
             self.counters.dropped(kind, "closed")
