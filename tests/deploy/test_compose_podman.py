@@ -130,7 +130,7 @@ def test_three_drones_with_loss_and_tls_run_to_the_end_and_leave_nothing(project
     assert waited.stdout.strip() == "0", log  # the observer's exit code: the mission's verdict
     assert report["explored_fraction"] >= 0.95
     assert report["converged"] is True
-    assert report["collisions"] == 0
+    assert report["collisions"] == 0, report["collision_events"]
     assert report["network"] == "compose"
     assert report["scenario"]["backend"] in ("netem", "nftables")
     assert [(i["link"], i["profile"]) for i in report["impairments"]] == [

@@ -37,7 +37,7 @@ def test_two_agents_fly_see_each_other_and_land(tmp_path: Path, swarm_ports: Swa
     assert result.returncode == 0, result.stdout + result.stderr
     report = json.loads((out / "report.json").read_text())
     assert report["status"] == "complete"
-    assert report["collisions"] == 0
+    assert report["collisions"] == 0, report["collision_events"]
     assert report["drones"] == 2 and report["world"] == "box"
     assert [a["id"] for a in report["agents"]] == [1, 2]
     for agent in report["agents"]:
@@ -95,7 +95,8 @@ def test_mesh_file_world_with_start(tmp_path: Path, swarm_ports: SwarmPorts) -> 
     result = run_swarm(out, swarm_ports, "--drones", "1", "--world", str(mesh), "--start", start, "--max-time", "120")
     assert result.returncode == 0, result.stdout + result.stderr
     report = json.loads((out / "report.json").read_text())
-    assert report["status"] == "complete" and report["collisions"] == 0
+    assert report["status"] == "complete", report["reason"]
+    assert report["collisions"] == 0, report["collision_events"]
     assert report["agents"][0]["landed"]
     assert report["explored_fraction"] >= 0.95  # one drone explores a mesh world alone
 

@@ -43,7 +43,8 @@ def test_agents_given_no_world_and_no_gps_map_from_the_simulated_cameras_streams
     )
     report = run_mission(config, live=False)
     assert report["status"] == "complete", report["reason"]
-    assert report["explored_fraction"] >= 0.95 and report["collisions"] == 0
+    assert report["explored_fraction"] >= 0.95
+    assert report["collisions"] == 0, report["collision_events"]
     assert not (out / "config" / NO_WORLD_FOR_AGENTS).exists()
     spawns = load_config(out / "config" / "sim.toml").sim.spawns
     for k in range(1, 4):

@@ -30,7 +30,8 @@ def test_three_drones_explore_both_storeys_of_a_generated_building(tmp_path: Pat
         f" done at {report['duration_s']} s"
     )
     assert report["status"] == "complete", report["reason"]
-    assert report["explored_fraction"] >= 0.95 and report["collisions"] == 0
+    assert report["explored_fraction"] >= 0.95
+    assert report["collisions"] == 0, report["collision_events"]
     floors = floor_levels(load_world(WORLD))
     assert len(floors) == 2
     upper_floor = floors[1]
