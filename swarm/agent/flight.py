@@ -3,8 +3,9 @@
 The mission is a coroutine given the `Flight` once the drone is airborne: a scripted route (`route_mission`) or
 the exploration task, which calls `fly_path` and `face` as it decides where to go. A path is a list of
 world-frame waypoints. The drone is led along each straight segment by a setpoint (a "carrot") that advances at
-the cruise speed and never runs more than `LOOKAHEAD_M` ahead of the drone, so it flies the segments themselves,
-not shortcuts between them, at a speed the agent chooses.
+the cruise speed, never runs more than `LOOKAHEAD_M` ahead of the drone, and waits while the drone is more than
+`CROSS_TRACK_M` off its segment (after a corner), so it flies the segments themselves, not shortcuts between
+them, at a speed the agent chooses.
 
 Separation: `neighbours()` gives the other airborne drones' positions, velocities and `heading_to` (the end of
 the segment each is flying), from their heartbeats, positions extrapolated to now. The lower id has the right
@@ -72,6 +73,7 @@ PRIORITY_PAUSE_FRACTION = 1.0  # the drone with the right of way holds for one c
 # (0.6 was too late: two drones closing at 3 m/s cover 0.7 m in a quarter second)
 PASS_CLEARANCE_M = 0.6  # ... that is in its way: this close to the rest of its segment (a drone that stepped
 # STEP_ASIDE_M off the segment is not, and holding for it would deadlock both)
+CROSS_TRACK_M = 0.1  # the carrot waits while the drone is farther than this off its segment (carrot_may_advance)
 SLOW_M_S = 0.2  # a peer slower than this, going nowhere, has no track to step off: the yielder climbs or descends
 REFUGE_CLEAR_M = PASS_CLEARANCE_M + 0.2  # a refuge this far off the other's segment lets it pass
 REJOIN_TOLERANCE_M = 0.1  # a drone flying its step aside back is at the segment again this close to it
@@ -391,7 +393,8 @@ class Flight:
                     travelled = min(travelled, max(along, 0.0))
             carrot = start + segment * (travelled / length) if length > 0 else target
             following = separation.manoeuvre == Manoeuvre.FOLLOW
-            if following and travelled < length and np.linalg.norm(carrot - position) < LOOKAHEAD_M:
+            velocity = np.array(self.ap.telemetry.velocity)
+            if following and travelled < length and carrot_may_advance(position, velocity, carrot, start, target):
                 travelled = min(length, travelled + speed * SETPOINT_PERIOD_S)
                 carrot = start + segment * (travelled / length)
             self._carrot = vec3(carrot)
@@ -731,6 +734,24 @@ def carried_lead(here: Vec3, carrot: Vec3 | None, first_waypoint: Vec3) -> float
     return min(max(along, 0.0), LOOKAHEAD_M, length)
 
 
+def carrot_may_advance(
+    position: np.ndarray, velocity: np.ndarray, carrot: np.ndarray, start: np.ndarray, target: np.ndarray
+) -> bool:
+    """The carrot may run on along the segment start-target: it is less than LOOKAHEAD_M ahead of the drone,
+    and the drone is on the segment's line (within CROSS_TRACK_M of it: a drone short of a waypoint on the
+    straight way on is on it, one short of a corner is not), or has come to rest off it (it will get no closer: a
+    steady offset must not stall the segment).
+
+    Why the drone must be on the segment first: a waypoint counts as reached within `waypoint_tolerance_m`
+    (0.3 m), and planned paths keep only `clearance_m` (5 cm more than the airframe) from obstacles. A carrot
+    that ran on from the corner at once drew the drone along a chord from where it was, inside the corner: a
+    drone arriving at a doorway from above entered it 0.1 m higher than planned, 0.04 m under the lintel."""
+    if float(np.linalg.norm(carrot - position)) >= LOOKAHEAD_M:
+        return False
+    on_track = distance_to_line(position, start, target) <= CROSS_TRACK_M
+    return on_track or float(np.linalg.norm(velocity)) < SLOW_M_S
+
+
 def resume_from(here: Vec3, left_at: Vec3, target: Vec3, is_clear: Callable[[Vec3, Vec3], bool]) -> Vec3:
     """Where a drone that stepped aside takes up its segment to `target` again: from `here` when the straight way
     on is clear, else from `left_at`, where it left the segment (flying back along the step it took)."""
@@ -806,3 +827,13 @@ def distance_to_segment(point: np.ndarray, a: np.ndarray, b: np.ndarray) -> floa
     span = float(np.dot(ab, ab))
     along = 0.0 if span < 1e-12 else min(max(float(np.dot(point - a, ab)) / span, 0.0), 1.0)
     return float(np.linalg.norm(point - (a + along * ab)))
+
+
+def distance_to_line(point: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+    """Distance from `point` to the infinite line through `a` and `b` (to `a` when they coincide)."""
+    ab = np.asarray(b, dtype=float) - a
+    offset = np.asarray(point, dtype=float) - a
+    span = float(np.dot(ab, ab))
+    if span < 1e-12:
+        return float(np.linalg.norm(offset))
+    return float(np.linalg.norm(offset - (float(np.dot(offset, ab)) / span) * ab))

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from swarm.agent.flight import carried_lead
+from swarm.agent.flight import carried_lead, carrot_may_advance
 
 
 def test_a_new_carrot_keeps_the_old_ones_lead_in_the_new_direction() -> None:
@@ -17,3 +17,26 @@ def test_a_new_carrot_keeps_the_old_ones_lead_in_the_new_direction() -> None:
     assert carried_lead(here, (0.8, 0.0, 1.5), (-5.0, 0.0, 1.5)) == 0.0  # a U-turn starts at the drone
     assert carried_lead(here, (0.8, 0.0, 1.5), (0.3, 0.0, 1.5)) == pytest.approx(0.3)  # within the segment
     assert carried_lead(here, (2.0, 0.0, 1.5), (5.0, 0.0, 1.5)) == pytest.approx(1.0)  # within the look-ahead
+
+
+def test_the_carrot_waits_for_a_drone_that_is_off_its_segment_after_a_corner() -> None:
+    start, target = np.array([10.7, 6.9, 1.5]), np.array([11.7, 6.9, 1.5])  # the level way through a door
+    carrot = np.array([10.8, 6.9, 1.5])
+    still = np.zeros(3)
+    descending = np.array([0.5, 0.0, -0.8])
+    above_the_corner = np.array([10.6, 6.9, 1.75])  # 0.25 m above the segment, still coming down
+    assert not carrot_may_advance(above_the_corner, descending, carrot, start, target)
+    on_the_segment = np.array([10.75, 6.9, 1.56])
+    assert carrot_may_advance(on_the_segment, descending, carrot, start, target)
+    # at rest off the segment: it will get no closer, so the segment goes on rather than stalling
+    assert carrot_may_advance(above_the_corner, still, carrot, start, target)
+    far_behind = np.array([9.7, 6.9, 1.5])  # on the line, but the carrot is a look-ahead away
+    assert not carrot_may_advance(far_behind, still, carrot, start, target)
+
+
+def test_the_carrot_runs_on_for_a_drone_short_of_a_waypoint_on_the_straight_way_on() -> None:
+    start, target = np.array([2.0, 0.0, 1.5]), np.array([4.0, 0.0, 1.5])
+    short_of_it = np.array([1.75, 0.02, 1.5])  # within the waypoint tolerance, not yet at the waypoint
+    assert carrot_may_advance(short_of_it, np.array([1.5, 0.0, 0.0]), start, start, target)
+    short_of_a_right_angle = np.array([2.0, -0.25, 1.5])  # coming along y to turn along x
+    assert not carrot_may_advance(short_of_a_right_angle, np.array([0.0, 1.5, 0.0]), start, start, target)
