@@ -14,6 +14,8 @@ import sys
 from pathlib import Path
 from typing import Any, Literal
 
+from pydantic import Field
+
 from swarm.agent.summary import GivenUpFrontier, KindTraffic, SyncStats
 from swarm.bus.holdings import DigestWire
 from swarm.bus.phase import Phase
@@ -133,6 +135,24 @@ class ReceivedPatches(FileModel):
     pull: int
 
 
+class Defences(FileModel):
+    """What one agent left out or could not do, by reason (issue 25): empty in a healthy mission (and in reports
+    written before these counts were). Each is a reason -> count map.
+
+    exploration_rejected: other members' frontier reports and heartbeats not believed; patches_not_sealed: its
+    own open patches dropped that receivers would refuse; patch_store_failures: errno name -> sealed patches not
+    stored on disk (pushed all the same); assembly_dropped: patch chunks dropped by the reassembler's bounds;
+    sync_limits: pull claims over a holder's quota, holdings left unannounced; bus_dropped: received messages
+    dropped undecoded or invalid, over every kind."""
+
+    exploration_rejected: dict[str, int] = Field(default_factory=dict)
+    patches_not_sealed: dict[str, int] = Field(default_factory=dict)
+    patch_store_failures: dict[str, int] = Field(default_factory=dict)
+    assembly_dropped: dict[str, int] = Field(default_factory=dict)
+    sync_limits: dict[str, int] = Field(default_factory=dict)
+    bus_dropped: dict[str, int] = Field(default_factory=dict)
+
+
 class AgentRow(FileModel):
     """One drone in the report: truth from the simulator, the rest from the agent's own summary."""
 
@@ -164,6 +184,7 @@ class AgentRow(FileModel):
     targets_self_selected: int
     exploration_done_reason: str | None
     frontiers_given_up: list[GivenUpFrontier]
+    defences: Defences = Field(default_factory=lambda: Defences())
 
 
 class Bandwidth(FileModel):

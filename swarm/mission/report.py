@@ -20,6 +20,7 @@ from swarm.mission.files import (
     NO_COVERAGE,
     AgentRow,
     Bandwidth,
+    Defences,
     MissionInfo,
     MissionReport,
     NicenessAsked,
@@ -171,6 +172,25 @@ def agent_row(
         targets_self_selected=s.targets_self_selected if s else 0,
         exploration_done_reason=(s.exploration_done_reason or None) if s else None,
         frontiers_given_up=s.frontiers_given_up if s else [],
+        defences=defences_of(s),
+    )
+
+
+def defences_of(s: AgentSummary | None) -> Defences:
+    """The agent's counts of input it left out and writes it could not make (zeros without a summary)."""
+    if s is None:
+        return Defences()
+    bus_dropped: dict[str, int] = {}
+    for kind in s.traffic.values():
+        for reason, count in kind.dropped.items():
+            bus_dropped[reason] = bus_dropped.get(reason, 0) + count
+    return Defences(
+        exploration_rejected={k: v for k, v in s.exploration_rejected.items() if v},
+        patches_not_sealed={k: v for k, v in s.patches_not_sealed.items() if v},
+        patch_store_failures={k: v for k, v in s.patch_store_failures.items() if v},
+        assembly_dropped={k: v for k, v in s.sync.assembly_dropped.items() if v},
+        sync_limits={k: v for k, v in s.sync.limits.items() if v},
+        bus_dropped={k: v for k, v in sorted(bus_dropped.items()) if v},
     )
 
 

@@ -98,6 +98,20 @@ def recording_lines(run_dir: str) -> list[str]:
     ]
 
 
+def defence_lines(report: MissionReport) -> list[str]:
+    """One line per drone that left input out or failed to store, naming the counts; one line when none did."""
+    lines = []
+    for agent in report.agents:
+        parts = [
+            f"{name.replace('_', ' ')}: " + ", ".join(f"{reason} {count}" for reason, count in counts.items())
+            for name, counts in agent.defences.model_dump().items()
+            if counts
+        ]
+        if parts:
+            lines.append(f"- drone {agent.id}: " + "; ".join(parts))
+    return lines or ["No drone dropped, rejected or failed to store anything."]
+
+
 def render_report_page(report: MissionReport, recording: bool = False) -> str:
     strategy = report.mission.strategy or "unspecified"
     lines = [
@@ -128,6 +142,10 @@ def render_report_page(report: MissionReport, recording: bool = False) -> str:
         "## Leader timeline",
         "",
         *leader_lines(report.leaders),
+        "",
+        "## Input left out (defences)",
+        "",
+        *defence_lines(report),
         "",
         *(recording_lines(report.run_dir) if recording else []),
     ]

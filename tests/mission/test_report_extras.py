@@ -16,10 +16,10 @@ from swarm.bus.phase import Phase
 from swarm.config import load_config
 from swarm.mission import observer as observer_module
 from swarm.mission.coverage import SwarmCoverage, overlap_fraction, unexplored_regions
-from swarm.mission.files import AgentRow, MissionReport, ObserverStatus, UnexploredRegion
+from swarm.mission.files import AgentRow, Defences, MissionReport, ObserverStatus, UnexploredRegion
 from swarm.mission.observer import LeaderTimeline, Observer, Trajectories, clusters_of
 from swarm.mission.plots import PLOT_NAMES, floor_plan, leader_segments, plot_explored, received_rate, write_plots
-from swarm.mission.report import _why_short, finish_report, time_to, write_report
+from swarm.mission.report import _why_short, defences_of, finish_report, time_to, write_report
 from swarm.mission.report_md import write_report_page
 from swarm.sim.coverage import ReachableSpace
 from swarm.sim.worlds import load_world
@@ -433,3 +433,32 @@ def test_a_mission_below_its_coverage_target_names_the_largest_unexplored_part()
         "the largest unexplored part: 37.6 m3 in x 0.5-10.7, y 8.9-11.5, z 3.9-6.7 (observer.json unexplored)"
     )
     assert "unexplored" not in _why_short(0.9335, agents)
+
+
+def test_an_agents_defences_sum_its_bus_drops_over_kinds_and_leave_out_the_zeros(tmp_path: Path) -> None:
+    traffic = {
+        kind: {"sent_msgs": 1, "sent_bytes": 1, "recv_msgs": 9, "recv_bytes": 9, "dropped": dropped}
+        for kind, dropped in (("state", {"invalid": 2, "rate": 5}), ("patch_chunk", {"invalid": 1, "backlog": 0}))
+    }
+    summary = AgentSummary.model_validate(
+        agent_summary_data(
+            3, traffic=traffic, exploration_rejected={"gain_clamped": 4, "visited_off_track": 0}, frames=10
+        )
+    )
+    defences = defences_of(summary)
+    assert defences.bus_dropped == {"invalid": 3, "rate": 5}
+    assert defences.exploration_rejected == {"gain_clamped": 4}
+    assert defences.patch_store_failures == {} and defences.sync_limits == {}
+    assert defences_of(None) == Defences()
+
+    report, _, _ = _synthetic_run(tmp_path)
+    report["agents"][1]["defences"] = defences.model_dump()
+    text = write_report_page(tmp_path, MissionReport.model_validate(report)).read_text()
+    assert "- drone 2: exploration rejected: gain_clamped 4; bus dropped: invalid 3, rate 5" in text
+    assert "- drone 1" not in text
+
+
+def test_a_report_written_before_the_defences_were_counted_still_reads() -> None:
+    row = agent_row_data(1)
+    assert "defences" not in row
+    assert AgentRow.model_validate(row).defences == Defences()
