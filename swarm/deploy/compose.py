@@ -11,7 +11,8 @@ What it writes into OUT (which must be empty or new):
                               /etc/swarm-tls, so a drone never holds another drone's key nor the CA's
     results/                  mounted at /results: report.json (the observer's `swarm deploy mission`),
                               sim.json, observer.json, map.ply, agents/agent-K.json|ply, agents/radio-K.json
-                              (what loss each radio got, and by which backend), agents/patches/
+                              (what loss each radio got, and by which backend), agents/patches/,
+                              agents/state/agent-K/ (the agent's own sealed patches and epoch: a restart reloads)
 
 Engines: written for `docker compose` and `podman-compose` (>= 1.1: static addresses and subnets). Podman
 before 4.6 cannot wait for a healthcheck, so podman-compose ignores `condition: service_healthy` there; each
@@ -223,6 +224,8 @@ def plan(
             "id": k,
             "autopilot": f"udpout://{sim_address()}:{vehicle_port(base.sim, k)}",
             "out_dir": f"{RESULTS_DIR}/agents",
+            # as swarm run: a restarted container reloads its own sealed patches (and its epoch counter) from here
+            "state_dir": f"{RESULTS_DIR}/agents/state/agent-{k}",
         }
         if "px4_params" not in base.agent.model_fields_set:
             agent_update["px4_params"] = "set"  # the simulator's vehicles, as swarm run

@@ -170,6 +170,7 @@ def test_configs_load_and_wire_the_bus(generated: tuple[Path, Deployment]) -> No
         assert agent.agent.id == k
         assert agent.agent.autopilot == f"udpout://{sim_address()}:{vehicle_port(agent.sim, k)}"
         assert str(agent.agent.out_dir) == "/results/agents"
+        assert str(agent.agent.state_dir) == f"/results/agents/state/agent-{k}"  # each its own: a restart reloads
         assert agent.bus.mode == "router"
         assert agent.bus.listen == [f"tcp/{radio_address(k)}:7447", f"tcp/{control_address(k)}:7447"]
         # lower ids only, on the radio: one connection per pair, all of them over the impaired network
