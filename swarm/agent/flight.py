@@ -823,17 +823,19 @@ def _in_the_way(peer: np.ndarray, position: np.ndarray, target: np.ndarray, clea
 
 
 def distance_to_segment(point: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
-    ab = np.asarray(b, dtype=float) - a
-    span = float(np.dot(ab, ab))
-    along = 0.0 if span < 1e-12 else min(max(float(np.dot(point - a, ab)) / span, 0.0), 1.0)
-    return float(np.linalg.norm(point - (a + along * ab)))
+    return _distance_along(point, a, b, clamped=True)
 
 
 def distance_to_line(point: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
     """Distance from `point` to the infinite line through `a` and `b` (to `a` when they coincide)."""
+    return _distance_along(point, a, b, clamped=False)
+
+
+def _distance_along(point: np.ndarray, a: np.ndarray, b: np.ndarray, clamped: bool) -> float:
+    """Distance from `point` to its projection on the line a-b, kept between a and b when `clamped`."""
     ab = np.asarray(b, dtype=float) - a
-    offset = np.asarray(point, dtype=float) - a
     span = float(np.dot(ab, ab))
-    if span < 1e-12:
-        return float(np.linalg.norm(offset))
-    return float(np.linalg.norm(offset - (float(np.dot(offset, ab)) / span) * ab))
+    along = 0.0 if span < 1e-12 else float(np.dot(point - a, ab)) / span
+    if clamped:
+        along = min(max(along, 0.0), 1.0)
+    return float(np.linalg.norm(point - (a + along * ab)))

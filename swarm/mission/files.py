@@ -184,7 +184,7 @@ class AgentRow(FileModel):
     targets_self_selected: int
     exploration_done_reason: str | None
     frontiers_given_up: list[GivenUpFrontier]
-    defences: Defences = Field(default_factory=lambda: Defences())
+    defences: Defences = Field(default_factory=Defences)
 
 
 class Bandwidth(FileModel):

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections import Counter
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -177,21 +178,24 @@ def agent_row(
 
 
 def defences_of(s: AgentSummary | None) -> Defences:
-    """The agent's counts of input it left out and writes it could not make (zeros without a summary)."""
+    """The agent's counts of input it left out and writes it could not make (empty without a summary)."""
     if s is None:
         return Defences()
-    bus_dropped: dict[str, int] = {}
+    bus_dropped: Counter[str] = Counter()
     for kind in s.traffic.values():
-        for reason, count in kind.dropped.items():
-            bus_dropped[reason] = bus_dropped.get(reason, 0) + count
+        bus_dropped.update(kind.dropped)  # adds the counts of every kind, reason by reason
     return Defences(
-        exploration_rejected={k: v for k, v in s.exploration_rejected.items() if v},
-        patches_not_sealed={k: v for k, v in s.patches_not_sealed.items() if v},
-        patch_store_failures={k: v for k, v in s.patch_store_failures.items() if v},
-        assembly_dropped={k: v for k, v in s.sync.assembly_dropped.items() if v},
-        sync_limits={k: v for k, v in s.sync.limits.items() if v},
-        bus_dropped={k: v for k, v in sorted(bus_dropped.items()) if v},
+        exploration_rejected=_nonzero(s.exploration_rejected),
+        patches_not_sealed=_nonzero(s.patches_not_sealed),
+        patch_store_failures=_nonzero(s.patch_store_failures),
+        assembly_dropped=_nonzero(s.sync.assembly_dropped),
+        sync_limits=_nonzero(s.sync.limits),
+        bus_dropped=_nonzero(dict(sorted(bus_dropped.items()))),
     )
+
+
+def _nonzero(counts: dict[str, int]) -> dict[str, int]:
+    return {reason: count for reason, count in counts.items() if count}
 
 
 def _judged_by_coverage(config: Any) -> bool:
