@@ -594,6 +594,12 @@ class SyncSettings(_Section):
     serve_total_factor: float = Field(
         3.0, ge=1.0, le=256.0, description="all requesters together get this many requesters' worth"
     )
+    signing_dir: Path | None = Field(
+        None,
+        description="patch signing (swarm.patches.signing): a directory with the authority's ca.pem and this "
+        "drone's drone-<id>.sign.pem/.sign.key; every received patch must then be signed by its producer. "
+        "Unset: bus.tls_dir when TLS is on, else no signing (any member can forge any patch)",
+    )
 
     @model_validator(mode="after")
     def _backoff(self) -> SyncSettings:
@@ -723,6 +729,10 @@ class SwarmConfig(_Section):
         if self.bus.tls_dir is not None and self.bus.tls_name is None:
             return self.bus.model_copy(update={"tls_name": tls_drone_name(self.agent.id)})
         return self.bus
+
+    def signing_dir(self) -> Path | None:
+        """Where this process's patch signing material is: sync.signing_dir, else the TLS directory, else none."""
+        return self.sync.signing_dir if self.sync.signing_dir is not None else self.bus.tls_dir
 
     @model_validator(mode="after")
     def _explorers_see(self) -> SwarmConfig:

@@ -46,6 +46,7 @@ from swarm.files import write_model
 from swarm.patches.lattice import Lattice
 from swarm.patches.patch import PatchId
 from swarm.patches.sealer import patch_block_limit
+from swarm.patches.signing import load_signing
 from swarm.patches.wire import decode_expected
 from swarm.roles.membership import PeerTable
 from swarm.sensing.frames import camera_mount
@@ -86,6 +87,8 @@ class Agent:
         # never one an earlier process of this drone used, and larger (swarm.agent.epoch)
         self.epoch = next_epoch(config.agent.state_dir, self.id, time.time_ns() // 1_000_000, self.log)
         self.lattice = Lattice.from_settings(config.mapping)
+        signing_dir = config.signing_dir()
+        self.signing = load_signing(signing_dir, self.id) if signing_dir is not None else None
         self.peers = PeerTable(self.id, timeout_s=config.agent.peer_timeout_s, on_change=self._on_membership)
         self.route_refreshes = 0  # times the bus's subscriptions were declared again for a peer we were deaf to
         self.peer_events: list[dict[str, Any]] = []
@@ -137,6 +140,7 @@ class Agent:
             max_patch_bytes=self.config.mapping.max_patch_bytes,
             on_holdings_changed=self._announce.set,
             share=self.sharing,
+            own_epoch=self.epoch,
         )
         mission: Mission = route_mission(list(self.config.agent.waypoints))
         homeward: Mission = retrace  # a low battery ends the mission: back the way the route came
@@ -244,6 +248,7 @@ class Agent:
             self.config.agent.out_dir,
             on_sealed,
             peers=self._sightings,
+            signing=self.signing,
         )
 
     def _sightings(self) -> list[PeerSighting]:
@@ -274,6 +279,7 @@ class Agent:
             self.config.mapping.max_patch_bytes,
             patch_block_limit(self.config.mapping, self.config.camera),
             (volume.min, volume.max) if volume is not None else None,
+            self.signing.verifier if self.signing is not None else None,
         )
 
     async def _linger(self) -> None:

@@ -45,6 +45,7 @@ from swarm.patches.fused import OCCUPIED
 from swarm.patches.mapper import Mapper
 from swarm.patches.patch import Patch, PatchId
 from swarm.patches.sealer import patch_block_limit
+from swarm.patches.signing import Signing
 from swarm.patches.wire import PatchDecodeError
 from swarm.sensing.peers import PeerSighting, mask_peers
 
@@ -131,6 +132,7 @@ class MappingTask:
         out_dir: Path | None,
         on_sealed: SealedCallback | None = None,
         peers: Callable[[], list[PeerSighting]] = list,
+        signing: Signing | None = None,
     ) -> None:
         self.config = config
         self.bounds = bounds
@@ -143,6 +145,7 @@ class MappingTask:
             bounds,
             known_weight=config.mapping.known_weight,
             max_blocks=patch_block_limit(config.mapping, config.camera),
+            signing=signing,
         )
         self.patches_dir = out_dir / "patches" if out_dir is not None else None
         if self.patches_dir is not None:

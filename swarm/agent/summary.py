@@ -49,6 +49,7 @@ class SyncStats(FileModel):
     served_to: dict[str, int]
     holdings: DigestWire  # what it announced (`PatchDigest.announced`: all it held unless beyond the wire bounds)
     limits: dict[str, int]  # bounds that cut hostile or excessive input: pull claims, unannounced holdings
+    content: dict[str, str] = {}  # patch id -> SHA-256 of the bytes held (PatchSync.content_hashes)
 
 
 class GivenUpFrontier(FileModel):

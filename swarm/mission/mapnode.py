@@ -32,6 +32,7 @@ from swarm.mission.files import MapNodeStatus
 from swarm.patches.mapper import Mapper
 from swarm.patches.patch import PatchId
 from swarm.patches.sealer import patch_block_limit
+from swarm.patches.signing import load_signing
 from swarm.roles.membership import PeerTable
 from swarm.sim.camera import DepthCamera
 from swarm.sim.worlds import load_world, mission_volume
@@ -57,6 +58,7 @@ class MapNode:
         self.epoch = time.time_ns() // 1_000_000
         self.world = load_world(config.mission.world)
         lo, hi = mission_volume(self.world, config.mission.volume)
+        signing_dir = config.signing_dir()
         self.mapper = Mapper(
             config.mapping,
             self.id,
@@ -64,6 +66,7 @@ class MapNode:
             (lo, hi),
             known_weight=config.mapping.known_weight,
             max_blocks=patch_block_limit(config.mapping, config.camera),
+            signing=load_signing(signing_dir, self.id) if signing_dir is not None else None,
         )
         self.camera = DepthCamera(self.world, config.camera, seed=self.id)
         self.centre = (lo + hi) / 2
@@ -102,6 +105,7 @@ class MapNode:
             self.position,
             self.config.mapping.max_patch_bytes,
             on_holdings_changed=lambda: self._publish_state(),
+            own_epoch=self.epoch,
         )
         bus.declare_token(bus.keys.alive(self.id))
         bus.subscribe(bus.keys.all_states, AgentState, self._on_state)

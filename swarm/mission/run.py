@@ -46,7 +46,7 @@ from swarm.config import (
     tls_drone_name,
     vehicle_port,
 )
-from swarm.deploy.certs import make_certs
+from swarm.deploy.certs import make_certs, make_signing_authority
 from swarm.errors import SwarmError
 from swarm.mission.faults import FaultInjector
 from swarm.mission.files import MissionReport
@@ -207,6 +207,11 @@ def _with_tls(plan: RunPlan, bus: dict[str, Any], name: str) -> dict[str, Any]:
         "tls_dir": plan.out / "certs",
         "tls_name": name,
     }
+
+
+def _keys_dir(plan: RunPlan) -> Path:
+    """Without TLS, the mission's own patch signing authority and the drones' signing keys."""
+    return plan.out / "keys"
 
 
 def _write_config(path: Path, config: SwarmConfig) -> Path:
@@ -378,8 +383,10 @@ def _netns_bus_for(config: SwarmConfig, net: SwarmNetwork, index: int) -> dict[s
 def _start_swarm(plan: RunPlan, state: RunState) -> None:
     config = plan.config
     net = state.net
-    if config.mission.tls:
+    if config.mission.tls:  # the CA signs the drones' TLS and patch signing certificates
         make_certs(plan.out / "certs", config.mission.drones)
+    elif config.sync.signing_dir is None:  # no TLS: a per-mission authority signs the patch signing certificates
+        make_signing_authority(_keys_dir(plan), config.mission.drones)
     observer_bus = _netns_bus_for(config, net, 0) if net is not None else _bus_for(config, 0)
     observer_bus = _with_tls(plan, observer_bus, TLS_OBSERVER_NAME)
     observer_config = config.model_copy(update={"bus": config.bus.model_copy(update=observer_bus)})
@@ -431,8 +438,16 @@ def _start_swarm(plan: RunPlan, state: RunState) -> None:
         agent = config.agent.model_copy(update=update)
         bus = _netns_bus_for(config, net, k) if net is not None else _bus_for(config, k)
         bus = _with_tls(plan, bus, tls_drone_name(k))
+        sync = config.sync
+        if not config.mission.tls and sync.signing_dir is None:
+            sync = sync.model_copy(update={"signing_dir": _keys_dir(plan)})
         agent_config = config.model_copy(
-            update={"agent": agent, "bus": config.bus.model_copy(update=bus), **_agent_camera(plan, state, k)}
+            update={
+                "agent": agent,
+                "bus": config.bus.model_copy(update=bus),
+                "sync": sync,
+                **_agent_camera(plan, state, k),
+            }
         )
         path = _write_config(plan.out / "config" / f"agent-{k}.toml", agent_config)
         argv = swarm_command("agent", "--config", str(path))

@@ -19,8 +19,9 @@ from swarm.patches.fused import Bounds, FusedMap
 from swarm.patches.lattice import Lattice
 from swarm.patches.patch import Patch, PatchId
 from swarm.patches.sealer import PatchSealer
+from swarm.patches.signing import Signing
 from swarm.patches.store import PatchStore
-from swarm.patches.wire import decode_expected
+from swarm.patches.wire import decode_expected, encode_patch
 
 
 class Mapper:
@@ -34,10 +35,11 @@ class Mapper:
         known_weight: float = 1.0,
         backend: TsdfBackend | None = None,
         max_blocks: int | None = None,
+        signing: Signing | None = None,
     ) -> None:
         """`bounds`: the mission volume (the fused map's extent; patches with no block in it are neither sealed nor
         accepted); `max_blocks`: the most blocks a patch may have (`swarm.patches.sealer.patch_block_limit`), None
-        for no bound."""
+        for no bound; `signing`: own patches are signed with its signer, received ones must pass its verifier."""
         self.lattice = Lattice.from_settings(settings, origin)
         backend = backend or VoxelBlockGridBackend(self.lattice)
         if backend.lattice != self.lattice:
@@ -45,6 +47,10 @@ class Mapper:
         self.producer = producer
         self.epoch = epoch
         self.max_blocks = max_blocks
+        if signing is not None and signing.signer is not None and signing.signer.producer != producer:
+            raise ValueError(f"the signing key is drone {signing.signer.producer}'s, not {producer}'s")
+        self.signer = signing.signer if signing is not None else None
+        self.verifier = signing.verifier if signing is not None else None
         self.sealer = PatchSealer(
             backend,
             producer,
@@ -70,7 +76,7 @@ class Mapper:
 
     def _keep(self, patch: Patch | None) -> Patch | None:
         if patch is not None:
-            self.private.add(patch)
+            self.private.add(patch, encode_patch(patch, signer=self.signer))
             self.fused.add(patch)
         return patch
 
@@ -86,8 +92,8 @@ class Mapper:
     def receive_wire(self, data: bytes, pid: PatchId, max_bytes: int) -> bool:
         """Decode and validate a peer's patch bytes, which must hold patch `pid`, then `receive` it; raises
         PatchDecodeError (nothing changes) if they are unusable, or hold more than `max_blocks` blocks or none in
-        the mission volume."""
-        patch = decode_expected(data, pid, self.lattice, max_bytes, self.max_blocks, self.fused.bounds)
+        the mission volume, or are not signed by their producer when this mapper verifies."""
+        patch = decode_expected(data, pid, self.lattice, max_bytes, self.max_blocks, self.fused.bounds, self.verifier)
         return self.receive(patch, data)
 
     def data(self, pid: PatchId) -> bytes | None:

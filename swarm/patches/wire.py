@@ -2,12 +2,14 @@
 
 Bytes: the bus envelope of `swarm.bus.codec` (``{"v", "k": "patch", "d"}``, msgpack) around a `PatchMessage`:
 header fields (format version, patch id, lattice, frame span, anchor pose, bounding box, voxel and block counts,
-CRC-32) and `payload`, one zstd frame (level 3) holding three little-endian arrays back to back:
+CRC-32), the producer's signing certificate and signature (`swarm.patches.signing`; both empty in a swarm
+without signing) and `payload`, one zstd frame (level 3) holding three little-endian arrays back to back:
 keys int16 (M,3), tsdf int8 (M,R^3), weight (M,R^3) in the lattice's weight dtype (uint8 or uint16).
 
 The CRC-32 covers the header fields and the compressed payload, so corruption is caught before decompression
-(it guards against damage, not forgery: everything else is validated as hostile input). `decode_patch` checks,
-in this order, and raises `PatchDecodeError(reason)` only:
+(it guards against damage). The content hash, SHA-256 of the same header fields and the payload, is what the
+producer signs: with a verifier, a patch is bound to its producer. `decode_patch` checks, in this order, and
+raises `PatchDecodeError(reason)` only:
 
 - "too_large": input over max_bytes; a block count whose arrays would exceed MAX_EXPANSION * max_bytes; a frame
   that decompresses beyond the size the block count implies (a zip bomb without a declared size);
@@ -22,6 +24,8 @@ in this order, and raises `PatchDecodeError(reason)` only:
 - "too_many_blocks": more blocks than `max_blocks`, when given: more than a camera can see in one seal window
   (`swarm.patches.sealer.patch_block_limit`, which also makes the sealer seal before it gets there);
 - "checksum": CRC-32 mismatch;
+- "unsigned", "signer", "signature": with a verifier, no signature, a certificate that is not the producer's
+  signing certificate from the swarm's authority, or a signature that does not hold (`PatchVerifier.check`);
 - "decompress": zstd rejects the payload;
 - "shape": the payload's declared or actual size does not match the block count;
 - "outside_volume": when the mission volume is given, no block in it (the fused map ignores
@@ -35,6 +39,7 @@ Decompression writes into a buffer of the expected size plus one byte, so it nev
 
 from __future__ import annotations
 
+import hashlib
 import zlib
 from typing import Annotated, Any
 
@@ -50,8 +55,9 @@ from swarm.config import Vec3, WeightLaw
 from swarm.patches.fused import Bounds
 from swarm.patches.lattice import Lattice
 from swarm.patches.patch import TSDF_SCALE, FrameSpan, Patch, PatchId, VoxelBlocks, is_rigid
+from swarm.patches.signing import MAX_SIGNER_BYTES, SIGNATURE_BYTES, PatchSigner, PatchVerifier
 
-PATCH_FORMAT = 1
+PATCH_FORMAT = 2  # 2: signer and signature
 KIND = "patch"
 ZSTD_LEVEL = 3
 MAX_EXPANSION = 16  # decompressed payload <= this many times max_bytes
@@ -93,23 +99,33 @@ class PatchMessage(WireMessage):
     voxel_count: Counter
     block_count: Counter
     checksum: int = Field(ge=0, le=0xFFFFFFFF, description="CRC-32 of the header fields and the payload")
+    signer: bytes = Field(max_length=MAX_SIGNER_BYTES, description="the producer's signing certificate, DER")
+    signature: bytes = Field(max_length=SIGNATURE_BYTES, description="Ed25519 over CONTEXT + content hash")
     payload: bytes = Field(description="zstd frame: keys int16 (M,3), tsdf int8 (M,R^3), weight (M,R^3)")
 
 
-_HEADER_FIELDS = tuple(name for name in PatchMessage.model_fields if name not in ("checksum", "payload"))
+_UNHASHED = ("checksum", "signer", "signature", "payload")
+_HEADER_FIELDS = tuple(name for name in PatchMessage.model_fields if name not in _UNHASHED)
+
+
+def _header(fields: dict[str, Any]) -> bytes:
+    return msgpack.packb([fields[name] for name in _HEADER_FIELDS], use_bin_type=True)
 
 
 def _checksum(fields: dict[str, Any], payload: bytes) -> int:
-    header = msgpack.packb([fields[name] for name in _HEADER_FIELDS], use_bin_type=True)
-    return zlib.crc32(payload, zlib.crc32(header))
+    return zlib.crc32(payload, zlib.crc32(_header(fields)))
+
+
+def _content_hash(fields: dict[str, Any], payload: bytes) -> bytes:
+    return hashlib.sha256(_header(fields) + payload).digest()
 
 
 def _raw_size(lattice: Lattice, blocks: int) -> int:
     return blocks * (3 * 2 + lattice.voxels_per_block * (1 + lattice.weight_dtype.itemsize))
 
 
-def encode_patch(patch: Patch, level: int = ZSTD_LEVEL) -> bytes:
-    """The wire bytes of a sealed patch."""
+def encode_patch(patch: Patch, level: int = ZSTD_LEVEL, signer: PatchSigner | None = None) -> bytes:
+    """The wire bytes of a sealed patch, signed by `signer` (its producer) when given."""
     blocks, lattice = patch.blocks, patch.lattice
     if blocks.block_count and int(np.abs(blocks.keys).max()) > _KEY_LIMIT:
         raise ValueError("block keys beyond the int16 range cannot be encoded")
@@ -141,18 +157,29 @@ def encode_patch(patch: Patch, level: int = ZSTD_LEVEL) -> bytes:
         "voxel_count": blocks.voxel_count,
         "block_count": blocks.block_count,
     }
-    draft = PatchMessage(**fields, checksum=0, payload=payload)
-    checksum = _checksum(draft.model_dump(include=set(_HEADER_FIELDS)), payload)  # of the validated values
-    return codec.encode(draft.model_copy(update={"checksum": checksum}))
+    if signer is not None and signer.producer != patch.id.producer:
+        raise ValueError(f"drone {signer.producer} cannot sign patch {patch.id}")
+    draft = PatchMessage(**fields, checksum=0, signer=b"", signature=b"", payload=payload)
+    header = draft.model_dump(include=set(_HEADER_FIELDS))  # the validated values, as a receiver sees them
+    update: dict[str, Any] = {"checksum": _checksum(header, payload)}
+    if signer is not None:
+        update |= {"signer": signer.cert_der, "signature": signer.sign(_content_hash(header, payload))}
+    return codec.encode(draft.model_copy(update=update))
 
 
 def decode_patch(
-    data: bytes, lattice: Lattice, max_bytes: int, max_blocks: int | None = None, volume: Bounds | None = None
+    data: bytes,
+    lattice: Lattice,
+    max_bytes: int,
+    max_blocks: int | None = None,
+    volume: Bounds | None = None,
+    verifier: PatchVerifier | None = None,
 ) -> Patch:
     """A validated patch on `lattice` from wire bytes; raise PatchDecodeError (only) otherwise. `max_blocks` and
-    the mission `volume`, when given, bound what a real patch can be ("too_many_blocks", "outside_volume")."""
+    the mission `volume`, when given, bound what a real patch can be ("too_many_blocks", "outside_volume"); with
+    a `verifier`, the patch must be signed by its producer."""
     try:
-        return _decode(data, lattice, max_bytes, max_blocks, volume)
+        return _decode(data, lattice, max_bytes, max_blocks, volume, verifier)
     except PatchDecodeError:
         raise
     except Exception as exc:  # a gap in the checks below must still not crash the receiver
@@ -162,7 +189,14 @@ def decode_patch(
 _CODEC_REASONS = {"bad_envelope": "invalid", "kind": "invalid"}  # the rest keep their name
 
 
-def _decode(data: bytes, lattice: Lattice, max_bytes: int, max_blocks: int | None, volume: Bounds | None) -> Patch:
+def _decode(
+    data: bytes,
+    lattice: Lattice,
+    max_bytes: int,
+    max_blocks: int | None,
+    volume: Bounds | None,
+    verifier: PatchVerifier | None,
+) -> Patch:
     try:
         msg = codec.decode(data, PatchMessage, max_bytes)
     except codec.DecodeError as exc:
@@ -187,8 +221,13 @@ def _decode(data: bytes, lattice: Lattice, max_bytes: int, max_blocks: int | Non
     expected = _raw_size(lattice, msg.block_count)
     if expected > MAX_EXPANSION * max_bytes:
         raise PatchDecodeError("too_large", f"{msg.block_count} blocks need {expected} bytes")
-    if _checksum(msg.model_dump(include=set(_HEADER_FIELDS)), msg.payload) != msg.checksum:
+    header = msg.model_dump(include=set(_HEADER_FIELDS))
+    if _checksum(header, msg.payload) != msg.checksum:
         raise PatchDecodeError("checksum", f"CRC-32 mismatch for patch {msg.producer}.{msg.epoch}.{msg.seq}")
+    if verifier is not None:
+        refused = verifier.check(msg.producer, msg.signer, msg.signature, _content_hash(header, msg.payload))
+        if refused is not None:
+            raise PatchDecodeError(refused, f"patch {msg.producer}.{msg.epoch}.{msg.seq} is not its producer's")
     raw = _decompress(msg.payload, expected)
 
     m, n = msg.block_count, lattice.voxels_per_block
@@ -291,9 +330,10 @@ def decode_expected(
     max_bytes: int,
     max_blocks: int | None = None,
     volume: Bounds | None = None,
+    verifier: PatchVerifier | None = None,
 ) -> Patch:
     """`decode_patch`, and the bytes must hold patch `pid` (a chunk or request named it): else "id_mismatch"."""
-    patch = decode_patch(data, lattice, max_bytes, max_blocks, volume)
+    patch = decode_patch(data, lattice, max_bytes, max_blocks, volume, verifier)
     if patch.id != pid:
         raise PatchDecodeError("id_mismatch", f"bytes hold patch {patch.id}, expected {pid}")
     return patch

@@ -17,7 +17,11 @@
   observer's certificate may not query at all (swarm/bus/session.py).
 
 Received chunks are reassembled (`Reassembler`), the whole patch is handed to the `sink` (decode, validate,
-fuse; in the mapper's thread), and only a patch the sink accepted is held, announced and served. A patch held
+verify its producer's signature, fuse; in the mapper's thread), and only a patch the sink accepted is held,
+announced and served. A push carries its sender's own patches only, so a chunk of another producer's patch is a
+relay, taken only from a store reply (and, with signing, fused only when its producer's signature holds). No
+chunk of this agent's own current epoch is ever taken from another: a member cannot pre-empt the id of a patch
+this agent has yet to seal (dropped as "own_id"). A patch held
 already is ignored, so receiving it twice changes nothing. Anything malformed is counted (`stats()`) and
 dropped. Everything here runs on the event loop thread except the sink's work.
 """
@@ -25,6 +29,7 @@ dropped. Everything here runs on the event loop thread except the sink's work.
 from __future__ import annotations
 
 import asyncio
+import hashlib
 import logging
 import random
 import time
@@ -84,12 +89,14 @@ class PatchSync:
         on_holdings_changed: Callable[[], None] | None = None,
         share: bool = True,
         clock: Callable[[], float] = time.monotonic,
+        own_epoch: int | None = None,
     ) -> None:
         self.bus = bus
         self.share = share  # False: hold and announce own patches only (the frontier-only strategy)
         self.keys = bus.keys
         self.settings = settings
         self.own_id = own_id
+        self.own_epoch = own_epoch  # this process's epoch: its ids are ours alone to fill
         self._sink = sink
         self._position = position
         self._on_holdings_changed = on_holdings_changed
@@ -101,6 +108,7 @@ class PatchSync:
         self.served_to: dict[int, int] = {}  # requester -> patches served
         self.held_at: dict[PatchId, float] = {}  # wall-clock time each patch was first held
         self._held: dict[PatchId, bytes] = {}
+        self._content: dict[PatchId, str] = {}  # SHA-256 of each held patch's bytes
         self._digest = PatchDigest()
         self._announced = PatchDigest()  # the part of _digest that fits a heartbeat (PatchDigest.announced)
         self._holdings: DigestWire = EMPTY_DIGEST
@@ -146,6 +154,11 @@ class PatchSync:
     def held_ids(self) -> list[PatchId]:
         return sorted(self._held)
 
+    def content_hashes(self) -> dict[str, str]:
+        """Patch id -> SHA-256 of the bytes held (what is served): a signature is deterministic and a relay serves
+        what it received, so two holders of one patch hold the same bytes, and a different hash is other content."""
+        return {str(pid): self._content[pid] for pid in sorted(self._held)}
+
     def add_own(self, pid: PatchId, data: bytes) -> None:
         """An own patch was sealed: hold it, announce it, push it."""
         if pid.producer != self.own_id:
@@ -170,6 +183,7 @@ class PatchSync:
         if pid in self._held:
             return False
         self._held[pid] = data
+        self._content[pid] = hashlib.sha256(data).hexdigest()
         self.held_at[pid] = time.time()
         self._digest = self._digest.union((pid,))
         self._announced = self._digest.announced()
@@ -226,10 +240,16 @@ class PatchSync:
         if self.keys.agent_id_of(key) != chunk.sender:
             self.bus.counters.dropped(CHUNK_KIND, "sender_mismatch")
             return
+        if chunk.producer != chunk.sender:
+            self.bus.counters.dropped(CHUNK_KIND, "pushed_relay")
+            return
         self._take(chunk, via_pull=False)
 
     def _take(self, chunk: PatchChunk, via_pull: bool) -> asyncio.Task[None] | None:
         pid = chunk.patch_id
+        if pid.producer == self.own_id and pid.epoch == self.own_epoch:
+            self.bus.counters.dropped(CHUNK_KIND, "own_id")
+            return None
         if pid in self._held or pid in self._accepting:
             self.counters.duplicate_chunks += 1
             return None
@@ -353,6 +373,7 @@ class PatchSync:
             "received_from": {str(k): v for k, v in sorted(self.received_from.items())},
             "served_to": {str(k): v for k, v in sorted(self.served_to.items())},
             "holdings": self._announced.to_wire(),
+            "content": self.content_hashes(),
             "limits": {
                 "pull_claims_over_quota": sum(pull.over_quota.values()),
                 "holdings_unannounced": self._digest.count - self._announced.count,

@@ -109,7 +109,7 @@ def test_wrong_lattice_and_version(patch: Patch) -> None:
     assert rejected(data, Lattice(0.1, 8, 4.0, origin=(0.0, 0.0, 0.05))) == "lattice"
     assert rejected(tamper(data, voxel_size=0.1000001), patch.lattice) == "lattice"
     assert rejected(tamper(data, truncation_voxels=3.0), patch.lattice) == "lattice"
-    assert rejected(tamper(data, patch_format=2), patch.lattice) == "version"
+    assert rejected(tamper(data, patch_format=1), patch.lattice) == "version"
     assert rejected(tamper(data, envelope={"v": 99}), patch.lattice) == "version"
 
 
