@@ -154,6 +154,29 @@ def _flight(world: Any, settings: Any, altitude: float) -> list[np.ndarray]:
     return poses
 
 
+def flight_patches(config: SwarmConfig, limit: int) -> list[Any]:
+    """Up to `limit` patches sealed by producer 1 along the corridor flight (`_flight`) in the mission's world, with
+    the mission's mapping and a noiseless camera: real patches for measuring what is done to them."""
+    from swarm.patches.mapper import Mapper
+    from swarm.sim.camera import DepthCamera
+    from swarm.sim.worlds import load_world
+
+    world = load_world(config.mission.world)
+    cam_settings = config.camera.model_copy(update={"noise": "off"})
+    camera = DepthCamera(world, cam_settings)
+    mapper = Mapper(config.mapping, 1, int(time.time() * 1000), world.bounds)
+    patches = []
+    for i, T in enumerate(_flight(world, cam_settings, config.agent.altitude_m)):
+        patch = mapper.integrate(
+            camera.render(T), camera.intrinsics, T, i / cam_settings.rate_hz, cam_settings.max_range_m
+        )
+        if patch is not None:
+            patches.append(patch)
+            if len(patches) >= limit:
+                break
+    return patches
+
+
 class _TimedBackend:
     def __init__(self, inner: Any) -> None:
         self.inner = inner

@@ -8,7 +8,10 @@ Three measurements per swarm size N, all with real processes and the mission's c
 2. **Convergence after a heal:** N-1 nodes seal 100 patches between them and share them; then node N joins
    (from the sync protocol's side a heal: a peer whose digest lacks 100 patches) and the time from its first
    contact with a peer until it holds all 100 is measured.
-3. **Bandwidth in a mission:** `swarm run` with N drones in the world; the report's received bus bytes per
+3. **Signing (once, not per size):** real patches sealed in the mission's world (`flight_patches`), encoded and
+   decoded with and without the producer's signature: what signing and verifying cost a patch, in time and bytes,
+   and the Ed25519 and SHA-256 parts of it.
+4. **Bandwidth in a mission:** `swarm run` with N drones in the world; the report's received bus bytes per
    agent-second against the whole-map baseline (every agent sending its whole fused map to every other once per
    exploration loop) at the configured loop period, and what the baseline would be at other periods.
 
@@ -18,8 +21,10 @@ less traffic than the whole-map baseline.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import statistics
+import time
 from pathlib import Path
 from typing import Any
 
@@ -29,8 +34,10 @@ from swarm.config import SwarmConfig, dump_config
 from swarm.mission.bench import _console_and_root
 from swarm.mission.mapnodes import NodeSpec, NodeSwarm, holds_all
 from swarm.mission.run import run_mission
+from swarm.patches.signing import CONTEXT
 
 HEAL_PATCHES = 100
+SIGNING_PATCHES = 20
 BASELINE_PERIODS_S = (1.0, 2.0, 5.0, 20.0)
 
 
@@ -123,9 +130,68 @@ def measure_mission(config: SwarmConfig, n: int, root: Path) -> dict[str, Any]:
     }
 
 
+def measure_signing(config: SwarmConfig, root: Path, patches: int = SIGNING_PATCHES) -> dict[str, Any]:
+    from swarm.deploy.certs import make_signing_authority
+    from swarm.mission.bench_mapping import flight_patches
+    from swarm.patches.signing import load_signing
+    from swarm.patches.wire import decode_patch, encode_patch
+
+    keys = root / "signing-keys"
+    make_signing_authority(keys, 1)
+    signing = load_signing(keys, 1)
+    sealed = flight_patches(config, patches)
+    max_bytes = config.mapping.max_patch_bytes
+    costs: dict[str, list[float]] = {"sign": [], "verify": [], "extra_bytes": [], "kb": []}
+    for patch in sealed:
+        lattice = patch.lattice
+        times = []
+        for signer in (None, signing.signer):
+            t0 = time.perf_counter()
+            data = encode_patch(patch, signer=signer)
+            t1 = time.perf_counter()
+            decode_patch(data, lattice, max_bytes, verifier=signing.verifier if signer else None)
+            times.append((t1 - t0, time.perf_counter() - t1, len(data)))
+        (enc, dec, size), (enc_signed, dec_verified, size_signed) = times
+        costs["sign"].append(enc_signed - enc)
+        costs["verify"].append(dec_verified - dec)
+        costs["extra_bytes"].append(size_signed - size)
+        costs["kb"].append(size_signed / 1000)
+    assert signing.signer is not None
+    digest = hashlib.sha256(b"x").digest()
+    t0 = time.perf_counter()
+    for _ in range(200):
+        signature = signing.signer.sign(digest)
+    t1 = time.perf_counter()
+    key = signing.signer.key.public_key()
+    for _ in range(200):
+        key.verify(signature, CONTEXT + digest)
+    t2 = time.perf_counter()
+    return {
+        "patches": len(sealed),
+        "patch_kb_mean": round(statistics.mean(costs["kb"]), 1) if sealed else None,
+        "sign_ms_median": _ms(costs["sign"]),
+        "verify_ms_median": _ms(costs["verify"]),
+        "ed25519_sign_ms": round((t1 - t0) / 200 * 1e3, 3),
+        "ed25519_verify_ms": round((t2 - t1) / 200 * 1e3, 3),
+        "extra_bytes": int(statistics.median(costs["extra_bytes"])) if sealed else None,
+    }
+
+
+def _ms(seconds: list[float]) -> float | None:
+    return round(statistics.median(seconds) * 1e3, 3) if seconds else None
+
+
 def bench_sync(config: SwarmConfig, sizes: list[int], out: Path | None, mission: bool = True) -> int:
     console, root = _console_and_root(out)
-    results = []
+    console.print(f"bench sync: signing and verifying {SIGNING_PATCHES} patches of '{config.mission.world}' ...")
+    signing = measure_signing(config, root)
+    console.print(
+        f"signing: {signing['patches']} patches of {signing['patch_kb_mean']} kB: "
+        f"sign +{signing['sign_ms_median']} ms, verify +{signing['verify_ms_median']} ms a patch (medians; "
+        f"Ed25519 alone {signing['ed25519_sign_ms']} / {signing['ed25519_verify_ms']} ms), "
+        f"+{signing['extra_bytes']} bytes a patch (certificate and signature)"
+    )
+    results: list[dict[str, Any]] = []
     for n in sizes:
         if n < 2:
             console.print(f"bench sync: skipping {n} agent(s): sharing needs at least 2")
@@ -140,7 +206,7 @@ def bench_sync(config: SwarmConfig, sizes: list[int], out: Path | None, mission:
         results.append(row)
     _print(console, results)
     path = root / "bench-sync.json"
-    path.write_text(json.dumps(results, indent=2))
+    path.write_text(json.dumps({"signing": signing, "sizes": results}, indent=2))
     console.print(f"figures: {path}")
     ok = all(r.get("mission", {}).get("converged", True) for r in results)
     return 0 if ok else 1

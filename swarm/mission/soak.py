@@ -4,14 +4,20 @@ patches lost.
 
 Memory: each agent process (a restarted agent is a new process) is sampled by the supervision loop; its
 warm-up sample is the first taken WARMUP_S after the process was first seen (imports, connection, take-off and
-the first patches are behind it), growth is the peak RSS after that over the warm-up RSS. Patches lost: patches
-sealed by any agent (the files they wrote) that no agent holds at the end (the holdings in the summaries of
-the agents that finished). The soak passes when every mission completes, no patch is lost and no agent grows
-by more than MAX_GROWTH.
+the first patches are behind it), growth is the peak RSS after that over the warm-up RSS.
+
+Patches lost (`audit_patches`), judged by content: a sealed patch is a file an agent wrote (its bytes are what it
+holds and serves), and a patch is lost when some surviving agent (one that finished and wrote its summary) does
+not hold it, or holds other bytes under its id (SHA-256 in the summary's `sync.content`), or when its seq is a
+hole in its producer's epoch (the seqs sealed in one epoch are 0, 1, 2, ... with none missing). A held id that
+was never sealed is counted apart ("unknown"). The soak passes when every mission completes and converges, no
+patch is lost, none is unknown, and no agent grows by more than MAX_GROWTH.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
 import json
 import random
 import time
@@ -25,9 +31,10 @@ from rich.table import Table
 
 from swarm.config import ConfigError, SwarmConfig
 from swarm.errors import SwarmError
-from swarm.mission.report import held_patch_ids, read_summary, sealed_patch_ids
+from swarm.mission.report import held_patch_ids, read_summary
 from swarm.mission.run import RunState, run_mission, was_interrupted
 from swarm.netem.commands import NetemUnavailable, check_prerequisites
+from swarm.patches.patch import PatchId
 
 WARMUP_S = 20.0
 MAX_GROWTH = 0.20
@@ -104,15 +111,58 @@ def _netns_available() -> bool:
     return True
 
 
-def patches_lost(out: Path, drones: int) -> tuple[int, int]:
-    """(sealed, lost): patches sealed in the mission and those no agent holds at the end."""
-    sealed = sealed_patch_ids(out / "agents" / "patches")
-    held: set[str] = set()
-    for k in range(1, drones + 1):
-        summary = read_summary(out, k)
-        if summary is not None:
-            held |= held_patch_ids(summary)
-    return len(sealed), len(sealed - held)
+@dataclass
+class PatchAudit:
+    sealed: int = 0
+    missing: int = 0  # sealed, and some survivor does not hold it
+    altered: int = 0  # some survivor holds other bytes under its id
+    gaps: int = 0  # seqs never sealed between two that were, per producer and epoch
+    unknown: int = 0  # held by a survivor, never sealed
+
+    @property
+    def lost(self) -> int:
+        return self.missing + self.altered + self.gaps
+
+
+def audit_patches(out: Path, drones: int) -> PatchAudit:
+    """What became of every patch sealed in the mission in OUT (see the module doc)."""
+    sealed = {str(pid): hashlib.sha256(path.read_bytes()).hexdigest() for pid, path in _patch_files(out)}
+    survivors = [
+        (held_patch_ids(summary), summary.sync.content)
+        for k in range(1, drones + 1)
+        if (summary := read_summary(out, k)) is not None
+    ]
+    return audit(sealed, survivors)
+
+
+def audit(sealed: dict[str, str], survivors: list[tuple[set[str], dict[str, str]]]) -> PatchAudit:
+    """`sealed`: patch id -> SHA-256 of its bytes; `survivors`: each one's (held ids, held id -> SHA-256)."""
+    result = PatchAudit(sealed=len(sealed))
+    seqs: dict[tuple[int, int], set[int]] = {}
+    for text in sealed:
+        pid = PatchId.parse(text)
+        seqs.setdefault((pid.producer, pid.epoch), set()).add(pid.seq)
+    result.gaps = sum(max(held) + 1 - len(held) for held in seqs.values())
+    missing: set[str] = set()
+    altered: set[str] = set()
+    unknown: set[str] = set()
+    for held, content in survivors:
+        missing |= set(sealed) - held
+        unknown |= held - set(sealed)
+        altered |= {pid for pid, digest in content.items() if sealed.get(pid, digest) != digest}
+    result.missing, result.altered, result.unknown = len(missing), len(altered - missing), len(unknown)
+    return result
+
+
+def _patch_files(out: Path) -> list[tuple[PatchId, Path]]:
+    patches_dir = out / "agents" / "patches"
+    files = []
+    for path in sorted(patches_dir.glob("*.patch")) if patches_dir.is_dir() else []:
+        try:
+            files.append((PatchId.parse(path.stem), path))
+        except ValueError:
+            continue
+    return files
 
 
 def _one_mission(config: SwarmConfig, out: Path, fault: str, loss: float | None) -> dict[str, Any]:
@@ -129,21 +179,24 @@ def _one_mission(config: SwarmConfig, out: Path, fault: str, loss: float | None)
     )
     sampler = AgentSampler()
     started = time.monotonic()
+    converged = False
     try:
         report = run_mission(mission, live=False, on_tick=sampler)
-        status, reason = report["status"], report["reason"]
+        status, reason, converged = report["status"], report["reason"], bool(report["converged"])
     except SwarmError as exc:
         status, reason = "failed", str(exc)
-    sealed, lost = patches_lost(out, config.mission.drones)
+    audit = audit_patches(out, config.mission.drones)
     return {
         "out": str(out),
         "fault": fault,
         "loss": loss,
         "status": status,
         "reason": reason,
+        "converged": converged,
         "wall_s": round(time.monotonic() - started, 1),
-        "patches_sealed": sealed,
-        "patches_lost": lost,
+        "patches_sealed": audit.sealed,
+        "patches_lost": audit.lost,
+        "patches": dataclasses.asdict(audit),
         "agents": [s.as_dict() for s in sampler.samples.values()],
     }
 
@@ -155,8 +208,10 @@ def summarise(missions: list[dict[str, Any]]) -> dict[str, Any]:
     summary = {
         "missions": len(missions),
         "completed": sum(m["status"] == "complete" for m in missions),
+        "converged": sum(bool(m.get("converged")) for m in missions),
         "patches_sealed": sum(m["patches_sealed"] for m in missions),
         "patches_lost": sum(m["patches_lost"] for m in missions),
+        "patches_unknown": sum(m.get("patches", {}).get("unknown", 0) for m in missions),
         "agent_processes_sampled": len(agents),
         "max_rss_growth": worst["rss_growth"] if worst else None,
         "max_fd_growth": fd_growth,
@@ -165,7 +220,9 @@ def summarise(missions: list[dict[str, Any]]) -> dict[str, Any]:
     summary["passed"] = bool(
         missions
         and summary["completed"] == len(missions)
+        and summary["converged"] == len(missions)
         and summary["patches_lost"] == 0
+        and summary["patches_unknown"] == 0
         and summary["max_rss_growth"] is not None
         and summary["max_rss_growth"] <= MAX_GROWTH
     )
@@ -193,8 +250,9 @@ def soak(config: SwarmConfig, minutes: float, out: Path, seed: int, console: Con
             break
         growth = [a["rss_growth"] for a in result["agents"] if a["rss_growth"] is not None]
         console.print(
-            f"  {result['status']} in {result['wall_s']} s, patches sealed {result['patches_sealed']}, "
-            f"lost {result['patches_lost']}, max agent memory growth "
+            f"  {result['status']}{'' if result['converged'] else ' (not converged)'} in {result['wall_s']} s, "
+            f"patches sealed {result['patches_sealed']}, lost {result['patches_lost']} {result['patches']}, "
+            "max agent memory growth "
             f"{max(growth) * 100 if growth else float('nan'):.1f} %"
         )
     result = {
@@ -211,7 +269,7 @@ def soak(config: SwarmConfig, minutes: float, out: Path, seed: int, console: Con
 
 def _print(console: Console, result: dict[str, Any]) -> None:
     table = Table(title=f"swarm soak: {result['minutes']} min, {result['network']}")
-    for column in ("#", "fault", "loss", "end", "s", "sealed", "lost", "agent RSS growth", "fd growth"):
+    for column in ("#", "fault", "loss", "end", "converged", "s", "sealed", "lost", "agent RSS growth", "fd growth"):
         table.add_column(column)
     for i, m in enumerate(result["missions"], 1):
         growth = [a["rss_growth"] for a in m["agents"] if a["rss_growth"] is not None]
@@ -221,6 +279,7 @@ def _print(console: Console, result: dict[str, Any]) -> None:
             m["fault"],
             "-" if m["loss"] is None else f"{m['loss']:.0%}",
             m["status"],
+            "yes" if m.get("converged") else "no",
             str(m["wall_s"]),
             str(m["patches_sealed"]),
             str(m["patches_lost"]),
@@ -231,9 +290,9 @@ def _print(console: Console, result: dict[str, Any]) -> None:
     s = result["summary"]
     memory_growth = "n/a" if s["max_rss_growth"] is None else f"{s['max_rss_growth'] * 100:.1f} %"
     console.print(
-        f"missions {s['missions']}, completed {s['completed']}, patches sealed {s['patches_sealed']}, "
-        f"lost {s['patches_lost']}, max agent memory growth after warm-up {memory_growth} "
-        f"(limit {MAX_GROWTH:.0%}), max fd growth {s['max_fd_growth']}, peak agent RSS "
+        f"missions {s['missions']}, completed {s['completed']}, converged {s['converged']}, patches sealed "
+        f"{s['patches_sealed']}, lost {s['patches_lost']}, unknown {s['patches_unknown']}, max agent memory growth "
+        f"after warm-up {memory_growth} (limit {MAX_GROWTH:.0%}), max fd growth {s['max_fd_growth']}, peak agent RSS "
         f"{s['max_peak_rss_mb']} MB: {'PASS' if s['passed'] else 'FAIL'}"
     )
 

@@ -63,9 +63,9 @@ def test_an_existing_ca_is_never_overwritten(tmp_path: Path) -> None:
 def test_the_command_writes_the_directory_and_refuses_bad_input_in_one_line(tmp_path: Path) -> None:
     done = swarm(tmp_path, "deploy", "certs", "--drones", "2", "--out", "c")
     assert done.returncode == 0, done.stderr
-    assert sorted(p.name for p in (tmp_path / "c").iterdir()) == sorted(
-        f"{n}.{ext}" for n in ("ca", "drone-1", "drone-2", "observer") for ext in ("pem", "key")
-    )
+    tls = [f"{n}.{ext}" for n in ("ca", "drone-1", "drone-2", "observer") for ext in ("pem", "key")]
+    signing = [f"drone-{k}.sign.{ext}" for k in (1, 2) for ext in ("pem", "key")]
+    assert sorted(p.name for p in (tmp_path / "c").iterdir()) == sorted(tls + signing)
     again = swarm(tmp_path, "deploy", "certs", "--drones", "2", "--out", "c")
     assert again.returncode == 2 and "already holds a CA" in one_line(again)
     too_many = swarm(tmp_path, "deploy", "certs", "--drones", "251", "--out", "d")

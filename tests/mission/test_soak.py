@@ -12,7 +12,7 @@ import pytest
 from rich.console import Console
 
 from swarm.config import FaultSpec, load_config
-from swarm.mission.soak import MAX_GROWTH, random_fault, soak, summarise
+from swarm.mission.soak import MAX_GROWTH, PatchAudit, audit, random_fault, soak, summarise
 from tests.helpers import SwarmPorts
 
 
@@ -23,7 +23,9 @@ def test_random_faults_are_valid_specs_of_every_kind() -> None:
     assert {s.agent for s in specs} == {1, 2, 3}
 
 
-def _mission(status: str = "complete", lost: int = 0, growth: float | None = 0.05) -> dict:
+def _mission(
+    status: str = "complete", lost: int = 0, growth: float | None = 0.05, converged: bool = True, unknown: int = 0
+) -> dict:
     agent = {
         "agent": "agent-1",
         "pid": 1,
@@ -33,7 +35,14 @@ def _mission(status: str = "complete", lost: int = 0, growth: float | None = 0.0
         "warm_fds": 30,
         "peak_fds": 32,
     }
-    return {"status": status, "patches_sealed": 10, "patches_lost": lost, "agents": [agent]}
+    return {
+        "status": status,
+        "converged": converged,
+        "patches_sealed": 10,
+        "patches_lost": lost,
+        "patches": {"unknown": unknown},
+        "agents": [agent],
+    }
 
 
 @pytest.mark.parametrize(
@@ -42,6 +51,8 @@ def _mission(status: str = "complete", lost: int = 0, growth: float | None = 0.0
         ([_mission(), _mission(growth=MAX_GROWTH)], True),
         ([_mission(), _mission(status="failed")], False),
         ([_mission(lost=1)], False),
+        ([_mission(converged=False)], False),
+        ([_mission(unknown=1)], False),
         ([_mission(growth=MAX_GROWTH + 0.01)], False),
         ([_mission(growth=None)], False),  # nothing measured is not a pass
         ([], False),
@@ -51,6 +62,20 @@ def test_the_soak_passes_only_when_every_mission_completes_nothing_is_lost_and_m
     missions: list[dict], passed: bool
 ) -> None:
     assert summarise(missions)["passed"] is passed
+
+
+def test_a_patch_is_lost_when_a_survivor_lacks_it_holds_other_bytes_or_its_seq_is_a_hole() -> None:
+    sealed = {"1.5.0": "a", "1.5.1": "b", "1.5.3": "d", "2.7.0": "e"}  # 1.5.2 was never written: a hole
+    everything = set(sealed)
+    assert audit(sealed, [(everything, dict(sealed)), (everything, dict(sealed))]) == PatchAudit(sealed=4, gaps=1)
+    # the old rule (some survivor holds it) passed this: the second survivor lacks 2.7.0
+    lacking = audit(sealed, [(everything, dict(sealed)), (everything - {"2.7.0"}, {})])
+    assert lacking.missing == 1 and lacking.lost == 2
+    altered = audit(sealed, [(everything, {**sealed, "1.5.1": "forged"})])
+    assert altered.altered == 1 and altered.lost == 2
+    extra = audit(sealed, [(everything | {"3.1.0"}, dict(sealed))])
+    assert extra.unknown == 1 and extra.lost == 1
+    assert audit({}, []) == PatchAudit()
 
 
 @pytest.mark.sim
@@ -65,7 +90,8 @@ def test_a_one_mission_soak_flies_a_real_mission_and_measures_every_agent(
     [mission] = result["missions"]
     assert mission["status"] == "complete", mission["reason"]
     FaultSpec.model_validate(mission["fault"])
-    assert mission["patches_sealed"] > 0 and mission["patches_lost"] == 0
+    assert mission["patches_sealed"] > 0 and mission["patches_lost"] == 0, mission["patches"]
+    assert mission["converged"] and mission["patches"]["unknown"] == 0
     sampled = [a for a in mission["agents"] if a["rss_growth"] is not None]
     assert sampled, "no agent lived past its warm-up"
     for agent in sampled:
