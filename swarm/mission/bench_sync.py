@@ -1,7 +1,7 @@
 """`swarm bench sync`: how fast and how cheaply patches reach everyone, on loopback, for several swarm sizes.
 
 Three measurements per swarm size N, all with real processes and the mission's configuration (0.1 m voxels,
-15-frame patches, 8 kB chunks unless overridden):
+15-frame patches, 8 kB chunks unless overridden; patches signed and verified as in a mission):
 
 1. **Seal to everyone:** N `swarm mapnode`s each seal `patches` patches, one every `period_s`; for each patch,
    the time from its seal at the producer until the last other node holds it (wall clocks of one host).
@@ -47,9 +47,28 @@ def _sets(config: SwarmConfig) -> list[str]:
     sets = []
     for section in ("mapping", "camera", "sync"):
         for key, value in tree[section].items():
-            sets.append(f"{section}.{key}={json.dumps(value)}")
+            sets.append(f"{section}.{key}={_toml(value)}")
     sets += [f"mission.world={json.dumps(tree['mission']['world'])}", f"bus.mode={json.dumps(config.bus.mode)}"]
     return sets
+
+
+def _signed_sets(config: SwarmConfig, root: Path, n: int) -> list[str]:
+    """`_sets`, and patches signed as a mission signs them (one authority for the N nodes)."""
+    from swarm.deploy.certs import make_signing_authority
+
+    keys = root / f"keys-{n}"
+    if not (keys / "ca.pem").exists():
+        make_signing_authority(keys, n)
+    return [*_sets(config), f"sync.signing_dir={json.dumps(str(keys))}"]
+
+
+def _toml(value: Any) -> str:
+    """A config value as the TOML an override reads: JSON is TOML for scalars and arrays, not for tables."""
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{key} = {_toml(item)}" for key, item in value.items()) + "}"
+    if isinstance(value, list):
+        return "[" + ", ".join(_toml(item) for item in value) + "]"
+    return json.dumps(value)
 
 
 def _percentile(values: list[float], q: float) -> float:
@@ -60,7 +79,7 @@ def _percentile(values: list[float], q: float) -> float:
 
 
 def measure_latency(config: SwarmConfig, n: int, root: Path, patches: int = 8, period_s: float = 0.5) -> dict[str, Any]:
-    swarm = NodeSwarm(root / f"latency-{n}", f"bench-latency-{n}", config.bus.mode, _sets(config))
+    swarm = NodeSwarm(root / f"latency-{n}", f"bench-latency-{n}", config.bus.mode, _signed_sets(config, root, n))
     swarm.tmp.mkdir(parents=True, exist_ok=True)
     try:
         for k in range(1, n + 1):
@@ -86,7 +105,7 @@ def measure_latency(config: SwarmConfig, n: int, root: Path, patches: int = 8, p
 
 
 def measure_heal(config: SwarmConfig, n: int, root: Path) -> dict[str, Any]:
-    swarm = NodeSwarm(root / f"heal-{n}", f"bench-heal-{n}", config.bus.mode, _sets(config))
+    swarm = NodeSwarm(root / f"heal-{n}", f"bench-heal-{n}", config.bus.mode, _signed_sets(config, root, n))
     swarm.tmp.mkdir(parents=True, exist_ok=True)
     producers = list(range(1, n))
     share = [
@@ -183,7 +202,7 @@ def _ms(seconds: list[float]) -> float | None:
 
 def bench_sync(config: SwarmConfig, sizes: list[int], out: Path | None, mission: bool = True) -> int:
     console, root = _console_and_root(out)
-    console.print(f"bench sync: signing and verifying {SIGNING_PATCHES} patches of '{config.mission.world}' ...")
+    console.print(f"bench sync: signing and verifying up to {SIGNING_PATCHES} patches of '{config.mission.world}' ...")
     signing = measure_signing(config, root)
     console.print(
         f"signing: {signing['patches']} patches of {signing['patch_kb_mean']} kB: "
