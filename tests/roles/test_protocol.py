@@ -15,7 +15,9 @@ from swarm.config import ExploreSettings, Vec3
 from swarm.explore.frontiers import Frontier
 from swarm.roles.messages import FrontierReport, TargetAssignment, as_points
 from swarm.roles.protocol import (
+    ARRIVAL_WAKE_GAP_S,
     MAP_CHANGE_M3,
+    POCKET_TRUST_LOOPS,
     UNREACHABLE_GIVE_UP,
     UNREACHABLE_RETRY_S,
     Effects,
@@ -150,6 +152,36 @@ def test_the_leader_is_done_only_after_every_member_reported_since_its_map_ran_e
     core.on_report(1.0 + 2.6 * LOOP, 2, _report(2, 3), leader=1)
     core.decide(1.0 + 2.7 * LOOP, _situation([], cluster=cluster, positions=positions))
     assert core.done
+
+
+def test_a_member_claiming_a_pocket_forever_holds_the_cluster_only_for_a_while() -> None:
+    """A liar (or a drone stuck for good) that reports in_pocket on every report would keep its leader from ever
+    being done: the pocket is believed for POCKET_TRUST_LOOPS loops, then counted and no longer waited for."""
+    core = _core(drone=1)
+    cluster, positions = [1, 2], {2: (5.0, 1.0, 1.5)}
+    t, seq = 0.0, 0
+    while t < (POCKET_TRUST_LOOPS - 1) * LOOP:
+        seq += 1
+        core.on_report(t, 2, _report(2, seq, in_pocket=True), leader=1)
+        core.decide(t + 0.1, _situation([], cluster=cluster, positions=positions))
+        t += LOOP
+    assert not core.done and core.rejected["pocket_distrusted"] == 0
+    while t < (POCKET_TRUST_LOOPS + 3) * LOOP and not core.done:
+        seq += 1
+        core.on_report(t, 2, _report(2, seq, in_pocket=True), leader=1)
+        core.decide(t + 0.1, _situation([], cluster=cluster, positions=positions))
+        t += LOOP
+    assert core.done and core.rejected["pocket_distrusted"] == 1
+
+
+def test_a_members_arrivals_wake_the_leader_at_most_once_a_gap() -> None:
+    core = _core(drone=1)
+    wakes = [core.on_report(i * 0.02, 2, _report(2, i + 1, arrived=True), leader=1).wake for i in range(100)]
+    assert sum(wakes) == 2 and wakes[0]  # 2 s of reports at 50 Hz: at t = 0 and t = ARRIVAL_WAKE_GAP_S
+    assert core.rejected["arrival_wake_limited"] == 98
+    assert core.on_report(2.0 + ARRIVAL_WAKE_GAP_S, 2, _report(2, 200, arrived=True), leader=1).wake
+    assert core.on_report(2.0 + ARRIVAL_WAKE_GAP_S, 3, _report(3, 1, arrived=True), leader=1).wake  # its own gap
+    assert not core.on_report(9.0, 2, _report(2, 201, arrived=True), leader=2).wake  # not our member
 
 
 def test_a_members_report_keeps_the_leader_from_being_done() -> None:
