@@ -65,10 +65,11 @@ from swarm.roles.messages import MAX_CANDIDATES, MAX_VISITED, FrontierReport, Ta
 KEEP_RADIUS_M = 1.0  # a new target this close to the current one is the same target: no interruption
 REPORT_FRESH_LOOPS = 3.0  # a member's report older than this many loops is ignored by the leader
 # Liveness against a member that lies (docs/security.md): an honest drone leaves a pocket within a few loops (it
-# flies out of it, swarm.agent.exploration), so one that reports a pocket this many loops in a row no longer keeps
-# its cluster from being done; and a member's arrivals wake the leader at most once per ARRIVAL_WAKE_GAP_S (an
-# honest drone arrives once per target, seconds apart), so reports at the bus's rate cannot make it decide at that
-# rate.
+# flies out of it, swarm.agent.exploration), so once the cluster has had no candidate for POCKET_TRUST_LOOPS loops,
+# members' pockets no longer keep it from being done (counted from when the candidates ran out, not per pocket: a
+# liar interleaving pocket reports with its agent's honest ones would restart a per-pocket clock). A member's
+# arrivals wake the leader at most once per ARRIVAL_WAKE_GAP_S (an honest drone arrives once per target, seconds
+# apart), so reports at the bus's rate cannot make it decide at that rate.
 POCKET_TRUST_LOOPS = 10
 ARRIVAL_WAKE_GAP_S = 1.0
 UNREACHABLE_RETRY_S = 30.0  # a viewpoint this drone could not plan a path to is not given to it again this long
@@ -197,7 +198,7 @@ REJECTED_KINDS = (
     "visited_off_track",  # a look far from every heartbeat position the member sent
     "assignment_outside_volume",  # an explorer's: a target its leader sent outside the mission volume
     "arrival_wake_limited",  # an arrival within ARRIVAL_WAKE_GAP_S of the member's last: no extra decision
-    "pocket_distrusted",  # a member in a pocket for POCKET_TRUST_LOOPS loops: no longer waited for
+    "pocket_distrusted",  # done although a member says it is in a pocket: POCKET_TRUST_LOOPS loops without candidates
 )
 
 
@@ -228,7 +229,6 @@ class ExplorationCore:
         self.round = 0
         self.report_seq = 0
         self.empty_since: float | None = None  # as leader: when the cluster's candidates first ran out
-        self._pocket_since: dict[int, float] = {}  # as leader: member -> when its reports began saying in_pocket
         self._woke_at: dict[int, float] = {}  # as leader: member -> when its arrival last woke a decision
         self.loops = 0
         self.targets_assigned = 0
@@ -248,10 +248,6 @@ class ExplorationCore:
         if sender != report.id or report.id == self.id:
             return effects
         self.reports[report.id] = (now, report)
-        if report.in_pocket:
-            self._pocket_since.setdefault(report.id, now)
-        else:
-            self._pocket_since.pop(report.id, None)
         if report.arrived and leader == self.id:
             if now - self._woke_at.get(report.id, -math.inf) < ARRIVAL_WAKE_GAP_S:
                 self.rejected["arrival_wake_limited"] += 1
@@ -260,17 +256,7 @@ class ExplorationCore:
                 effects.wake = True
         return effects
 
-    def _shut_in(self, member: int, now: float) -> bool:
-        """Whether member's latest report says it is in a pocket and that is still believed."""
-        since = self._pocket_since.get(member)
-        if since is None:
-            return False
-        if now - since < POCKET_TRUST_LOOPS * self.settings.loop_s:
-            return True
-        if since != -math.inf:  # counted once per pocket
-            self.rejected["pocket_distrusted"] += 1
-            self._pocket_since[member] = -math.inf
-        return False
+
 
     def on_assignment(
         self, now: float, sender: int | None, assignment: TargetAssignment, leader: int | None
@@ -538,10 +524,12 @@ class ExplorationCore:
             self.empty_since = now
             return
         others = [k for k in members if k != self.id]
-        confirmed = all(
-            k in self.reports and self.reports[k][0] > self.empty_since and not self._shut_in(k, now) for k in others
-        )
-        if confirmed and now - self.empty_since >= self.settings.loop_s:
+        fresh = all(k in self.reports and self.reports[k][0] > self.empty_since for k in others)
+        pockets = [k for k in others if k in self.reports and self.reports[k][1].in_pocket]
+        trusted = now - self.empty_since < POCKET_TRUST_LOOPS * self.settings.loop_s
+        if fresh and not (pockets and trusted) and now - self.empty_since >= self.settings.loop_s:
+            if pockets:
+                self.rejected["pocket_distrusted"] += 1
             self.finish(effects, reason)
             if situation.leader == self.id and self.strategy != "uncoordinated":
                 effects.publish.append(self._done_message(members))
