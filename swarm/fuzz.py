@@ -25,11 +25,13 @@ from __future__ import annotations
 import argparse
 import random
 import sys
+import tempfile
 import time
 import traceback
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import cache
+from pathlib import Path
 
 import numpy as np
 
@@ -40,6 +42,7 @@ from swarm.bus.phase import Phase
 from swarm.patches.digest import DigestMessage, PatchDigest
 from swarm.patches.lattice import Lattice
 from swarm.patches.patch import FrameSpan, Patch, PatchId, VoxelBlocks
+from swarm.patches.signing import Signing, load_signing
 from swarm.patches.wire import PatchDecodeError, decode_expected, decode_patch, encode_patch
 from swarm.roles.messages import FrontierReport, TargetAssignment, as_points
 from swarm.sync.chunks import PatchChunk, Reassembler, split_patch
@@ -90,6 +93,30 @@ def _codec(model: type[WireMessage], max_bytes: int) -> Callable[[bytes], bool]:
         return True
 
     return run
+
+
+@cache
+def fuzz_signing() -> Signing:
+    """A signing authority of the fuzzer's own (in a temporary directory, read back at once) and producer 2's key."""
+    from swarm.deploy.certs import make_signing_authority
+
+    with tempfile.TemporaryDirectory(prefix="swarm-fuzz-keys-") as directory:
+        make_signing_authority(Path(directory), SEED_PATCH_ID.producer)
+        return load_signing(Path(directory), SEED_PATCH_ID.producer)
+
+
+def _signed_patch(data: bytes) -> bool:
+    """The patch route with the producer's signature required: what a receiver with signing runs."""
+    signing = fuzz_signing()
+    try:
+        patch = decode_patch(data, LATTICE, PATCH_MAX_BYTES, verifier=signing.verifier)
+    except PatchDecodeError:
+        return False
+    _require(patch.id.producer == SEED_PATCH_ID.producer, f"patch {patch.id} verified for another producer")
+    wire = encode_patch(patch, signer=signing.signer)
+    again = decode_patch(wire, LATTICE, max(len(wire), PATCH_MAX_BYTES), verifier=signing.verifier)
+    _require(again == patch, "signed patch changes")
+    return True
 
 
 def _patch(expected: PatchId | None) -> Callable[[bytes], bool]:
@@ -247,6 +274,10 @@ def _seed_patch_bytes() -> bytes:
     return encode_patch(_seed_patch())
 
 
+def _seed_signed_patch_bytes() -> bytes:
+    return encode_patch(_seed_patch(), signer=fuzz_signing().signer)
+
+
 def _seed_request() -> bytes:
     return request_parameters([SEED_PATCH_ID, PatchId(7, 0, 3)], 4).encode()
 
@@ -268,6 +299,7 @@ DECODERS: tuple[Decoder, ...] = (
     Decoder("patch_expected", _patch(SEED_PATCH_ID), _seed_patch_bytes),
     Decoder("request", _request, _seed_request),
     Decoder("reassembly", _reassembly, _seed_assembly, lambda data: max(1, len(data) // 3)),  # a chunk per record
+    Decoder("signed_patch", _signed_patch, _seed_signed_patch_bytes),
 )
 
 

@@ -1040,3 +1040,9 @@ def test_fuzz_one_on_mutated_seeds(data: st.DataObject) -> None:
     body = data.draw(mutated_bytes(fuzz.DECODERS[index].seed()))
     name, accepted = fuzz.run_one(bytes([index]) + body)
     assert name == fuzz.DECODERS[index].name and isinstance(accepted, bool)
+
+
+def test_the_signed_patch_route_takes_only_patches_its_producer_signed() -> None:
+    index = [d.name for d in fuzz.DECODERS].index("signed_patch")
+    assert fuzz.timed_run(bytes([index]) + SEEDS["signed_patch"]())[1]
+    assert not fuzz.timed_run(bytes([index]) + SEEDS["patch"]())[1]  # unsigned
