@@ -256,8 +256,6 @@ class ExplorationCore:
                 effects.wake = True
         return effects
 
-
-
     def on_assignment(
         self, now: float, sender: int | None, assignment: TargetAssignment, leader: int | None
     ) -> Effects:
