@@ -6,9 +6,13 @@ What it writes into OUT (which must be empty or new):
     config/sim.toml, observer.toml, agent-K.toml
                               each process's exact configuration, as `swarm run` writes it (mounted read-only
                               at /etc/swarm); a world given as a mesh file is copied to config/worlds/
-    certs/                    with TLS (the default): the CA and one certificate per drone and the observer
-                              (`swarm deploy certs`); a container mounts ca.pem and its own pair only, at
-                              /etc/swarm-tls, so a drone never holds another drone's key nor the CA's
+    certs/                    with TLS (the default): the CA and one certificate per drone and the observer,
+                              and each drone's patch signing certificate (`swarm deploy certs`); a container
+                              mounts ca.pem and its own pairs only, at /etc/swarm-tls, so a drone never holds
+                              another drone's key nor the CA's
+    keys/                     without TLS: a signing authority of the deployment's own and each drone's patch
+                              signing pair (swarm.patches.signing); a drone mounts ca.pem and its own pair at
+                              /etc/swarm-keys
     results/                  mounted at /results: report.json (the observer's `swarm deploy mission`),
                               sim.json, observer.json, map.ply, agents/agent-K.json|ply, agents/radio-K.json
                               (what loss each radio got, and by which backend), agents/patches/,
@@ -49,8 +53,9 @@ from pydantic import ValidationError
 
 from swarm.config import TLS_OBSERVER_NAME, Box, ConfigError, SwarmConfig, dump_config, tls_drone_name, vehicle_port
 from swarm.deploy import yamltext
-from swarm.deploy.certs import CA_NAME, make_certs
+from swarm.deploy.certs import CA_NAME, make_certs, make_signing_authority
 from swarm.errors import SwarmError, validation_problem
+from swarm.patches.signing import signing_cert_path, signing_key_path
 from swarm.sim.worlds import is_mesh_file, load_world, mission_time_limit_s, mission_volume, spawn_points
 
 RADIO_SUBNET = ipaddress.ip_network("10.77.1.0/24")
@@ -61,6 +66,7 @@ HOST_OFFSET = 10  # agent k is .10+k on both networks; .1 Docker's bridge, .2 th
 MAX_DRONES = 16  # as mission.drones
 CONFIG_DIR = "/etc/swarm"
 TLS_DIR = "/etc/swarm-tls"  # not under CONFIG_DIR: a read-only mount cannot hold the mount points of the keys
+SIGNING_DIR = "/etc/swarm-keys"  # without TLS: the signing authority's certificate and the drone's signing pair
 RESULTS_DIR = "/results"
 SIM_READY_TIMEOUT_S = 300
 SIM_WAIT = f"swarm deploy wait-sim --status {RESULTS_DIR}/sim.json --timeout {SIM_READY_TIMEOUT_S}"
@@ -114,6 +120,7 @@ class Deployment:
     worlds: list[Path] = field(default_factory=list)
     header: str = ""
     tls_names: list[str] = field(default_factory=list)  # certificates to write into OUT/certs
+    signing_drones: int = 0  # without TLS: drones given a signing pair in OUT/keys
 
     def write(self, out: Path) -> list[Path]:
         """Write every file under `out`; returns the files written (worlds and results dirs included)."""
@@ -131,6 +138,9 @@ class Deployment:
             drones = sum(1 for name in self.tls_names if name != TLS_OBSERVER_NAME)
             make_certs(out / "certs", drones)
             written.append(out / "certs")
+        elif self.signing_drones:
+            make_signing_authority(out / "keys", self.signing_drones)
+            written.append(out / "keys")
         patches = out / "results" / "agents" / "patches"
         patches.mkdir(parents=True, exist_ok=True)  # the observer reads it from the start
         path = out / "docker-compose.yml"
@@ -248,6 +258,8 @@ def plan(
                         **_tls_bus(tls, tls_drone_name(k)),
                     }
                 ),
+                # with TLS the signing pair is beside the TLS pair, where signing_dir defaults to
+                "sync": base.sync if tls else base.sync.model_copy(update={"signing_dir": Path(SIGNING_DIR)}),
             }
         )
     # the configs are checked as the processes will load them (validators run on load, not on model_copy)
@@ -271,10 +283,14 @@ def plan(
             f"radio {RADIO_SUBNET}: Zenoh between agents, loss {loss:g} on each agent's egress (tc netem, or "
             f"nftables without sch_netem); control {CONTROL_SUBNET}: MAVLink and the observer, never impaired",
         ]
-        + (["TLS: certs/ holds the CA and every key; each container mounts ca.pem and its own pair"] if tls else [])
+        + (
+            ["TLS: certs/ holds the CA and every key; each container mounts ca.pem and its own pairs"]
+            if tls
+            else ["keys/ holds the patch signing authority and every drone's signing key; each drone mounts its own"]
+        )
     )
     names = [tls_drone_name(k) for k in range(1, drones + 1)] + [TLS_OBSERVER_NAME] if tls else []
-    return Deployment(compose, configs, worlds, header, names)
+    return Deployment(compose, configs, worlds, header, names, 0 if tls else drones)
 
 
 def _revalidate(name: str, config: SwarmConfig) -> SwarmConfig:
@@ -284,8 +300,12 @@ def _revalidate(name: str, config: SwarmConfig) -> SwarmConfig:
         raise ConfigError(f"the generated {name}.toml does not validate: {validation_problem(exc)}") from None
 
 
-def _service(image: str, build_context: Path | None, tls_name: str | None = None) -> dict[str, Any]:
-    """A service of the image; with `tls_name`, mounting the CA certificate and that name's pair, nothing else."""
+def _service(
+    image: str, build_context: Path | None, tls_name: str | None = None, drone: int | None = None
+) -> dict[str, Any]:
+    """A service of the image; with `tls_name`, mounting the CA certificate and that name's pair, nothing else;
+    for `drone`, its patch signing pair too (with TLS beside the TLS pair, else with the signing authority's
+    certificate from keys/)."""
     service: dict[str, Any] = {"image": image}
     if build_context is None:
         service["pull_policy"] = "never"  # a missing image is an error, never a download of someone else's
@@ -296,6 +316,12 @@ def _service(image: str, build_context: Path | None, tls_name: str | None = None
         volumes += [
             f"./certs/{file}:{TLS_DIR}/{file}:ro" for file in (f"{CA_NAME}.pem", f"{tls_name}.pem", f"{tls_name}.key")
         ]
+    if drone is not None:
+        signing = [signing_cert_path(Path(), drone).name, signing_key_path(Path(), drone).name]
+        if tls_name is not None:
+            volumes += [f"./certs/{file}:{TLS_DIR}/{file}:ro" for file in signing]
+        else:
+            volumes += [f"./keys/{file}:{SIGNING_DIR}/{file}:ro" for file in [f"{CA_NAME}.pem", *signing]]
     service |= {
         "init": True,  # a real PID 1 that forwards SIGTERM: `docker compose stop` lands the drones
         "volumes": volumes,
@@ -341,7 +367,7 @@ def _compose(
             f" && exec timeout --signal=TERM --kill-after={AGENT_STOP_GRACE_S} {max_time}"
             f" swarm agent --config {CONFIG_DIR}/agent-{k}.toml"
         )
-        services[f"agent-{k}"] = _service(image, build_context, tls_drone_name(k) if tls else None) | {
+        services[f"agent-{k}"] = _service(image, build_context, tls_drone_name(k) if tls else None, k) | {
             "cap_add": ["NET_ADMIN"],
             "entrypoint": ["/bin/sh", "-c"],
             "command": [script],

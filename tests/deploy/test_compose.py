@@ -304,6 +304,22 @@ def test_image_names_docker_takes(tmp_path: Path, image: str) -> None:
     assert {s["image"] for s in compose["services"].values()} == {image}
 
 
+def test_without_tls_each_drone_signs_with_its_own_key_from_the_deployments_authority(
+    generated: tuple[Path, Deployment], compose: dict[str, Any]
+) -> None:
+    out, _ = generated
+    assert {p.name for p in (out / "keys").iterdir()} == {"ca.pem", "ca.key"} | {
+        f"drone-{k}.sign.{ext}" for k in range(1, DRONES + 1) for ext in ("pem", "key")
+    }
+    for k, service in agents(compose).items():
+        mounted = sorted(v.split(":")[0] for v in service["volumes"] if v.startswith("./keys/"))
+        assert mounted == sorted(["./keys/ca.pem", f"./keys/drone-{k}.sign.key", f"./keys/drone-{k}.sign.pem"])
+        config = load_config(out / "config" / f"agent-{k}.toml")
+        assert str(config.signing_dir()) == "/etc/swarm-keys"
+    for name in ("sim", "observer"):
+        assert not [v for v in compose["services"][name]["volumes"] if v.startswith("./keys/")], name
+
+
 # ----- --tls ------------------------------------------------------------------------------------------------------
 
 
@@ -327,7 +343,10 @@ def test_tls_each_container_mounts_only_its_own_key(with_tls: Path, tls_compose:
         keys = sorted(v.split(":")[0] for v in service["volumes"] if v.startswith("./certs/"))
         if name in expected:
             who = expected[name]
-            assert keys == sorted([f"./certs/{who}.key", f"./certs/{who}.pem", "./certs/ca.pem"]), name
+            own = [f"./certs/{who}.key", f"./certs/{who}.pem", "./certs/ca.pem"]
+            if who.startswith("drone-"):  # and its patch signing pair
+                own += [f"./certs/{who}.sign.key", f"./certs/{who}.sign.pem"]
+            assert keys == sorted(own), name
         else:
             assert keys == [], name  # the simulator and the cameras are not on the swarm's bus
     assert {p.name for p in (with_tls / "certs").iterdir()} >= {"ca.key", *(f"drone-{k}.key" for k in (1, 2, 3))}
