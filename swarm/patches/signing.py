@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import warnings
 from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,8 +32,13 @@ from cryptography.exceptions import InvalidSignature
 from cryptography.hazmat.primitives import serialization
 from cryptography.hazmat.primitives.asymmetric import ed25519
 from cryptography.hazmat.primitives.asymmetric.types import PrivateKeyTypes
+from cryptography.utils import CryptographyDeprecationWarning
 
 from swarm.config import ConfigError, tls_drone_name
+
+# A certificate in a received patch is hostile input: what cryptography warns about in one (a serial number that
+# is not positive) is refused or not by the checks below, and must not write to the agent's log per patch.
+warnings.filterwarnings("ignore", message="Parsed a serial number", category=CryptographyDeprecationWarning)
 
 CONTEXT = b"swarm-patch-v2\0"  # signed with the hash, so a signature over anything else never verifies a patch
 AUTHORITY_FILE = "ca.pem"

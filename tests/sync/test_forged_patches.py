@@ -1,7 +1,8 @@
 """A certified but hostile member (it holds drone 3's signing key) forges the other producers' patches, in real Zenoh
 sessions: it pushes them as relays, pushes them on the victim's own key, pre-empts the ids the victims have yet to
 seal, and advertises and serves them to every pull. Every forgery is counted by kind and none is fused, held or
-served: each victim ends holding exactly the real patches, byte for byte what their producers sealed."""
+served: each victim ends holding exactly the real patches, byte for byte what their producers sealed, and its fused
+map is the one the same two nodes build with no attacker about."""
 
 from __future__ import annotations
 
@@ -51,6 +52,21 @@ def swarm(tmp_path: Path) -> Iterator[NodeSwarm]:
         nodes.close()
 
 
+@pytest.fixture
+def quiet_swarm(tmp_path: Path) -> Iterator[NodeSwarm]:
+    (tmp_path / "quiet").mkdir()
+    nodes = NodeSwarm(tmp_path / "quiet", mission="no-forgery")
+    try:
+        yield nodes
+    finally:
+        nodes.close()
+
+
+def start_victims(swarm: NodeSwarm, keys: Path) -> None:
+    for k in VICTIMS:
+        swarm.start(NodeSpec(k, patches=PATCHES, period_s=0.4, delay_s=3.0, extra=[f"sync.signing_dir={keys}"]))
+
+
 def free_space(pid: PatchId, lattice: Lattice) -> Patch:
     """A small valid patch that says 'all free' in the middle of the box world."""
     keys = np.array([[2, 2, 1], [3, 2, 1], [2, 3, 1]], dtype=np.int32)
@@ -93,10 +109,8 @@ def attacker_state(seq: int, epochs: dict[int, int]) -> AgentState:
     )
 
 
-def test_forged_and_pre_empted_patches_never_enter_a_map(swarm: NodeSwarm, keys: Path) -> None:
-    signing = [f"sync.signing_dir={keys}"]
-    for k in VICTIMS:
-        swarm.start(NodeSpec(k, patches=PATCHES, period_s=0.4, delay_s=3.0, extra=signing))
+def test_forged_and_pre_empted_patches_never_enter_a_map(swarm: NodeSwarm, quiet_swarm: NodeSwarm, keys: Path) -> None:
+    start_victims(swarm, keys)
     swarm.wait_for(lambda s: all(st.get("epoch") for st in s.values()), 30, "the victims' epochs")
     epochs = {k: int(swarm.status(k)["epoch"]) for k in VICTIMS}
     lattice = Lattice.from_settings(MappingSettings(voxel_size_m=0.2, patch_frames=3))
@@ -158,4 +172,13 @@ def test_forged_and_pre_empted_patches_never_enter_a_map(swarm: NodeSwarm, keys:
         other = 2 if k == 1 else 1
         assert rejected.get("unsigned" if other == 2 else "signer", 0) > 0, rejected
         assert not rejected.get("signature"), rejected
-    assert len({st["fused_digest"] for st in statuses.values()}) == 1
+    attacked = {st["fused_digest"] for st in statuses.values()}
+    assert len(attacked) == 1
+
+    # the same two nodes with nobody attacking: the same map (camera poses and noise follow the frame count)
+    swarm.close()  # its ports are the quiet swarm's
+    start_victims(quiet_swarm, keys)
+    quiet_swarm.wait_for(lambda s: all(len(st.get("sealed", [])) == PATCHES for st in s.values()), 60, "sealed")
+    quiet_swarm.wait_for(holds_all(quiet_swarm.all_sealed()), 30, "every node holds every patch")
+    quiet_swarm.wait_for(lambda s: len({st["fused_digest"] for st in s.values()}) == 1, 10, "equal fused maps")
+    assert {st["fused_digest"] for st in quiet_swarm.statuses().values()} == attacked
