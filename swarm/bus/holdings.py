@@ -1,8 +1,11 @@
 """The wire form of a patch digest (which patch ids an agent holds), carried in every heartbeat.
 
 A producer numbers its patches 0, 1, 2, ... within an epoch, so what an agent holds is a few ranges of seq per
-(producer, epoch): ``{"entries": [{"producer": p, "epoch": e, "ranges": [[lo, hi], ...]}, ...]}``, entries
-sorted by (producer, epoch) and unique, ranges sorted, disjoint, non-adjacent and inclusive. Received digests
+(producer, epoch): ``{"entries": [{"producer": p, "epoch": e, "ranges": [[lo, hi], ...], "content": c}, ...]}``,
+entries sorted by (producer, epoch) and unique, ranges sorted, disjoint, non-adjacent and inclusive. `content`,
+when given, is the entry's content fingerprint: the XOR of the first 8 bytes (little-endian) of the SHA-256 of
+every listed patch's bytes (`content_fingerprint`), so two holders of the same ids with other bytes for one of
+them announce different fingerprints (a producer that signed two contents for one id). Received digests
 are hostile: validation checks every bound (`MAX_PRODUCERS` producers, `MAX_EPOCHS_PER_PRODUCER` epochs each,
 `MAX_ENTRIES` (producer, epoch) entries and `MAX_RANGES` ranges in all, ints in range, strict types). What an
 agent announces is cut to these bounds (`PatchDigest.announced`), so holding more never stops its heartbeat.
@@ -11,6 +14,7 @@ The set logic lives in `swarm.patches.digest`.
 
 from __future__ import annotations
 
+import hashlib
 from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -40,6 +44,7 @@ class DigestEntry(BaseModel):
     producer: _Producer
     epoch: _Counter
     ranges: Annotated[list[tuple[_Counter, _Counter]], Field(min_length=1, max_length=MAX_RANGES)]
+    content: Annotated[int, Field(ge=0, le=2**64 - 1, strict=True)] | None = None
 
     @model_validator(mode="after")
     def _canonical(self) -> DigestEntry:
@@ -82,3 +87,13 @@ class DigestWire(BaseModel):
 
 
 EMPTY_DIGEST = DigestWire(entries=[])
+
+
+def content_fingerprint(data: bytes) -> int:
+    """One patch's share of its entry's `content`: the first 8 bytes of the SHA-256 of its bytes."""
+    return fingerprint_of_hash(hashlib.sha256(data).digest())
+
+
+def fingerprint_of_hash(sha256: bytes) -> int:
+    """`content_fingerprint` of bytes whose SHA-256 is already known."""
+    return int.from_bytes(sha256[:8], "little")

@@ -267,13 +267,25 @@ class PatchDigest:
 
     # --- wire -------------------------------------------------------------------------------------------
 
-    def to_wire_model(self) -> DigestWire:
-        """The validated wire model; raises ValueError if the digest exceeds the wire bounds."""
-        entries = [
-            {"producer": producer, "epoch": epoch, "ranges": [list(r) for r in seqs]}
-            for (producer, epoch), seqs in self._ranges.items()
-        ]
+    def to_wire_model(self, content: Mapping[_Key, int] | None = None) -> DigestWire:
+        """The validated wire model, with each entry's content fingerprint from `content` when given; raises
+        ValueError if the digest exceeds the wire bounds."""
+        entries = []
+        for (producer, epoch), seqs in self._ranges.items():
+            entry: dict[str, Any] = {"producer": producer, "epoch": epoch, "ranges": [list(r) for r in seqs]}
+            if content is not None and (producer, epoch) in content:
+                entry["content"] = content[(producer, epoch)]
+            entries.append(entry)
         return _validated({"entries": entries})
+
+    def fingerprints(self, of: Mapping[PatchId, int]) -> dict[_Key, int]:
+        """Each entry's content fingerprint: the XOR of `of[pid]` (`content_fingerprint`) over the ids it lists;
+        every listed id must be in `of`."""
+        table: dict[_Key, int] = {}
+        for pid in self.ids():
+            key = (pid.producer, pid.epoch)
+            table[key] = table.get(key, 0) ^ of[pid]
+        return table
 
     def to_wire(self) -> dict[str, Any]:
         """``{"entries": [{"producer", "epoch", "ranges": [[lo, hi], ...]}, ...]}``; ValueError if too big."""
@@ -284,6 +296,11 @@ class PatchDigest:
         digest = cls.__new__(cls)
         digest._ranges = {(e.producer, e.epoch): tuple((lo, hi) for lo, hi in e.ranges) for e in wire.entries}
         return digest
+
+    @staticmethod
+    def content_of(wire: DigestWire) -> dict[_Key, int]:
+        """The content fingerprints a wire digest announces, per (producer, epoch) (entries without one left out)."""
+        return {(e.producer, e.epoch): e.content for e in wire.entries if e.content is not None}
 
     @classmethod
     def from_wire(cls, data: Any) -> PatchDigest:
@@ -303,12 +320,13 @@ def _validated(data: Any) -> DigestWire:
 
 
 def _to_dict(wire: DigestWire) -> dict[str, Any]:
-    return {
-        "entries": [
-            {"producer": e.producer, "epoch": e.epoch, "ranges": [[lo, hi] for lo, hi in e.ranges]}
-            for e in wire.entries
-        ]
-    }
+    entries = []
+    for e in wire.entries:
+        entry: dict[str, Any] = {"producer": e.producer, "epoch": e.epoch, "ranges": [[lo, hi] for lo, hi in e.ranges]}
+        if e.content is not None:
+            entry["content"] = e.content
+        entries.append(entry)
+    return {"entries": entries}
 
 
 class DigestMessage(WireMessage):

@@ -39,7 +39,7 @@ from typing import Any
 
 from swarm.bus.bridge import AsyncBus
 from swarm.bus.codec import DecodeError, decode, encode
-from swarm.bus.holdings import EMPTY_DIGEST, DigestWire
+from swarm.bus.holdings import EMPTY_DIGEST, DigestWire, fingerprint_of_hash
 from swarm.bus.limits import KeyedBuckets
 from swarm.bus.messages import AgentState
 from swarm.config import SyncSettings, Vec3
@@ -108,14 +108,17 @@ class PatchSync:
         self.served_to: dict[int, int] = {}  # requester -> patches served
         self.held_at: dict[PatchId, float] = {}  # wall-clock time each patch was first held
         self._held: dict[PatchId, bytes] = {}
-        self._content: dict[PatchId, str] = {}  # SHA-256 of each held patch's bytes
+        self._content: dict[PatchId, bytes] = {}  # SHA-256 of each held patch's bytes
+        self._announced_content: dict[tuple[int, int], int] = {}  # content fingerprint per announced entry
+        self.content_conflicts: set[tuple[int, int, int]] = set()  # (peer, producer, epoch) announced otherwise
         self._digest = PatchDigest()
         self._announced = PatchDigest()  # the part of _digest that fits a heartbeat (PatchDigest.announced)
         self._holdings: DigestWire = EMPTY_DIGEST
-        self._peers: dict[int, tuple[PatchDigest, bool]] = {}  # peer -> (holdings, finished), from heartbeats
+        # peer -> (holdings, finished, content fingerprints of its entries), from heartbeats
+        self._peers: dict[int, tuple[PatchDigest, bool, dict[tuple[int, int], int]]] = {}
         # peer -> (monotonic time it left, its last holdings and finished flag); judged against what we hold
         # when asked, so a peer that left in step and missed a patch we sealed after is waited for too
-        self._departed: dict[int, tuple[float, PatchDigest, bool]] = {}
+        self._departed: dict[int, tuple[float, PatchDigest, bool, dict[tuple[int, int], int]]] = {}
         self._accepting: set[PatchId] = set()
         self._tasks: set[asyncio.Task[Any]] = set()
         self._loop_task: asyncio.Task[None] | None = None
@@ -157,7 +160,7 @@ class PatchSync:
     def content_hashes(self) -> dict[str, str]:
         """Patch id -> SHA-256 of the bytes held (what is served): a signature is deterministic and a relay serves
         what it received, so two holders of one patch hold the same bytes, and a different hash is other content."""
-        return {str(pid): self._content[pid] for pid in sorted(self._held)}
+        return {str(pid): self._content[pid].hex() for pid in sorted(self._held)}
 
     def add_own(self, pid: PatchId, data: bytes) -> None:
         """An own patch was sealed: hold it, announce it, push it."""
@@ -183,11 +186,14 @@ class PatchSync:
         if pid in self._held:
             return False
         self._held[pid] = data
-        self._content[pid] = hashlib.sha256(data).hexdigest()
+        self._content[pid] = hashlib.sha256(data).digest()
         self.held_at[pid] = time.time()
         self._digest = self._digest.union((pid,))
         self._announced = self._digest.announced()
-        self._holdings = self._announced.to_wire_model()
+        self._announced_content = self._announced.fingerprints(
+            {p: fingerprint_of_hash(self._content[p]) for p in self._announced.ids()}
+        )
+        self._holdings = self._announced.to_wire_model(self._announced_content)
         self.scheduler.note_received(pid)
         self.reassembler.forget(pid)
         if self._on_holdings_changed is not None:
@@ -201,7 +207,7 @@ class PatchSync:
         if state.id == self.own_id:
             return
         digest = PatchDigest.from_wire_model(state.holdings)
-        self._peers[state.id] = (digest, state.finished)
+        self._peers[state.id] = (digest, state.finished, PatchDigest.content_of(state.holdings))
         self._departed.pop(state.id, None)
         self.scheduler.update_peer(state.id, state.position, digest)
 
@@ -214,8 +220,20 @@ class PatchSync:
         elif peer_id in self._departed:  # back by its token alone and gone again: still the one we wait for
             self._departed[peer_id] = (now, *self._departed[peer_id][1:])
 
-    def _in_step(self, digest: PatchDigest, finished: bool) -> bool:
-        return finished and digest == self._announced  # a peer holding what we hold announces the same part
+    def _in_step(self, peer: int, digest: PatchDigest, finished: bool, content: dict[tuple[int, int], int]) -> bool:
+        """A peer holding what we hold announces the same part, and the same bytes for it where it says."""
+        return finished and digest == self._announced and self._same_content(peer, content)
+
+    def _same_content(self, peer: int, content: dict[tuple[int, int], int]) -> bool:
+        """Whether the peer's fingerprints agree with ours on every entry both give; a disagreement is other bytes
+        under one id (a producer that signed two contents), counted once per peer and entry."""
+        same = True
+        for key, fingerprint in content.items():
+            ours = self._announced_content.get(key)
+            if ours is not None and ours != fingerprint:
+                self.content_conflicts.add((peer, *key))
+                same = False
+        return same
 
     def settled(self, now: float | None = None) -> bool:
         """Every peer heard from has finished (sealed its last patch) and holds exactly what this agent holds:
@@ -225,10 +243,10 @@ class PatchSync:
         this agent holds now holds this back: on a lossy radio a lease expiry is often a flap, and the peer's
         next heartbeat brings it back (then it is judged on that heartbeat)."""
         now = time.monotonic() if now is None else now
-        for left, digest, finished in self._departed.values():
-            if now - left < self.settings.linger_wait_departed_s and not self._in_step(digest, finished):
+        for peer, (left, digest, finished, content) in self._departed.items():
+            if now - left < self.settings.linger_wait_departed_s and not self._in_step(peer, digest, finished, content):
                 return False
-        return all(self._in_step(digest, finished) for digest, finished in self._peers.values())
+        return all(self._in_step(peer, *heard) for peer, heard in self._peers.items())
 
     def heard_from(self) -> set[int]:
         """The peers whose heartbeat (holdings) has arrived and who have not left since."""
@@ -377,5 +395,6 @@ class PatchSync:
             "limits": {
                 "pull_claims_over_quota": sum(pull.over_quota.values()),
                 "holdings_unannounced": self._digest.count - self._announced.count,
+                "content_conflicts": len(self.content_conflicts),
             },
         }

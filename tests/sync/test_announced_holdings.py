@@ -18,7 +18,7 @@ def test_seventeen_restarts_of_one_producer_are_all_announced_and_stats_do_not_r
     announced = PatchDigest.from_wire_model(sync.holdings)
     assert announced == PatchDigest.of(sync.held_ids()) and len(announced.ranges) == 17
     stats = sync.stats()
-    assert stats["limits"] == {"pull_claims_over_quota": 0, "holdings_unannounced": 0}
+    assert stats["limits"] == {"pull_claims_over_quota": 0, "holdings_unannounced": 0, "content_conflicts": 0}
     assert PatchDigest.from_wire(stats["holdings"]) == announced
 
 

@@ -8,6 +8,7 @@ from types import SimpleNamespace
 from swarm.bus.keys import Keys
 from swarm.bus.phase import Phase
 from swarm.config import SyncSettings
+from swarm.patches.digest import PatchDigest
 from swarm.patches.patch import PatchId
 from swarm.sync.service import PatchSync
 from tests.bus.helpers import make_state
@@ -81,3 +82,31 @@ def test_a_peer_that_left_in_step_is_waited_for_once_we_seal_a_patch_it_has_not_
     sync.add_recovered(PatchId(1, 0, 7), b"last patch")
     assert not sync.settled(now=101.0)
     assert sync.settled(now=108.5)
+
+
+def test_a_peer_holding_other_bytes_under_the_same_ids_is_not_in_step_and_is_counted() -> None:
+    """A producer that signed two contents for one id gave each holder a different patch: the ids agree, the
+    content fingerprints of their entries do not."""
+    ours, theirs = _sync(), _sync()
+    for seq in range(3):
+        ours.add_recovered(PatchId(1, 5, seq), b"content A" if seq == 1 else b"same")
+        theirs.add_recovered(PatchId(1, 5, seq), b"content B" if seq == 1 else b"same")
+    assert ours.holdings.entries[0].ranges == theirs.holdings.entries[0].ranges
+    assert ours.holdings.entries[0].content != theirs.holdings.entries[0].content
+    ours.on_state(_finished_state(2).model_copy(update={"holdings": theirs.holdings}))
+    assert not ours.settled(now=100.0)
+    assert ours.stats()["limits"]["content_conflicts"] == 1
+    same = _sync()
+    for seq in range(3):
+        same.add_recovered(PatchId(1, 5, seq), b"content A" if seq == 1 else b"same")
+    ours.on_state(_finished_state(2).model_copy(update={"holdings": same.holdings}))
+    assert ours.settled(now=100.0)
+
+
+def test_a_peer_announcing_no_fingerprints_is_judged_on_its_ids() -> None:
+    ours = _sync()
+    ours.add_recovered(PatchId(1, 5, 0), b"patch")
+    bare = PatchDigest.from_wire_model(ours.holdings).to_wire_model()  # as a peer of an earlier version sends it
+    assert bare.entries[0].content is None
+    ours.on_state(_finished_state(2).model_copy(update={"holdings": bare}))
+    assert ours.settled(now=100.0)
