@@ -38,11 +38,15 @@ PositiveFloat = Annotated[float, Field(gt=0)]
 
 _NAME_RE = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 
-# Port layout, as PX4 multi-vehicle SITL: vehicle with id k (k >= 1, MAVLink sysid k) binds
-# vehicle_base_port + k - 1 and sends to gcs_base_port + k - 1, where that drone's agent listens.
+# Port layout, as PX4 multi-vehicle SITL (ROMFS/px4fmu_common/init.d-posix/px4-rc.mavlink: instance i's offboard
+# link listens on 14580 + i and sends to 14540 + i, capped at 14549 for i > 9): vehicle with id k (k >= 1,
+# MAVLink sysid k) binds vehicle_base_port + k - 1 and sends to gcs_base_port + min(k, SITL_GCS_PORTS) - 1, where
+# that drone's agent listens; vehicles SITL_GCS_PORTS and up share the last GCS port, so their agents dial the
+# vehicle port instead (udpout: the vehicle answers whoever talks to it), never a GCS port of their own.
 DEFAULT_GCS_BASE_PORT = 14540
 DEFAULT_VEHICLE_BASE_PORT = 14580
 DEFAULT_BUS_BASE_PORT = 7450
+SITL_GCS_PORTS = 10
 
 
 class ConfigError(SwarmError):
@@ -797,7 +801,21 @@ def dump_config(config: SwarmConfig) -> dict[str, Any]:
 
 
 def gcs_port(sim: SimSettings, drone_id: int) -> int:
-    return sim.gcs_base_port + drone_id - 1
+    """Where vehicle `drone_id` sends MAVLink before anyone talks to it (the port layout above)."""
+    return sim.gcs_base_port + min(drone_id, SITL_GCS_PORTS) - 1
+
+
+def gcs_port_shared(drone_id: int) -> bool:
+    """Whether vehicle `drone_id`'s GCS port is shared with other vehicles: its agent must dial the vehicle."""
+    return drone_id >= SITL_GCS_PORTS
+
+
+def sim_autopilot_url(sim: SimSettings, drone_id: int) -> str:
+    """How drone `drone_id`'s agent reaches its simulated vehicle on sim.host: listening on its own GCS port, or
+    for the vehicles that share one, dialling the vehicle's port."""
+    if gcs_port_shared(drone_id):
+        return f"udpout://{sim.host}:{vehicle_port(sim, drone_id)}"
+    return f"udpin://{sim.host}:{gcs_port(sim, drone_id)}"
 
 
 def vehicle_port(sim: SimSettings, drone_id: int) -> int:

@@ -43,6 +43,8 @@ from swarm.config import (
     bus_port,
     dump_config,
     gcs_port,
+    gcs_port_shared,
+    sim_autopilot_url,
     tls_drone_name,
     vehicle_port,
 )
@@ -134,7 +136,8 @@ def prepare(config: SwarmConfig) -> RunPlan:
         host = config.sim.host
         for k in range(1, m.drones + 1):
             ensure_free(host, vehicle_port(config.sim, k), "udp", f"vehicle {k}")
-            ensure_free(host, gcs_port(config.sim, k), "udp", f"autopilot link of agent {k}")
+            if not gcs_port_shared(k):  # a shared one is no agent's: theirs dial their vehicles
+                ensure_free(host, gcs_port(config.sim, k), "udp", f"autopilot link of agent {k}")
         for k in range(0, m.drones + 1):
             what = "observer bus" if k == 0 else f"bus of agent {k}"
             ensure_free("127.0.0.1", bus_port(config.bus, k), "tcp", what)
@@ -416,7 +419,7 @@ def _start_swarm(plan: RunPlan, state: RunState) -> None:
         if net is not None:
             autopilot = f"udpout://{net.layout.control_host_address}:{vehicle_port(config.sim, k)}"
         else:
-            autopilot = f"udpin://{config.sim.host}:{gcs_port(config.sim, k)}"
+            autopilot = sim_autopilot_url(config.sim, k)
         update: dict[str, Any] = {
             "id": k,
             "autopilot": autopilot,

@@ -1,7 +1,8 @@
 """The simulator process: every vehicle of the swarm in one single-threaded selectors loop.
 
 Vehicle k (MAVLink sysid k) binds UDP sim.host:vehicle_port(k) and sends to sim.host:gcs_port(k), as PX4
-multi-vehicle SITL does; it answers whoever last sent it MAVLink, so `udpout://` clients work too. Physics and
+multi-vehicle SITL does (vehicles 10 and up share the last GCS port, as SITL's do); it answers whoever last sent
+it MAVLink, so `udpout://` clients work too, and are how the agents of vehicles sharing a GCS port connect. Physics and
 collision checks run at sim.physics_hz; telemetry streams at their own rates (at most once per physics step).
 """
 
@@ -21,7 +22,7 @@ from typing import cast
 import numpy as np
 
 from swarm.bus.session import zenoh_error_text
-from swarm.config import ConfigError, SwarmConfig, gcs_port, vehicle_port
+from swarm.config import ConfigError, SwarmConfig, gcs_port, gcs_port_shared, vehicle_port
 from swarm.errors import PortInUseError, SwarmError, WorldError
 from swarm.files import FileFormatError, read_model, write_model
 from swarm.sim.collisions import CRUISE_HEIGHT_M, CollisionMonitor
@@ -84,15 +85,17 @@ class SimServer:
         allow this start order pass check_gcs_ports=False (see taken_gcs_ports)."""
         sim = self.config.sim
         vehicle_ports = {vid: vehicle_port(sim, vid) for vid in self.ids}
-        gcs_ports = {vid: gcs_port(sim, vid) for vid in self.ids}
-        shared = set(vehicle_ports.values()) & set(gcs_ports.values())
+        gcs_ports: dict[int, int] = {}  # port -> the first vehicle sending there
+        for vid in self.ids:
+            gcs_ports.setdefault(gcs_port(sim, vid), vid)  # a shared port is checked once
+        shared = set(vehicle_ports.values()) & set(gcs_ports)
         if shared:
             raise ConfigError(f"UDP port {min(shared)} is both a vehicle port and a GCS port: separate the port ranges")
         try:
             for vid, port in vehicle_ports.items():
                 self._sockets[vid] = _bind_udp(sim.host, port, f"vehicle {vid}")
             if check_gcs_ports:
-                for vid, port in gcs_ports.items():
+                for port, vid in gcs_ports.items():
                     _bind_udp(sim.host, port, f"GCS of vehicle {vid}").close()
         except BaseException:
             self.close()
@@ -112,6 +115,8 @@ class SimServer:
         taken = []
         for vid in self.ids:
             port = gcs_port(self.config.sim, vid)
+            if gcs_port_shared(vid):  # its agent dials the vehicle: it never holds this port
+                continue
             try:
                 _bind_udp(self.config.sim.host, port, "probe").close()
             except PortInUseError:
@@ -143,7 +148,11 @@ class SimServer:
                 "vehicle_port": vehicle_port(self.config.sim, vid),
                 "gcs_port": gcs_port(self.config.sim, vid),
                 "host": host,
-                "connect_url": f"udpin://0.0.0.0:{gcs_port(self.config.sim, vid)}",
+                "connect_url": (
+                    f"udpout://{host}:{vehicle_port(self.config.sim, vid)}"
+                    if gcs_port_shared(vid)
+                    else f"udpin://0.0.0.0:{gcs_port(self.config.sim, vid)}"
+                ),
             }
             for vid in self.ids
         ]

@@ -11,7 +11,7 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
 
-from swarm.config import gcs_port, vehicle_port
+from swarm.config import SITL_GCS_PORTS, gcs_port, sim_autopilot_url, vehicle_port
 from swarm.errors import PortInUseError
 from swarm.sim.px4 import FlightMode
 from swarm.sim.server import run_simulator
@@ -335,3 +335,37 @@ def test_a_stalled_simulator_loop_is_reported_in_its_status(port_base: int, box_
         wait_until(lambda: server.status()["stalls"] != [], 2.0, "the stall to be reported")
         [stall] = server.status()["stalls"]
         assert 0.7 <= stall["s"] < 2.0
+
+
+def test_vehicles_from_ten_up_share_the_last_gcs_port_and_are_reached_by_dialling_them(
+    port_base: int, box_world: World
+) -> None:
+    """As PX4 SITL (px4-rc.mavlink): instance i sends to 14540 + i, capped at 14549, so vehicles 10, 11 and 12
+    all send to the tenth GCS port; each still answers whoever talks to it, so its agent dials its vehicle port."""
+    config = sim_config(port_base, **{"mission.drones": 12, "mission.spawn_spacing_m": 1.0})
+    shared = gcs_port(config.sim, SITL_GCS_PORTS)
+    assert [gcs_port(config.sim, k) for k in (9, 10, 11, 12)] == [shared - 1, shared, shared, shared]
+    assert [sim_autopilot_url(config.sim, k).split(":")[0] for k in (9, 10, 12)] == ["udpin", "udpout", "udpout"]
+    with running_sim(config, box_world) as server, gcs(shared) as listener:
+        heard: set[int] = set()
+        deadline = time.monotonic() + 5.0
+        while heard != {10, 11, 12} and time.monotonic() < deadline:
+            msg = listener.conn.recv_match(type="HEARTBEAT", blocking=True, timeout=0.1)
+            if msg is not None:
+                heard.add(msg.get_srcSystem())
+        assert heard == {10, 11, 12}  # one port, three vehicles, told apart by their sysid
+        urls = {ep["id"]: ep["connect_url"] for ep in server.endpoints()}
+        assert urls[9] == f"udpin://0.0.0.0:{shared - 1}"
+        assert urls[12] == f"udpout://127.0.0.1:{vehicle_port(config.sim, 12)}"
+        client = mavutil.mavlink_connection(
+            f"udpout:127.0.0.1:{vehicle_port(config.sim, 12)}", source_system=245, source_component=190
+        )
+        try:
+            deadline = time.monotonic() + 5.0
+            answered = None
+            while answered is None and time.monotonic() < deadline:
+                client.mav.heartbeat_send(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+                answered = client.recv_match(type="HEARTBEAT", blocking=True, timeout=0.1)
+            assert answered is not None and answered.get_srcSystem() == 12
+        finally:
+            client.close()
