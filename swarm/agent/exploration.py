@@ -74,6 +74,7 @@ class Exploration:
         self.grid: ExplorationGrid | None = None
         self.flight: Flight | None = None  # set when the mission starts
         self.wake = asyncio.Event()  # run a decision now
+        self.returning = False  # a low battery sent the drone home early (fly_home): it decides no more
         self.retarget = asyncio.Event()  # the flight must drop its path
         self._decisions: asyncio.Task[None] | None = None
         self.decision_ms: list[float] = []
@@ -136,8 +137,8 @@ class Exploration:
             self.wake.clear()
 
     async def decide(self) -> None:
-        if self.core.done and self.peers.leader != self.id:
-            return
+        if self.returning or (self.core.done and self.peers.leader != self.id):
+            return  # a returning drone is out of its cluster (phase returning): it neither reports nor leads
         here = self.position()
         home = self.home()
         if home is None:
@@ -310,8 +311,10 @@ class Exploration:
         return True
 
     async def fly_home(self, flight: Flight, stop: asyncio.Event) -> None:
-        """The flight's way home when it ends the mission early (a low battery): the targets are left, and the
-        drone returns above its take-off point as at the end of the mission."""
+        """The flight's way home when it ends the mission early (a low battery): the targets are left to the others
+        (the heartbeat says returning, which takes this drone out of every cluster), and the drone returns above
+        its take-off point as at the end of the mission."""
+        self.returning = True
         self.target = None
         home = self.home()
         if home is None:

@@ -23,11 +23,11 @@ Phases (`swarm.bus.phase.Phase`, what the heartbeat says) change as `swarm.agent
 
 Battery: once the autopilot's battery telemetry falls below `agent.battery_home_fraction` during the mission
 (or the hover after it), the flight logs `battery_low` once and ends the mission as a normal end would: the
-mission is interrupted (`BatteryLow`), the drone flies back above its take-off point the way the mission's
-`homeward` says (the exploration plans it on its map; a scripted route is retraced through the waypoints
-reached, each leg flown once already) and lands. A battery already that low on the ground is a refusal to take
-off. The threshold sits above PX4's BAT_LOW_THR, so that the vehicle's own battery failsafe
-(`swarm.agent.px4_failsafe`) never has to act.
+mission is interrupted (`BatteryLow`), and in phase returning (out of its cluster: the others take over its
+targets) the drone flies back above its take-off point the way the mission's `homeward` says (the exploration
+plans it on its map; a scripted route is retraced through the waypoints reached, each leg flown once already)
+and lands. A battery already that low on the ground is a refusal to take off. The threshold sits above PX4's
+BAT_LOW_THR, so that the vehicle's own battery failsafe (`swarm.agent.px4_failsafe`) never has to act.
 
 Fail safe: if position telemetry stops for `telemetry_timeout_s` while airborne, the drone is told to hold,
 then to land, and the flight ends in phase `failsafe`; if telemetry comes back, the agent watches the landing
@@ -198,6 +198,7 @@ class Flight:
                     self._set_phase(Phase.HOVERING)
                     await self._wait(s.hover_s, stop)
             except BatteryLow:
+                self._set_phase(Phase.RETURNING)
                 await homeward(self, stop)
         except TakenOver as exc:
             await self._taken_over(exc.mode, stop)

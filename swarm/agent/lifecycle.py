@@ -9,8 +9,10 @@ Flight phases (`swarm.bus.phase.Phase`, what the heartbeat says) change only in 
 - takeoff -> flying (take-off altitude reached, or a restarted agent resumed a drone already in the air)
   | landing (a stop request or a flight error once airborne) | failsafe (telemetry lost) | failed (arming or the
   take-off command failed: still on the ground)
-- flying -> hovering (the mission is over and `hover_s` > 0) | landing | failsafe
-- hovering -> landing | failsafe
+- flying -> hovering (the mission is over and `hover_s` > 0) | returning (the battery ran low) | landing
+  | failsafe
+- hovering -> returning (the battery ran low) | landing | failsafe
+- returning -> landing (home, or no way there: it lands where it is) | failsafe
 - landing -> landed | failed (the landing could not be commanded or seen through)
 - landed, failsafe, failed: final (a failsafe landing that telemetry confirms later stays failsafe)
 
@@ -18,10 +20,11 @@ Landing and failsafe are the safe way down and must never be held up by bookkeep
 bug in the flight code, so `transition` raises, and `Flight._set_phase` logs it loudly (`illegal_transition`)
 and takes the phase anyway, so the heartbeat says what the drone does. The unit tests hold the table to the code.
 
-"Returning" is no phase: it is the end of the mission, flown in phase flying (the exploration flies the drone
-back above its take-off point, `Exploration._return`; a route ends where it ends), and the drone lands where
-the mission left it. A low battery ends the mission early the same way: the way home is flown in the phase the
-battery ran low in (flying, or hovering), then the drone lands. Lingering and exit come after the flight, while
+The way home at the end of the mission is flown in phase flying (the exploration flies the drone back above its
+take-off point, `Exploration._return`; a route ends where it ends): the cluster is done by then. A low battery
+ends the mission early: the way home is flown in phase returning, which takes the drone out of its cluster
+(`swarm.bus.phase.RETIRED_PHASES`), so the others' leader gives its targets to them, and a returning lowest id
+hands the leadership on; then the drone lands. Lingering and exit come after the flight, while
 the heartbeat keeps the final phase (a lingering agent's says landed); they are process `Stage`s of
 `swarm.agent.main.Agent`.
 """
@@ -41,8 +44,9 @@ ALLOWED: dict[Phase, frozenset[Phase]] = {
     Phase.CONNECTING: frozenset({Phase.READY, Phase.FAILED}),
     Phase.READY: frozenset({Phase.TAKEOFF, Phase.LANDED, Phase.FAILED}),
     Phase.TAKEOFF: frozenset({Phase.FLYING, Phase.LANDING, Phase.FAILSAFE, Phase.FAILED}),
-    Phase.FLYING: frozenset({Phase.HOVERING, Phase.LANDING, Phase.FAILSAFE}),
-    Phase.HOVERING: frozenset({Phase.LANDING, Phase.FAILSAFE}),
+    Phase.FLYING: frozenset({Phase.HOVERING, Phase.RETURNING, Phase.LANDING, Phase.FAILSAFE}),
+    Phase.HOVERING: frozenset({Phase.RETURNING, Phase.LANDING, Phase.FAILSAFE}),
+    Phase.RETURNING: frozenset({Phase.LANDING, Phase.FAILSAFE}),
     Phase.LANDING: frozenset({Phase.LANDED, Phase.FAILED}),
     Phase.LANDED: frozenset(),
     Phase.FAILSAFE: frozenset(),

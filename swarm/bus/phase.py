@@ -17,6 +17,7 @@ class Phase(StrEnum):
     TAKEOFF = "takeoff"
     FLYING = "flying"
     HOVERING = "hovering"
+    RETURNING = "returning"  # a low battery ended its mission early: flying home, out of exploration
     LANDING = "landing"
     LANDED = "landed"  # also while the landed agent lingers on the bus to finish the map
     FAILSAFE = "failsafe"  # telemetry lost in the air: the autopilot was told to land where it was
@@ -24,7 +25,10 @@ class Phase(StrEnum):
     MAPPING = "mapping"  # a map node (`swarm.mission.mapnode`): never flies, a cluster member to the end
 
 
-# Out of exploration for good: in no cluster (swarm.roles.membership).
-RETIRED_PHASES = frozenset({Phase.LANDED, Phase.FAILED, Phase.FAILSAFE})
+# Out of exploration for good: in no cluster (swarm.roles.membership). A returning drone is one: its leader must
+# not wait for it or give it targets, and, as the lowest id, it must not stay the leader of drones still exploring.
+RETIRED_PHASES = frozenset({Phase.RETURNING, Phase.LANDED, Phase.FAILED, Phase.FAILSAFE})
 # The drone may be in the air, or (failsafe) came down where it was rather than at its home: kept clear of.
-AIRBORNE_PHASES = frozenset({Phase.TAKEOFF, Phase.FLYING, Phase.HOVERING, Phase.LANDING, Phase.FAILSAFE})
+AIRBORNE_PHASES = frozenset(
+    {Phase.TAKEOFF, Phase.FLYING, Phase.HOVERING, Phase.RETURNING, Phase.LANDING, Phase.FAILSAFE}
+)

@@ -40,10 +40,14 @@ TESTED_TRANSITIONS: dict[tuple[Phase, Phase], str] = {
     (P.TAKEOFF, P.FAILSAFE): "telemetry lost while climbing",
     (P.TAKEOFF, P.FAILED): "arming refused",
     (P.FLYING, P.HOVERING): "normal",
+    (P.FLYING, P.RETURNING): "battery low on the mission",
     (P.FLYING, P.LANDING): "no hover",
     (P.FLYING, P.FAILSAFE): "telemetry lost on the mission",
+    (P.HOVERING, P.RETURNING): "battery low while hovering",
     (P.HOVERING, P.LANDING): "normal",
     (P.HOVERING, P.FAILSAFE): "telemetry lost while hovering",
+    (P.RETURNING, P.LANDING): "battery low on the mission",
+    (P.RETURNING, P.FAILSAFE): "telemetry lost on the way home",
     (P.LANDING, P.LANDED): "normal",
     (P.LANDING, P.FAILED): "land refused",
 }
@@ -98,6 +102,7 @@ def _fly(
     stop: asyncio.Event | None = None,
     mission: Any = _idle_mission,
     prepare: Callable[[Flight], None] = lambda flight: None,
+    homeward: Any = None,
     **settings: Any,
 ) -> tuple[list[Phase], Phase, list[str]]:
     """Fly with `ap`; the phases the flight went through (from its log), the final one and every log event."""
@@ -105,7 +110,7 @@ def _fly(
     agent = load_config().agent.model_copy(update=settings)
     flight = Flight(ap, agent, lambda event, **fields: events.append((event, fields)))  # type: ignore[arg-type]
     prepare(flight)
-    final = asyncio.run(flight.run(mission, stop or asyncio.Event()))
+    final = asyncio.run(flight.run(mission, stop or asyncio.Event(), homeward))
     phases = [Phase.CONNECTING, *(Phase(f["phase"]) for e, f in events if e == "phase")]
     return phases, final, [e for e, _ in events]
 
@@ -169,6 +174,28 @@ def _scenario_telemetry_lost_while_hovering() -> Any:
     return _fly(ap, mission=mission, hover_s=2.0)
 
 
+async def _low_battery_mission(flight: Flight, stop: asyncio.Event) -> None:
+    flight.ap.telemetry.battery = 0.05  # below agent.battery_home_fraction: the next check ends the mission
+    await flight.face((1.0, 0.0, 1.5), 1.0, stop)
+
+
+def _scenario_battery_low_on_the_mission() -> Any:
+    return _fly(FakeAutopilot(), mission=_low_battery_mission)
+
+
+def _scenario_battery_low_while_hovering() -> Any:
+    ap = FakeAutopilot()
+
+    async def mission(flight: Flight, stop: asyncio.Event) -> None:
+        asyncio.get_running_loop().call_later(0.2, setattr, ap.telemetry, "battery", 0.05)
+
+    return _fly(ap, mission=mission, hover_s=2.0)
+
+
+def _scenario_telemetry_lost_on_the_way_home() -> Any:
+    return _fly(FakeAutopilot(), mission=_low_battery_mission, homeward=_silent_mission)
+
+
 def _scenario_land_refused() -> Any:
     return _fly(FakeAutopilot(refuse=frozenset({"land"})))
 
@@ -206,6 +233,18 @@ SCENARIOS: dict[str, tuple[Callable[[], Any], list[Phase]]] = {
     "telemetry lost while hovering": (
         _scenario_telemetry_lost_while_hovering,
         [P.CONNECTING, P.READY, P.TAKEOFF, P.FLYING, P.HOVERING, P.FAILSAFE],
+    ),
+    "battery low on the mission": (
+        _scenario_battery_low_on_the_mission,
+        [P.CONNECTING, P.READY, P.TAKEOFF, P.FLYING, P.RETURNING, P.LANDING, P.LANDED],
+    ),
+    "battery low while hovering": (
+        _scenario_battery_low_while_hovering,
+        [P.CONNECTING, P.READY, P.TAKEOFF, P.FLYING, P.HOVERING, P.RETURNING, P.LANDING, P.LANDED],
+    ),
+    "telemetry lost on the way home": (
+        _scenario_telemetry_lost_on_the_way_home,
+        [P.CONNECTING, P.READY, P.TAKEOFF, P.FLYING, P.RETURNING, P.FAILSAFE],
     ),
     "land refused": (_scenario_land_refused, [P.CONNECTING, P.READY, P.TAKEOFF, P.FLYING, P.LANDING, P.FAILED]),
     "resumed in the air": (_scenario_resumed_in_the_air, UP_AND_DOWN),

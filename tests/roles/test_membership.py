@@ -1,4 +1,4 @@
-from swarm.bus.phase import Phase
+from swarm.bus.phase import AIRBORNE_PHASES, Phase
 from swarm.roles.membership import PeerTable
 
 
@@ -66,6 +66,18 @@ def test_a_peer_down_for_good_leaves_the_cluster_but_stays_present() -> None:
         assert table.cluster == [3] and table.role == "leader"
     assert set(table.peers) == {1, 2}, "a landed peer still syncs: it stays present"
     assert [e[0] for e in events] == ["joined", "joined"]
+
+
+def test_a_lowest_id_flying_home_on_a_low_battery_hands_the_leadership_on() -> None:
+    """Returning (a low battery ended its mission): out of the cluster, so it is given no target and does not stay
+    the leader of drones still exploring, while it flies (it is still a neighbour to keep clear of)."""
+    table, _, _ = make(own=3)
+    table.heard(1, (0, 0, 1), Phase.FLYING, 1)
+    table.heard(2, (0, 0, 1), Phase.FLYING, 1)
+    assert table.leader == 1
+    table.heard(1, (1, 0, 1), Phase.RETURNING, 1)
+    assert table.cluster == [2, 3] and table.leader == 2
+    assert Phase.RETURNING in AIRBORNE_PHASES
 
 
 def test_a_peer_heard_only_by_its_token_is_in_the_cluster() -> None:
