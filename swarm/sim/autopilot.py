@@ -117,6 +117,7 @@ class SimulatedPx4:
         self._ground_since: float | None = None
         self._flown_since_arm = False
         self._commanding_up = False
+        self._touchdown_at: float | None = None  # since when an armed vehicle rests on the ground (land detector)
         self._limits_key: tuple | None = None
         self._limits = self._make_limits(False)
         self.rc_present = False  # the simulated vehicles have no RC transmitter
@@ -390,9 +391,26 @@ class SimulatedPx4:
                 self._rtl_phase = RtlPhase.DESCEND
 
     def _update_landed_state(self) -> None:
+        """MAV_LANDED_STATE as PX4's land detector reports it. Armed, a vehicle that comes down is landed only
+        once it has sat on the ground, not commanded up and barely moving (LNDMC_Z_VEL_MAX, LNDMC_XY_VEL_MAX), for
+        LNDMC_TRIG_TIME: PX4's three stages (ground contact, maybe landed, landed) of LNDMC_TRIG_TIME / 3 each
+        (MulticopterLandDetector.cpp). Until then it is landing (in Land, or Return's descent) or in the air. A
+        vehicle that is landed stays so while it sits there, and a disarmed one on the ground is landed at once."""
+        resting = self.at_ground and not self._commanding_up
+        if resting and self.armed and self.landed_state != LandedState.ON_GROUND:
+            v = self.body.velocity
+            still = abs(float(v[2])) <= self.params["LNDMC_Z_VEL_MAX"]
+            still = still and float(np.hypot(v[0], v[1])) <= self.params["LNDMC_XY_VEL_MAX"]
+            if not still:
+                self._touchdown_at = None
+            elif self._touchdown_at is None:
+                self._touchdown_at = self.now
+        elif not resting:
+            self._touchdown_at = None
+        detected = self._touchdown_at is not None and self.now - self._touchdown_at >= self.params["LNDMC_TRIG_TIME"]
         if self.armed and self.mode == FlightMode.TAKEOFF:
             state = LandedState.TAKEOFF
-        elif self.at_ground and not self._commanding_up:
+        elif resting and (not self.armed or self.landed_state == LandedState.ON_GROUND or detected):
             state = LandedState.ON_GROUND
         elif self.mode == FlightMode.LAND or (self.mode == FlightMode.RTL and self._rtl_phase == RtlPhase.DESCEND):
             state = LandedState.LANDING

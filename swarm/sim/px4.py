@@ -96,6 +96,12 @@ class Params:
             "COM_LOW_BAT_ACT": Param(0, INT32),  # 0 warning, 2 Land, 3 Return at critical / Land at emergency
             "COM_ARM_BAT_MIN": Param(-1.0),  # negative: arming refused at BAT_CRIT_THR
             "COM_DISARM_LAND": Param(2.0),
+            # The multicopter land detector (src/modules/land_detector/land_detector_params_mc.c): ground contact,
+            # maybe landed and landed each hold for LNDMC_TRIG_TIME / 3 while the vehicle does not move faster than
+            # these (MulticopterLandDetector.cpp, _set_hysteresis_factor)
+            "LNDMC_TRIG_TIME": Param(1.0),
+            "LNDMC_Z_VEL_MAX": Param(0.25),
+            "LNDMC_XY_VEL_MAX": Param(1.5),
             "COM_DISARM_PRFLT": Param(10.0),
             # Estimator aiding (src/modules/ekf2/module.yaml): GPS bits 0-2 (position, altitude, velocity), PX4's
             # default 7; external vision bits 0-3 (position, altitude, velocity, yaw), default 15, used when vision

@@ -149,6 +149,24 @@ def test_landing_disarms_com_disarm_land_after_touchdown(ap: SimulatedPx4, sim: 
     assert ap.mode == FlightMode.HOLD and ap.position[2] == HOME[2]
 
 
+@pytest.mark.parametrize("trig_time", [1.0, 3.0])
+def test_a_landing_is_detected_lndmc_trig_time_after_touchdown(ap: SimulatedPx4, trig_time: float) -> None:
+    """PX4's land detector: ground contact, maybe landed, landed, LNDMC_TRIG_TIME / 3 each; until then the
+    vehicle on the floor still says landing (and so does not disarm)."""
+    ap.params.set("LNDMC_TRIG_TIME", trig_time)
+    clock = Clock(ap)
+    ap.arm(clock.now)
+    ap.takeoff()
+    clock.run_until(lambda: ap.mode == FlightMode.HOLD, timeout=10)
+    assert ap.land() == ACCEPTED
+    clock.run_until(lambda: ap.at_ground, timeout=10)
+    assert ap.landed_state == LandedState.LANDING and ap.airborne
+    detected = clock.run_until(lambda: ap.landed_state == LandedState.ON_GROUND, timeout=10)
+    assert detected == pytest.approx(trig_time, abs=2 * DT)
+    assert ap.armed  # COM_DISARM_LAND counts from the detection
+    assert clock.run_until(lambda: not ap.armed, timeout=5) == pytest.approx(2.0, abs=2 * DT)
+
+
 def test_armed_without_taking_off_disarms_after_the_preflight_delay(ap: SimulatedPx4) -> None:
     clock = Clock(ap)
     ap.arm(clock.now)
