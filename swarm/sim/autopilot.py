@@ -118,6 +118,9 @@ class SimulatedPx4:
         self._flown_since_arm = False
         self._commanding_up = False
         self._touchdown_at: float | None = None  # since when an armed vehicle rests on the ground (land detector)
+        # (roll, pitch) in rad the vehicle rests at on the ground: level, unless a test tips it over (a crash, a
+        # slope); in flight the attitude follows the acceleration (swarm.sim.kinematics.tilt)
+        self.rest_tilt = (0.0, 0.0)
         self._limits_key: tuple | None = None
         self._limits = self._make_limits(False)
         self.rc_present = False  # the simulated vehicles have no RC transmitter
@@ -160,6 +163,13 @@ class SimulatedPx4:
         return float(self.body.position[2]) - self.ground_z <= GROUND_EPS_M
 
     @property
+    def attitude(self) -> tuple[float, float]:
+        """(roll, pitch) in rad: what the acceleration needs in flight, the resting attitude on the ground."""
+        if self.landed_state == LandedState.ON_GROUND:
+            return self.rest_tilt
+        return kinematics.tilt(self.body)
+
+    @property
     def airborne(self) -> bool:
         return self.landed_state != LandedState.ON_GROUND
 
@@ -185,10 +195,16 @@ class SimulatedPx4:
     def arming_refusal(self) -> str | None:
         """Why PX4 would refuse to arm now, in its words, or None. The checks the simulator can fail, in PX4's
         order of HealthAndArmingChecks: the position estimate (estimatorCheck.cpp: a multicopter arms in a mode
-        that needs one only with one), an active data-link failsafe (rcAndDataLinkChecks.cpp: no ground station
-        while NAV_DLL_ACT acts on its loss), the battery (batteryCheck.cpp)."""
+        that needs one only with one), the attitude (failureDetectorCheck.cpp: roll or pitch beyond FD_FAIL_R or
+        FD_FAIL_P, a vehicle not standing level), an active data-link failsafe (rcAndDataLinkChecks.cpp: no ground
+        station while NAV_DLL_ACT acts on its loss), the battery (batteryCheck.cpp)."""
         if not self.position_valid:
             return "no valid position estimate"
+        roll, pitch = self.attitude
+        if abs(roll) > math.radians(self.params["FD_FAIL_R"]):
+            return "Attitude failure (roll)"
+        if abs(pitch) > math.radians(self.params["FD_FAIL_P"]):
+            return "Attitude failure (pitch)"
         if self._datalink_lost and int(self.params["NAV_DLL_ACT"]) != 0:
             return "no connection to the ground control station"
         refusal = battery_arming_refusal(self.params.__getitem__, self.battery.remaining)

@@ -99,6 +99,11 @@ class Params:
             # The multicopter land detector (src/modules/land_detector/land_detector_params_mc.c): ground contact,
             # maybe landed and landed each hold for LNDMC_TRIG_TIME / 3 while the vehicle does not move faster than
             # these (MulticopterLandDetector.cpp, _set_hysteresis_factor)
+            # The failure detector (src/modules/commander/failure_detector/failure_detector_params.c): roll or
+            # pitch beyond these (degrees) is an attitude failure, and arming is refused while it lasts
+            # (HealthAndArmingChecks/checks/failureDetectorCheck.cpp, "Preflight Fail: Attitude failure (roll)")
+            "FD_FAIL_R": Param(60, INT32),
+            "FD_FAIL_P": Param(60, INT32),
             "LNDMC_TRIG_TIME": Param(1.0),
             "LNDMC_Z_VEL_MAX": Param(0.25),
             "LNDMC_XY_VEL_MAX": Param(1.5),

@@ -34,7 +34,6 @@ from swarm.agent.px4_failsafe import BatteryWarning
 from swarm.config import GeoOrigin, SwarmConfig, Vec3
 from swarm.sim.autopilot import ACCEPTED, DENIED, REJECTED, Setpoint, SimulatedPx4
 from swarm.sim.battery import Battery
-from swarm.sim.kinematics import tilt
 from swarm.sim.px4 import FlightMode, LandedState, Params
 
 _log = logging.getLogger(__name__)
@@ -402,7 +401,7 @@ class SimVehicle:
 
     def _send_attitude(self) -> None:
         body = self.autopilot.body
-        roll, pitch = tilt(body)
+        roll, pitch = self.autopilot.attitude
         self.mav.attitude_send(self._boot_ms(), roll, pitch, body.yaw, 0.0, 0.0, body.yaw_rate)
 
     def _send_local_position(self) -> None:

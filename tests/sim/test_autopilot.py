@@ -396,3 +396,22 @@ def test_arming_is_refused_below_the_critical_threshold_unless_forced(sim: SimSe
 def test_a_low_battery_arms(sim: SimSettings) -> None:
     ap = with_battery(sim, minutes=10.0, start=0.10)
     assert ap.armable and ap.arm(Clock(ap).now) == ACCEPTED
+
+
+@pytest.mark.parametrize(("tilt", "refusal"), [((70.0, 0.0), "roll"), ((0.0, -65.0), "pitch")])
+def test_a_vehicle_not_standing_level_is_refused_arming(
+    ap: SimulatedPx4, tilt: tuple[float, float], refusal: str
+) -> None:
+    """PX4's failure detector (FD_FAIL_R, FD_FAIL_P, 60 degrees): a vehicle tipped over is an attitude failure,
+    and arming is refused with its reason, until it stands level or the limit is raised."""
+    clock = Clock(ap)
+    clock.run(0.1)
+    ap.rest_tilt = (math.radians(tilt[0]), math.radians(tilt[1]))
+    assert ap.attitude == ap.rest_tilt and not ap.armable
+    assert ap.arm(clock.now) == REJECTED and not ap.armed
+    assert ap.notices[-1][1] == f"Arming denied: Attitude failure ({refusal})"
+    ap.params.set("FD_FAIL_R" if refusal == "roll" else "FD_FAIL_P", 90)
+    assert ap.armable
+    ap.params.set("FD_FAIL_R" if refusal == "roll" else "FD_FAIL_P", 60)
+    ap.rest_tilt = (math.radians(10.0), 0.0)  # slightly off level: arms
+    assert ap.arm(clock.now) == ACCEPTED
