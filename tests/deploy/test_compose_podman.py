@@ -138,14 +138,16 @@ def test_three_drones_with_loss_and_tls_run_to_the_end_and_leave_nothing(project
     ]
     assert (project / "results" / "map.ply").stat().st_size > 0
 
-    # TLS: every agent's bus is tls/ only, and its container holds the CA certificate and its own pair, no more
+    # TLS: every agent's bus is tls/ only, and its container holds the CA certificate and its own pairs (TLS and
+    # patch signing), no more
     for k in range(1, DRONES + 1):
         bus = load_config(project / "config" / f"agent-{k}.toml").bus
         assert bus.listen and all(e.startswith("tls/") for e in bus.listen + bus.connect), bus
         assert (str(bus.tls_dir), bus.tls_name) == ("/etc/swarm-tls", f"drone-{k}")
         mounts = json.loads(_podman("inspect", "--format", "{{json .Mounts}}", f"{PROJECT}_agent-{k}_1").stdout)
         tls = sorted(Path(m["Destination"]).name for m in mounts if m["Destination"].startswith("/etc/swarm-tls"))
-        assert tls == sorted(["ca.pem", f"drone-{k}.pem", f"drone-{k}.key"])
+        own = ["ca.pem", f"drone-{k}.pem", f"drone-{k}.key", f"drone-{k}.sign.pem", f"drone-{k}.sign.key"]
+        assert tls == sorted(own)
 
     down = subprocess.run([*compose, "-p", PROJECT, "down"], cwd=project, capture_output=True, text=True, env=_env())
     assert down.returncode == 0, down.stderr
