@@ -52,6 +52,21 @@ def _validity(builder: x509.CertificateBuilder, days: int) -> x509.CertificateBu
     return builder.not_valid_before(now - _BACKDATE).not_valid_after(now + datetime.timedelta(days=days))
 
 
+def _key_usage(certifies: bool) -> x509.KeyUsage:
+    """Digital signatures, and either certificates and CRLs (the CA) or content commitment (patch signing)."""
+    return x509.KeyUsage(
+        digital_signature=True,
+        content_commitment=not certifies,
+        key_cert_sign=certifies,
+        crl_sign=certifies,
+        key_encipherment=False,
+        data_encipherment=False,
+        key_agreement=False,
+        encipher_only=False,
+        decipher_only=False,
+    )
+
+
 def _make_ca(days: int) -> tuple[ec.EllipticCurvePrivateKey, x509.Certificate]:
     key = ec.generate_private_key(ec.SECP256R1())
     builder = (
@@ -61,20 +76,7 @@ def _make_ca(days: int) -> tuple[ec.EllipticCurvePrivateKey, x509.Certificate]:
         .public_key(key.public_key())
         .serial_number(x509.random_serial_number())
         .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
-        .add_extension(
-            x509.KeyUsage(
-                digital_signature=True,
-                key_cert_sign=True,
-                crl_sign=True,
-                content_commitment=False,
-                key_encipherment=False,
-                data_encipherment=False,
-                key_agreement=False,
-                encipher_only=False,
-                decipher_only=False,
-            ),
-            critical=True,
-        )
+        .add_extension(_key_usage(certifies=True), critical=True)
     )
     return key, _validity(builder, days).sign(key, hashes.SHA256())
 
@@ -110,20 +112,7 @@ def _make_signing_leaf(
         .public_key(key.public_key())
         .serial_number(x509.random_serial_number())
         .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
-        .add_extension(
-            x509.KeyUsage(
-                digital_signature=True,
-                content_commitment=True,
-                key_cert_sign=False,
-                crl_sign=False,
-                key_encipherment=False,
-                data_encipherment=False,
-                key_agreement=False,
-                encipher_only=False,
-                decipher_only=False,
-            ),
-            critical=True,
-        )
+        .add_extension(_key_usage(certifies=False), critical=True)
     )
     return key, _validity(builder, days).sign(ca_key, hashes.SHA256())
 

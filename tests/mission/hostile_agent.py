@@ -45,6 +45,7 @@ from swarm.roles.messages import FrontierReport, as_points
 from swarm.sync.chunks import split_patch
 from swarm.sync.requests import request_parameters
 from swarm.sync.service import PatchSync
+from tests.bus.helpers import make_state
 
 ATTACK_PERIOD_S = 0.25
 GIANT_BLOCKS = 40_000
@@ -147,19 +148,14 @@ class Attacker:
             return
         claim = PatchDigest(set_ids(ids)).union(PatchDigest.from_wire_model(sync.holdings).ids())
         here = self.agent._position()
-        state = AgentState(
-            id=self.id,
-            epoch=self.agent.epoch,
-            seq=10**9 + self.sent.get("heartbeats", 0),
-            t=time.time(),
-            position=here,
-            velocity=(0.0, 0.0, 0.0),
-            yaw_deg=0.0,
-            flight_mode="NONE",
-            phase=Phase.MAPPING,
-            role="explorer",
-            leader=1,
-            holdings=claim.announced().to_wire_model(),
+        lie = {
+            "t": time.time(),
+            "position": here,
+            "phase": Phase.MAPPING,
+            "holdings": claim.announced().to_wire_model(),
+        }
+        state = make_state(self.id, 10**9 + self.sent.get("heartbeats", 0), epoch=self.agent.epoch).model_copy(
+            update=lie
         )
         for _ in range(3):  # more often than the real agent's own heartbeats on the same key
             session.put(self.agent.keys.state(self.id), encode(state))

@@ -26,6 +26,7 @@ from swarm.patches.patch import FrameSpan, Patch, PatchId, VoxelBlocks
 from swarm.patches.signing import PatchSigner, load_signing
 from swarm.patches.wire import encode_patch
 from swarm.sync.chunks import split_patch
+from tests.bus.helpers import make_state
 from tests.sync.nodes import NodeSpec, NodeSwarm, holds_all
 
 pytestmark = pytest.mark.bus
@@ -93,20 +94,8 @@ def attacker_state(seq: int, epochs: dict[int, int]) -> AgentState:
     holdings = DigestWire.model_validate(
         {"entries": [{"producer": k, "epoch": epochs[k], "ranges": [[0, max(FORGED_SEQS)]]} for k in VICTIMS]}
     )
-    return AgentState(
-        id=ATTACKER,
-        epoch=1,
-        seq=seq,
-        t=time.time(),
-        position=(2.0, 2.0, 1.0),
-        velocity=(0.0, 0.0, 0.0),
-        yaw_deg=0.0,
-        flight_mode="NONE",
-        phase=Phase.MAPPING,
-        role="explorer",
-        leader=1,
-        holdings=holdings,
-    )
+    state = make_state(ATTACKER, seq, epoch=1)
+    return state.model_copy(update={"t": time.time(), "phase": Phase.MAPPING, "holdings": holdings})
 
 
 def test_forged_and_pre_empted_patches_never_enter_a_map(swarm: NodeSwarm, quiet_swarm: NodeSwarm, keys: Path) -> None:
