@@ -4,7 +4,7 @@ A producer numbers its patches 0, 1, 2, ... within an epoch, so what an agent ho
 (producer, epoch): ``{"entries": [{"producer": p, "epoch": e, "ranges": [[lo, hi], ...], "content": c}, ...]}``,
 entries sorted by (producer, epoch) and unique, ranges sorted, disjoint, non-adjacent and inclusive. `content`,
 when given, is the entry's content fingerprint: the XOR of the first 8 bytes (little-endian) of the SHA-256 of
-every listed patch's bytes (`content_fingerprint`), so two holders of the same ids with other bytes for one of
+every listed patch's bytes (`fingerprint_of_hash`), so two holders of the same ids with other bytes for one of
 them announce different fingerprints (a producer that signed two contents for one id). Received digests
 are hostile: validation checks every bound (`MAX_PRODUCERS` producers, `MAX_EPOCHS_PER_PRODUCER` epochs each,
 `MAX_ENTRIES` (producer, epoch) entries and `MAX_RANGES` ranges in all, ints in range, strict types). What an
@@ -14,7 +14,6 @@ The set logic lives in `swarm.patches.digest`.
 
 from __future__ import annotations
 
-import hashlib
 from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -89,11 +88,6 @@ class DigestWire(BaseModel):
 EMPTY_DIGEST = DigestWire(entries=[])
 
 
-def content_fingerprint(data: bytes) -> int:
-    """One patch's share of its entry's `content`: the first 8 bytes of the SHA-256 of its bytes."""
-    return fingerprint_of_hash(hashlib.sha256(data).digest())
-
-
 def fingerprint_of_hash(sha256: bytes) -> int:
-    """`content_fingerprint` of bytes whose SHA-256 is already known."""
+    """One patch's share of its entry's `content`, from the SHA-256 of its bytes: the first 8 bytes, little-endian."""
     return int.from_bytes(sha256[:8], "little")

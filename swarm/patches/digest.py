@@ -279,7 +279,7 @@ class PatchDigest:
         return _validated({"entries": entries})
 
     def fingerprints(self, of: Mapping[PatchId, int]) -> dict[_Key, int]:
-        """Each entry's content fingerprint: the XOR of `of[pid]` (`content_fingerprint`) over the ids it lists;
+        """Each entry's content fingerprint: the XOR of `of[pid]` (`fingerprint_of_hash`) over the ids it lists;
         every listed id must be in `of`."""
         table: dict[_Key, int] = {}
         for pid in self.ids():

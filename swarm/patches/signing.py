@@ -7,7 +7,7 @@ authority `swarm run` makes in OUT/keys. The certificate names the drone (common
 certificate does) and carries an Ed25519 key; a TLS certificate (ECDSA) is therefore never a signing certificate.
 
 A sealed patch carries its producer's signing certificate (DER, about 400 bytes) and the signature of
-``CONTEXT + sha256(header fields, payload)`` (`swarm.patches.wire.content_hash`). A receiver with an authority
+``CONTEXT + sha256(header fields, payload)`` (`swarm.patches.wire._content_hash`). A receiver with an authority
 checks, before it decompresses anything: the certificate was issued by the authority (checked once per certificate
 and cached), it is an Ed25519 signing certificate, it names the patch's producer, and the signature holds.
 Otherwise the patch is refused with reason "unsigned" (no signature), "signer" (a certificate that is not the

@@ -146,7 +146,7 @@ class Attacker:
         sync = getattr(self.agent, "sync", None)
         if not ids or sync is None:
             return
-        claim = PatchDigest(set_ids(ids)).union(PatchDigest.from_wire_model(sync.holdings).ids())
+        claim = PatchDigest.of(ids).union(PatchDigest.from_wire_model(sync.holdings).ids())
         here = self.agent._position()
         lie = {
             "t": time.time(),
@@ -198,13 +198,6 @@ class Attacker:
         self.count("reports", 10)
 
 
-def set_ids(ids: list[PatchId]) -> dict[tuple[int, int], list[tuple[int, int]]]:
-    table: dict[tuple[int, int], list[tuple[int, int]]] = {}
-    for pid in ids:
-        table.setdefault((pid.producer, pid.epoch), []).append((pid.seq, pid.seq))
-    return table
-
-
 def lie_in_every_heartbeat(attacker: Attacker) -> None:
     """The agent's own heartbeats announce the forgeries too: a claim that came and went with every honest
     heartbeat would restart the victims' grace before they pull, so the pull attack would land only by chance."""
@@ -215,7 +208,7 @@ def lie_in_every_heartbeat(attacker: Attacker) -> None:
         forged = list(attacker.forged)[-200:]
         if not forged:
             return real
-        return PatchDigest(set_ids(forged)).union(PatchDigest.from_wire_model(real).ids()).announced().to_wire_model()
+        return PatchDigest.of(forged).union(PatchDigest.from_wire_model(real).ids()).announced().to_wire_model()
 
     PatchSync.holdings = property(holdings)  # type: ignore[method-assign,assignment]
 
