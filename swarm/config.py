@@ -293,7 +293,12 @@ class SimSettings(_Section):
     max_speed_up_m_s: PositiveFloat = 1.5
     max_speed_down_m_s: PositiveFloat = 1.0
     max_accel_m_s2: PositiveFloat = 3.0
-    position_gain: PositiveFloat = Field(1.2, description="velocity command = gain * position error")
+    # PX4's position and velocity loops, with PX4's defaults (MPC_XY_P, MPC_Z_P, MPC_XY_VEL_P_ACC,
+    # MPC_Z_VEL_P_ACC): the horizontal response overshoots a little, the vertical one does not
+    position_gain_xy: PositiveFloat = Field(0.95, description="MPC_XY_P: velocity command per m of error, 1/s")
+    position_gain_z: PositiveFloat = Field(1.0, description="MPC_Z_P, 1/s")
+    velocity_gain_xy: PositiveFloat = Field(1.8, description="MPC_XY_VEL_P_ACC: acceleration per m/s of error, 1/s")
+    velocity_gain_z: PositiveFloat = Field(4.0, description="MPC_Z_VEL_P_ACC, 1/s")
     land_speed_m_s: PositiveFloat = 0.7
     takeoff_alt_m: PositiveFloat = Field(1.5, description="MIS_TAKEOFF_ALT default")
     drone_radius_m: PositiveFloat = Field(0.2, description="collision sphere radius")

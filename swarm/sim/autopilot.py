@@ -77,7 +77,6 @@ class SimulatedPx4:
         self,
         home: Vec3,
         params: Params,
-        position_gain: float,
         floor_below: Callable[[np.ndarray], float] | None = None,
         battery: Battery | None = None,
         local_origin: Vec3 | None = None,
@@ -99,7 +98,6 @@ class SimulatedPx4:
         self._ground_at: np.ndarray | None = None  # where the floor under the vehicle was last looked up
         self._ground_z = float(self.home[2])
         self.params = params
-        self.position_gain = position_gain
         self.body = Body(self.home.copy())
         self.armed = False
         self.mode = FlightMode.HOLD
@@ -226,7 +224,10 @@ class SimulatedPx4:
             max_up=p["MPC_Z_VEL_MAX_UP"],
             max_down=p["MPC_Z_VEL_MAX_DN"],
             max_accel=p["MPC_ACC_HOR"],
-            gain=self.position_gain,
+            gain_xy=p["MPC_XY_P"],
+            gain_z=p["MPC_Z_P"],
+            velocity_gain_xy=p["MPC_XY_VEL_P_ACC"],
+            velocity_gain_z=p["MPC_Z_VEL_P_ACC"],
             max_yaw_rate=math.radians(p["MPC_YAWRAUTO_MAX"]),
         )
 

@@ -1,4 +1,14 @@
-"""Point-mass kinematics of a multicopter: first-order velocity tracking with speed and acceleration limits.
+"""Point-mass kinematics of a multicopter: PX4's cascade of a position loop and a velocity loop, with speed and
+acceleration limits.
+
+The position loop makes a velocity command (gain * position error, plus any velocity feed-forward), the velocity
+loop an acceleration (gain * velocity error), as PX4's PositionControl does with MPC_XY_P / MPC_Z_P and
+MPC_XY_VEL_P_ACC / MPC_Z_VEL_P_ACC (src/modules/mc_pos_control/PositionControl). Two proportional loops make a
+second-order response: with PX4's defaults the horizontal one is underdamped (damping 0.5 * sqrt(1.8 / 0.95) =
+0.69), so a position step overshoots by a few centimetres per metre, and the vertical one is critically damped
+(0.5 * sqrt(4.0 / 1.0) = 1.0), so a vehicle never overshoots its altitude. PX4's velocity integrator and
+derivative terms are left out. The acceleration is capped by MPC_ACC_HOR in every direction (PX4 caps it by the
+tilt limit MPC_TILTMAX_AIR in offboard, which allows more: the cap here is the kinder one for the tests' walls).
 
 World frame (x east, y north, z up). Yaw is kept in NED convention (radians, 0 = north, clockwise), as MAVLink
 carries it.
@@ -19,8 +29,11 @@ class Limits:
     max_xy: float  # m/s, horizontal speed
     max_up: float  # m/s
     max_down: float  # m/s
-    max_accel: float  # m/s^2, norm of the velocity change
-    gain: float  # 1/s, velocity command per metre of position error
+    max_accel: float  # m/s^2, norm of the acceleration
+    gain_xy: float  # 1/s, horizontal velocity command per metre of position error (MPC_XY_P)
+    gain_z: float  # 1/s, vertical (MPC_Z_P)
+    velocity_gain_xy: float  # 1/s, horizontal acceleration per m/s of velocity error (MPC_XY_VEL_P_ACC)
+    velocity_gain_z: float  # 1/s, vertical (MPC_Z_VEL_P_ACC)
     max_yaw_rate: float = math.radians(90.0)  # rad/s
 
 
@@ -38,7 +51,7 @@ def velocity_command(
 ) -> np.ndarray:
     """gain * position error on axes with a position target, plus the velocity target (or feed-forward),
     limited to the horizontal and vertical speed limits. NaN axes of a target are not controlled."""
-    cmd = limits.gain * (target_position - position)
+    cmd = np.array([limits.gain_xy, limits.gain_xy, limits.gain_z]) * (target_position - position)
     cmd[np.isnan(cmd)] = 0.0
     feed_forward = target_velocity.copy()
     feed_forward[np.isnan(feed_forward)] = 0.0
@@ -51,8 +64,12 @@ def velocity_command(
 
 
 def track(body: Body, command: np.ndarray, limits: Limits, dt: float, ground_z: float) -> None:
-    """Move the velocity toward `command` within the acceleration limit, integrate, clamp at the ground."""
-    dv = command - body.velocity
+    """The velocity loop: accelerate toward `command` (velocity gain * error, never past the command within one
+    step, within the acceleration limit), integrate, clamp at the ground."""
+    error = command - body.velocity
+    dv = error * np.minimum(
+        np.array([limits.velocity_gain_xy, limits.velocity_gain_xy, limits.velocity_gain_z]) * dt, 1.0
+    )
     norm = math.sqrt(dv.dot(dv))
     if norm > limits.max_accel * dt:
         dv *= limits.max_accel * dt / norm

@@ -76,6 +76,12 @@ class Params:
             "MPC_Z_VEL_MAX_UP": Param(sim.max_speed_up_m_s),
             "MPC_Z_VEL_MAX_DN": Param(sim.max_speed_down_m_s),
             "MPC_ACC_HOR": Param(sim.max_accel_m_s2),
+            # The position and velocity loops (src/modules/mc_pos_control/multicopter_position_control_params.c;
+            # what they do: swarm/sim/kinematics.py)
+            "MPC_XY_P": Param(sim.position_gain_xy),
+            "MPC_Z_P": Param(sim.position_gain_z),
+            "MPC_XY_VEL_P_ACC": Param(sim.velocity_gain_xy),
+            "MPC_Z_VEL_P_ACC": Param(sim.velocity_gain_z),
             "MPC_LAND_SPEED": Param(sim.land_speed_m_s),
             "MPC_YAWRAUTO_MAX": Param(90.0),
             # Failsafe parameters with PX4's defaults (src/modules/commander/commander_params.c,

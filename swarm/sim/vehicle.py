@@ -157,7 +157,7 @@ class SimVehicle:
         battery = Battery(sim.battery_minutes, sim.battery_starts.get(drone_id, sim.battery_start))
         local_origin = tuple(np.add(home, sim.local_origin_offset))
         self.autopilot = SimulatedPx4(
-            home, self.params, sim.position_gain, floor_below, battery, local_origin, now, sim.estimator_warmup_s
+            home, self.params, floor_below, battery, local_origin, now, sim.estimator_warmup_s
         )
         self.downlink = downlink or Downlink(None, (sim.host, 0))
         self.mav = mavlink.MAVLink(self.downlink, srcSystem=drone_id, srcComponent=COMPONENT_ID)  # sends

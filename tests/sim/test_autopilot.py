@@ -43,7 +43,7 @@ def sim() -> SimSettings:
 
 @pytest.fixture
 def ap(sim: SimSettings) -> SimulatedPx4:
-    return SimulatedPx4(HOME, Params(sim, 1), sim.position_gain)
+    return SimulatedPx4(HOME, Params(sim, 1))
 
 
 def offboard_to(ap: SimulatedPx4, clock: Clock, target: tuple[float, float, float]) -> None:
@@ -105,7 +105,72 @@ def test_reaches_an_offboard_target(ap: SimulatedPx4) -> None:
     clock.run(10.0, each=stream)
     assert np.linalg.norm(ap.position - target) < 0.05
     assert np.linalg.norm(ap.velocity) < 0.05
-    assert ap.distance_m == pytest.approx(np.linalg.norm(np.subtract(target, HOME)), rel=0.1)
+    assert ap.distance_m == pytest.approx(np.linalg.norm(np.subtract(target, HOME)), rel=0.15)  # overshoot
+
+
+def hovering(ap: SimulatedPx4, clock: Clock, at: tuple[float, float, float]) -> None:
+    ap.arm(clock.now)
+    offboard_to(ap, clock, at)
+    clock.run(10.0, each=keep_streaming(ap, clock, at))
+    assert np.linalg.norm(ap.position - at) < 0.01 and np.linalg.norm(ap.velocity) < 0.01
+
+
+def step_response(ap: SimulatedPx4, clock: Clock, target: tuple[float, float, float], axis: int) -> list[float]:
+    trace: list[float] = []
+    stream = keep_streaming(ap, clock, target)
+    clock.run(10.0, each=lambda: (stream(), trace.append(float(ap.position[axis]))))
+    return trace
+
+
+@pytest.mark.parametrize("step_m", [0.5, 2.0])
+def test_a_horizontal_position_step_overshoots_a_little_then_settles(ap: SimulatedPx4, step_m: float) -> None:
+    """PX4's position and velocity loops with its defaults (MPC_XY_P 0.95, MPC_XY_VEL_P_ACC 1.8): damping 0.69,
+    a few per cent of overshoot, as a real vehicle has; a point mass that stops dead would have none."""
+    clock = Clock(ap)
+    start = (HOME[0], HOME[1], HOME[2] + 1.5)
+    hovering(ap, clock, start)
+    target = (start[0] + step_m, start[1], start[2])
+    trace = step_response(ap, clock, target, axis=0)
+    overshoot = max(trace) - target[0]
+    assert 0.01 * step_m < overshoot < 0.12 * step_m
+    assert abs(trace[-1] - target[0]) < 0.01
+
+
+def test_altitude_never_overshoots(ap: SimulatedPx4) -> None:
+    """The vertical loops (MPC_Z_P 1.0, MPC_Z_VEL_P_ACC 4.0) are critically damped: a climb stops at its height."""
+    clock = Clock(ap)
+    start = (HOME[0], HOME[1], HOME[2] + 1.0)
+    hovering(ap, clock, start)
+    target = (start[0], start[1], start[2] + 1.0)
+    trace = step_response(ap, clock, target, axis=2)
+    assert max(trace) <= target[2] + 1e-3
+    assert abs(trace[-1] - target[2]) < 0.01
+
+
+def test_the_loop_gains_are_parameters_read_live(ap: SimulatedPx4) -> None:
+    """A stiffer velocity loop (MPC_XY_VEL_P_ACC set as a ground station would) damps the same step more."""
+    clock = Clock(ap)
+    start = (HOME[0], HOME[1], HOME[2] + 1.5)
+    hovering(ap, clock, start)
+    default = max(step_response(ap, clock, (start[0] + 2.0, start[1], start[2]), axis=0)) - (start[0] + 2.0)
+    ap.params.set("MPC_XY_VEL_P_ACC", 6.0)
+    back = step_response(ap, clock, start, axis=0)
+    assert min(back) > start[0] - 1e-3  # coming back, the stiff loop (damping 1.26) does not pass the start
+    assert default > 0.02
+
+
+def test_the_vehicle_tilts_into_its_acceleration(ap: SimulatedPx4) -> None:
+    """Accelerating north pitches the nose down (FRD, yaw 0 = north), east rolls right, at atan(a / g)."""
+    clock = Clock(ap)
+    start = (HOME[0], HOME[1], HOME[2] + 1.5)
+    hovering(ap, clock, start)
+    north = (start[0], start[1] + 3.0, start[2])
+    ap.set_setpoint(Setpoint(np.array(north), np.full(3, np.nan), yaw=0.0), clock.now)
+    clock.run(0.1)
+    roll, pitch = ap.attitude
+    a_north = float(ap.body.acceleration[1])
+    assert a_north > 1.0
+    assert pitch == pytest.approx(-math.atan2(a_north, 9.81), abs=1e-6) and abs(roll) < 1e-3
 
 
 def test_never_below_the_home_floor(ap: SimulatedPx4) -> None:
@@ -142,7 +207,7 @@ def test_landing_disarms_com_disarm_land_after_touchdown(ap: SimulatedPx4, sim: 
         clock.now += DT
         ap.step(DT, clock.now)
         descent.append(-ap.velocity[2])
-    assert max(descent) == pytest.approx(sim.land_speed_m_s, abs=1e-6)
+    assert max(descent) == pytest.approx(sim.land_speed_m_s, abs=1e-3)  # approached by the velocity loop
     assert ap.armed
     waited = clock.run_until(lambda: not ap.armed, timeout=5)
     assert waited == pytest.approx(2.0, abs=2 * DT)  # PX4's default COM_DISARM_LAND
@@ -159,7 +224,7 @@ def test_a_landing_is_detected_lndmc_trig_time_after_touchdown(ap: SimulatedPx4,
     ap.takeoff()
     clock.run_until(lambda: ap.mode == FlightMode.HOLD, timeout=10)
     assert ap.land() == ACCEPTED
-    clock.run_until(lambda: ap.at_ground, timeout=10)
+    clock.run_until(lambda: ap.at_ground and abs(ap.velocity[2]) < 0.01, timeout=10)  # touchdown
     assert ap.landed_state == LandedState.LANDING and ap.airborne
     detected = clock.run_until(lambda: ap.landed_state == LandedState.ON_GROUND, timeout=10)
     assert detected == pytest.approx(trig_time, abs=2 * DT)
@@ -274,7 +339,7 @@ def test_velocity_setpoint_and_yaw(ap: SimulatedPx4) -> None:
     sp()
     ap.set_mode(FlightMode.OFFBOARD, clock.now)
     clock.run(3.0, each=sp)
-    assert np.allclose(ap.velocity, velocity, atol=1e-6)
+    assert np.allclose(ap.velocity, velocity, atol=0.01)  # approached by the velocity loop
     assert ap.body.yaw == pytest.approx(math.radians(90))
 
 
@@ -299,7 +364,7 @@ def test_a_vehicle_over_an_upper_storey_lands_on_its_slab_not_through_it(sim: Si
     def floor_below(p: np.ndarray) -> float:  # an upper floor over x > 5, the ground floor elsewhere
         return slab_top if p[0] > 5.0 and p[2] >= slab_top else HOME[2]
 
-    ap = SimulatedPx4(HOME, Params(sim, 1), sim.position_gain, floor_below)
+    ap = SimulatedPx4(HOME, Params(sim, 1), floor_below)
     clock = Clock(ap)
     ap.arm(clock.now)
     ap.takeoff()
@@ -315,7 +380,7 @@ def test_a_vehicle_over_an_upper_storey_lands_on_its_slab_not_through_it(sim: Si
 
 
 def with_battery(sim: SimSettings, minutes: float, start: float) -> SimulatedPx4:
-    return SimulatedPx4(HOME, Params(sim, 1), sim.position_gain, battery=Battery(minutes, start))
+    return SimulatedPx4(HOME, Params(sim, 1), battery=Battery(minutes, start))
 
 
 def hover(ap: SimulatedPx4, clock: Clock) -> None:

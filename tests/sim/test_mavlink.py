@@ -178,7 +178,10 @@ def test_reposition_with_command_int(port_base: int, box_world: World) -> None:
         "sim.takeoff_alt_m": 1.0,
         "sim.max_speed_down_m_s": 2.0,
         "sim.land_speed_m_s": 1.5,
-        "sim.position_gain": 3.0,
+        "sim.position_gain_xy": 3.0,
+        "sim.position_gain_z": 3.0,
+        "sim.velocity_gain_xy": 8.0,
+        "sim.velocity_gain_z": 12.0,
     }
     config = sim_config(port_base, **fast)
     with running_sim(config, box_world) as server, gcs(gcs_port(config.sim, 1)) as gs:
