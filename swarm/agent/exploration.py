@@ -22,18 +22,19 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from swarm.agent.flight import Flight
+from swarm.agent.flight import PASS_CLEARANCE_M, Flight
 from swarm.agent.mapping import MappingTask
 from swarm.aio import wait_event
 from swarm.bus.bridge import AsyncBus
 from swarm.config import SwarmConfig, Vec3
 from swarm.explore.frontiers import ExplorationGrid
-from swarm.explore.planner import NoPathError, path_is_free, plan_path
+from swarm.explore.planner import NoPathError, path_is_free, plan_path, plan_path_around
 from swarm.roles.membership import PeerTable
 from swarm.roles.messages import FrontierReport, TargetAssignment
 from swarm.roles.protocol import Effects, ExplorationCore, ReportLimits, Situation, Target
 
 PLAN_EXPANSIONS = 150_000
+PARKED_PEER_S = 10.0  # a peer this drone gave a segment up for is planned round for this long
 STATUS_EVERY_LOOPS = 10
 RETURN_ATTEMPTS = 3  # a drone that had to give way too long on its way home plans again
 WAIT_FOR_TARGET_S = 0.5
@@ -216,7 +217,7 @@ class Exploration:
                 continue
             idle_since = None
             self.retarget.clear()
-            path = await self._plan(target.viewpoint)
+            path = await self._plan(target.viewpoint, around=self._parked_in_the_way(flight))
             if path is None:
                 path = await self._plan_to_another_viewpoint(target)
             if path is None:
@@ -247,14 +248,43 @@ class Exploration:
             self._decisions.cancel()
             await asyncio.gather(self._decisions, return_exceptions=True)
 
-    async def _plan(self, goal: Vec3) -> list[Vec3] | None:
+    def _parked_in_the_way(self, flight: Flight) -> Vec3 | None:
+        """Where the peer sits that made this drone give its last segment up (it had the right of way, and the
+        peer would not move off), when that was in the last PARKED_PEER_S."""
+        if flight.blocked_by is None:
+            return None
+        peer, since = flight.blocked_by
+        return peer.position if time.monotonic() - since <= PARKED_PEER_S else None
+
+    async def _plan(self, goal: Vec3, around: Vec3 | None = None) -> list[Vec3] | None:
         """The waypoints to fly from here to `goal`, or None. When the drone is in a cell that is not safe (it
         stepped aside, or the map grew round it), the path starts at the nearest safe cell and so does the
         flight: straight from the drone to the second waypoint was never checked (a drone that had stepped up
-        flew through a doorway with its top in the lintel)."""
+        flew through a doorway with its top in the lintel).
+
+        `around`: a peer parked in the way. The path keeps PASS_CLEARANCE_M from it when the map allows, so the
+        drone does not hold for it again; otherwise it is the plain path (the map has no other way: the
+        separation rules must sort it out). Replanning the same path past a drone that waits for this one to
+        pass held both for minutes (a refuge beside a doorway, 0.26 m off the way through it)."""
         grid = self.grid
         assert grid is not None
         here = self.position()
+        if around is not None:
+            try:
+                path = await asyncio.to_thread(
+                    plan_path_around,
+                    grid.planning_grid,
+                    here,
+                    goal,
+                    around,
+                    PASS_CLEARANCE_M,
+                    max_expansions=PLAN_EXPANSIONS,
+                )
+            except NoPathError:
+                pass
+            else:
+                self.log("path", waypoints=[_r(p) for p in path], around=_r(around))
+                return path[1:] if path[0] == here else path
         try:
             path = await asyncio.to_thread(plan_path, grid.planning_grid, here, goal, max_expansions=PLAN_EXPANSIONS)
         except NoPathError as exc:

@@ -142,6 +142,8 @@ class Flight:
         # the straight flight from a to b keeps clear of everything the map shows (the planner's test)
         self.is_clear = is_clear or (lambda a, b: True)
         self.yields = 0
+        # the drone with the right of way that gave a segment up for a peer that would not move: which, and when
+        self.blocked_by: tuple[Neighbour, float] | None = None
         self.heading_to: Vec3 | None = None  # the end of the segment being flown (heartbeats carry it)
         self._last_position: np.ndarray | None = None
         self._carrot: Vec3 | None = None
@@ -384,6 +386,7 @@ class Flight:
             if separation.manoeuvre == Manoeuvre.REPLAN:
                 assert rival is not None
                 self.log("blocked_by", peer=rival.id)
+                self.blocked_by = (rival, time.monotonic())
                 return False  # it is not moving off: the mission plans again
             if separation.manoeuvre == Manoeuvre.HOLD:
                 # right of way, but someone is close and in our way: hold where we are (the carrot can be a

@@ -163,6 +163,25 @@ class OccupancyGrid:
             unknown = self.unknown & ~blocked
         return OccupancyGrid(self.origin.copy(), self.resolution, blocked, unknown)
 
+    def with_balls_blocked(self, centres: Sequence[Sequence[float]], radius: float) -> OccupancyGrid:
+        """This grid with the cells within `radius` plus half a cell diagonal of any of `centres` blocked too
+        (every cell whose cube comes closer than `radius`): a path planned on the result keeps at least `radius`
+        from each centre, such as a drone parked in the way."""
+        blocked = self.occupied.copy()
+        reach = radius + math.sqrt(3.0) / 2.0 * self.resolution  # cell centre to the farthest point of its cube
+        for centre in centres:
+            c = np.asarray(centre, dtype=float)
+            low = np.maximum(np.floor((c - reach - self.origin) / self.resolution).astype(int), 0)
+            high = np.minimum(np.ceil((c + reach - self.origin) / self.resolution).astype(int), self.shape)
+            if np.any(low >= high):
+                continue
+            axes = [self.origin[a] + (np.arange(low[a], high[a]) + 0.5) * self.resolution - c[a] for a in range(3)]
+            dx, dy, dz = np.meshgrid(*axes, indexing="ij")
+            near = dx * dx + dy * dy + dz * dz < reach * reach
+            blocked[low[0] : high[0], low[1] : high[1], low[2] : high[2]] |= near
+        unknown = None if self.unknown is None else self.unknown & ~blocked
+        return OccupancyGrid(self.origin.copy(), self.resolution, blocked, unknown, self.roomy)
+
     def _inside(self, idx: np.ndarray) -> np.ndarray:
         inside: np.ndarray = np.all((idx >= 0) & (idx < np.asarray(self.shape)), axis=1)
         return inside

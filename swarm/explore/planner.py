@@ -69,6 +69,19 @@ def plan_path(
     return [_as_vec3(p) for p in _shortcut(_shortcut_grid(search_grid, cells), _drop_repeats(waypoints))]
 
 
+def plan_path_around(
+    grid: OccupancyGrid, start: Vec3, goal: Vec3, avoid: Vec3, clearance: float, *, max_expansions: int = 2_000_000
+) -> list[Vec3]:
+    """`plan_path` on `grid` with a ball round `avoid` blocked, so the path keeps `clearance` from it (a drone
+    parked in the way), or less where the start itself is closer (the ball never swallows the start: the path
+    leaves it and goes round). NoPathError when the map has no such way."""
+    reach = math.dist(start, avoid) - math.sqrt(3.0) * grid.resolution
+    radius = min(clearance, reach)
+    if radius <= 0:
+        raise NoPathError(f"start {start} is too close to {avoid} to plan round it")
+    return plan_path(grid.with_balls_blocked([avoid], radius), start, goal, max_expansions=max_expansions)
+
+
 def path_length(path: Sequence[Sequence[float]]) -> float:
     if len(path) < 2:
         return 0.0

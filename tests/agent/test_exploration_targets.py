@@ -16,8 +16,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from swarm.agent.exploration import Exploration, Target
-from swarm.agent.flight import Flight
+from swarm.agent.exploration import PARKED_PEER_S, Exploration, Target
+from swarm.agent.flight import PASS_CLEARANCE_M, Flight, Neighbour
 from swarm.bus.phase import Phase
 from swarm.config import ExploreSettings, load_config
 from swarm.explore.frontiers import ExplorationGrid
@@ -90,6 +90,37 @@ def test_from_a_cell_that_is_not_safe_the_flight_starts_at_the_nearest_safe_cell
     assert grid.is_free(first) and first[2] == pytest.approx(1.7) and np.linalg.norm(first - (1.0, 1.0, 1.9)) < 0.3
 
 
+def test_after_giving_a_segment_up_for_a_parked_peer_the_next_path_goes_round_it_when_the_map_has_room() -> None:
+    hall = OccupancyGrid(np.zeros(3), 0.2, np.zeros((50, 20, 15), dtype=bool))  # 10 x 4 x 3 m, open
+    events: list[dict[str, Any]] = []
+    exploration = _exploration(events)
+    exploration.grid = SimpleNamespace(planning_grid=hall)  # type: ignore[assignment]  # only the grid is read
+    exploration.position = lambda: (0.5, 2.0, 1.5)
+    goal, peer = (9.5, 2.0, 1.5), Neighbour(2, (5.0, 2.0, 1.5), (0.0, 0.0, 0.0), (5.0, 2.0, 1.5))
+    flight = SimpleNamespace(blocked_by=(peer, time.monotonic()))
+    around = exploration._parked_in_the_way(flight)  # type: ignore[arg-type]
+    assert around == peer.position
+    path = asyncio.run(exploration._plan(goal, around=around))
+    assert path is not None and path[-1] == goal
+    assert path_clearance([exploration.position(), *path], peer.position) >= PASS_CLEARANCE_M - 1e-9
+    assert events[-1]["event"] == "path" and events[-1]["around"] == list(peer.position)
+
+    corridor = OccupancyGrid(np.zeros(3), 0.2, np.ones((50, 20, 15), dtype=bool))
+    corridor.occupied[:, 10, 7] = False  # one row of safe cells: no way round
+    exploration.grid = SimpleNamespace(planning_grid=corridor)  # type: ignore[assignment]
+    exploration.position = lambda: (0.5, 2.1, 1.5)
+    plain = asyncio.run(exploration._plan((9.5, 2.1, 1.5), around=(5.0, 2.1, 1.5)))
+    assert plain == [(9.5, 2.1, 1.5)]  # the plain path, as before: the separation rules sort it out
+
+    flight.blocked_by = (peer, time.monotonic() - PARKED_PEER_S - 1.0)
+    assert exploration._parked_in_the_way(flight) is None  # type: ignore[arg-type]  # too long ago
+
+
+def path_clearance(path: list[Any], point: Any) -> float:
+    points = np.concatenate([np.linspace(a, b, 50) for a, b in zip(path[:-1], path[1:])])
+    return float(np.linalg.norm(points - np.asarray(point), axis=1).min())
+
+
 def test_a_path_is_checked_from_the_drone_on_not_back_to_the_waypoints_it_passed() -> None:
     walls = np.zeros((12, 12, 1), dtype=bool)  # 2.4 x 2.4 m at 0.2 m, one layer at 1.4-1.6 m
     walls[:8, 5, 0] = True  # a wall from x 0 to 1.6 m at y 1.0-1.2 m: the path goes round its end
@@ -122,6 +153,7 @@ class _FakeFlight:
     def __init__(self, exploration: Exploration, on_look: Any = None) -> None:
         self.exploration, self.on_look, self.looks, self.paths = exploration, on_look, [], []
         self.path_ahead: list[Any] = []
+        self.blocked_by = None
         self.ap = type("AP", (), {"telemetry": type("T", (), {"yaw_deg": 0.0})()})()
 
     async def fly_path(self, path: list[Any], stop: asyncio.Event, interrupt: asyncio.Event | None = None) -> bool:

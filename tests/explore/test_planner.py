@@ -3,7 +3,7 @@ import pytest
 
 from swarm.config import Vec3
 from swarm.explore.grid import OccupancyGrid
-from swarm.explore.planner import NoPathError, path_is_free, path_length, plan_path
+from swarm.explore.planner import NoPathError, path_is_free, path_length, plan_path, plan_path_around
 from tests.explore.synthetic import clearance, densify, empty_grid, fill, office_grid, room_with_wall
 
 DRONE_RADIUS = 0.3
@@ -204,3 +204,54 @@ def test_z_limits_keep_the_roomy_cells_of_their_layers() -> None:
     path = plan_path(grid, (2.0, 4.5, 1.5), (6.0, 4.5, 1.5), z_limits=(1.5, 1.5))
     assert [p[2] for p in path] == pytest.approx([1.5] * len(path))
     assert clearance(raw, densify(path, 0.02)).min() >= 0.45 - 1e-9
+
+
+def _distance_to_path(path: list[Vec3], point: Vec3) -> float:
+    return float(np.linalg.norm(densify(path, 0.02) - np.asarray(point), axis=1).min())
+
+
+def test_a_path_round_a_parked_drone_keeps_its_clearance_where_the_room_allows() -> None:
+    """A 4 m wide hall, a drone hovering on the straight way: the plain path passes through it, the path round it
+    keeps the clearance (and stays free of the walls)."""
+    grid = empty_grid((10.0, 4.0, 3.0))
+    inflated = grid.inflate(DRONE_RADIUS)
+    start, goal, parked = (0.5, 2.0, 1.5), (9.5, 2.0, 1.5), (5.0, 2.0, 1.5)
+    assert _distance_to_path(plan_path(inflated, start, goal), parked) < 0.05
+    path = plan_path_around(inflated, start, goal, parked, 0.6)
+    assert path[0] == start and path[-1] == goal
+    assert _distance_to_path(path, parked) >= 0.6 - 1e-9
+    _assert_collision_free(path, inflated)
+
+
+def test_no_way_round_a_drone_parked_in_a_doorway() -> None:
+    raw = fill(room_with_wall(door_open=True), (0.0, 0.0, 0.0), (8.0, 6.0, 0.1))  # a floor: no way under it
+    inflated = raw.inflate(DRONE_RADIUS)
+    in_the_door = (4.1, 3.0, 1.0)
+    assert plan_path(inflated, (1.0, 0.6, 1.0), (7.0, 5.4, 1.0))  # through the door when it is not there
+    with pytest.raises(NoPathError):
+        plan_path_around(inflated, (1.0, 0.6, 1.0), (7.0, 5.4, 1.0), in_the_door, 0.6)
+
+
+def test_the_ball_round_a_parked_drone_never_swallows_the_start() -> None:
+    """Starting 0.5 m from the drone, the path leaves from the start and goes round at no less than it began."""
+    grid = empty_grid((10.0, 4.0, 3.0))
+    inflated = grid.inflate(DRONE_RADIUS)
+    start, parked = (4.5, 2.0, 1.5), (5.0, 2.0, 1.5)
+    path = plan_path_around(inflated, start, (9.5, 2.0, 1.5), parked, 0.6)
+    assert path[0] == start
+    assert _distance_to_path(path[1:] if len(path) > 2 else path, parked) > 0.5 - np.sqrt(3) * 0.2 - 1e-9
+    with pytest.raises(NoPathError, match="too close"):
+        plan_path_around(inflated, (4.9, 2.0, 1.5), (9.5, 2.0, 1.5), parked, 0.6)
+
+
+def test_cells_near_a_ball_are_blocked_and_the_rest_kept() -> None:
+    grid = empty_grid((4.0, 4.0, 2.0))
+    fill(grid, (0.0, 0.0, 0.0), (0.2, 0.2, 0.2))
+    blocked = grid.with_balls_blocked([(2.0, 2.0, 1.0)], 0.5)
+    centres = blocked.centre_of(np.argwhere(blocked.occupied))
+    distances = np.linalg.norm(centres - np.array([2.0, 2.0, 1.0]), axis=1)
+    assert blocked.occupied[0, 0, 0] and grid.occupied.sum() == 1  # the original is untouched
+    assert (distances[distances > 1.0]).size == 1  # only the old obstacle lies far away
+    cells = np.argwhere(np.ones(grid.shape, dtype=bool))
+    inside = cells[np.linalg.norm(grid.centre_of(cells) - np.array([2.0, 2.0, 1.0]), axis=1) < 0.5]
+    assert len(inside) > 0 and blocked.occupied[tuple(inside.T)].all()
