@@ -10,6 +10,7 @@ import argparse
 import signal
 import sys
 import threading
+import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, NoReturn, get_args
@@ -150,7 +151,21 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="do not record the run to OUT/run.rrd (Rerun); it is recorded by default",
     )
-    run.add_argument("--view", action="store_true", help="open the recording in the Rerun viewer at the end")
+    run.add_argument(
+        "--view",
+        nargs="?",
+        const="native",
+        metavar="MODE",
+        help="stream the recording live to a Rerun viewer while the swarm flies: native (a window, the default), "
+        "web (the web viewer at http://127.0.0.1:--view-port) or a running viewer's rerun+http://HOST:PORT/proxy",
+    )
+    run.add_argument("--view-port", type=_positive_int, help="with --view web: the web viewer's port (9090)")
+    run.add_argument(
+        "--view-depth",
+        action="store_true",
+        default=None,
+        help="record each drone's depth image too (once a second, OUT/cameras.rrd)",
+    )
     _add_config_flags(run)
 
     view = sub.add_parser("view", help="open a finished run's recording (OUT/*.rrd) in the Rerun viewer")
@@ -178,6 +193,10 @@ def build_parser() -> argparse.ArgumentParser:
     cameras.set_defaults(handler=_cameras)
     cameras.add_argument("--world", help="built-in world or mesh path")
     cameras.add_argument("--vehicles", type=_positive_int, help="number of vehicles (cameras /drone1 ... /droneN)")
+    cameras.add_argument("--record", type=Path, help="write each drone's depth image once a second to this .rrd")
+    cameras.add_argument("--recording-id", help="the run's recording id (with --record)")
+    cameras.add_argument("--since", type=float, help="with --record: the Unix time the mission clock counts from")
+    cameras.add_argument("--stream-to", metavar="URL", help="with --record: also stream to this Rerun viewer")
     _add_config_flags(cameras)
 
     bagmap = sub.add_parser("map", help="map recorded sensor bags offline (one drone per bag), fused into one map")
@@ -221,6 +240,7 @@ def build_parser() -> argparse.ArgumentParser:
     observe.add_argument("--since", type=float, help="the Unix time its clock counts from (default: its start)")
     observe.add_argument("--record", type=Path, help="write a Rerun recording (.rrd) of what it observes there")
     observe.add_argument("--recording-id", help="the run's recording id (with --record)")
+    observe.add_argument("--stream-to", metavar="URL", help="with --record: also stream to this Rerun viewer")
     _add_config_flags(observe)
 
     node = sub.add_parser("mapnode", help="a map-sharing node without a vehicle (sync experiments and tests)")
@@ -478,21 +498,29 @@ def _run(args: argparse.Namespace) -> int:
             "mission.tls": args.tls,
             "mission.record": args.record,
             "mission.rrd": args.rrd,
+            "mission.view": args.view,
+            "mission.view_port": args.view_port,
+            "mission.view_depth": args.view_depth,
         },
     )
-    if args.view and not config.mission.rrd:
+    if config.mission.view and not config.mission.rrd:
         raise ConfigError("--view needs the recording (drop --no-rrd or mission.rrd = false)")
     from swarm.mission.run import run_mission
+    from swarm.mission.viewer import LiveViewer
 
-    report = run_mission(config, live=False if args.no_live else None)
-    _print_summary(report)
-    if args.view:
-        from swarm.mission.viewer import view_run
-
-        try:
-            view_run(Path(report["run_dir"]))
-        except SwarmError as exc:  # the mission's outcome decides the exit code, not the viewer
-            print(f"swarm run: warning: not viewed: {exc}", file=sys.stderr)
+    viewer = LiveViewer(config.mission.view, config.mission.view_port) if config.mission.view else None
+    try:
+        if viewer is not None:
+            viewer.start()
+        report = run_mission(
+            config, live=False if args.no_live else None, stream_to=viewer.url if viewer is not None else None
+        )
+        _print_summary(report)
+        if viewer is not None:
+            viewer.wait()  # the mission's outcome decides the exit code, not the viewer
+    finally:
+        if viewer is not None:
+            viewer.close()
     return 0 if report["status"] == "complete" else EXIT_FAILED
 
 
@@ -533,7 +561,22 @@ def _map(args: argparse.Namespace) -> int:
 def _cameras(args: argparse.Namespace) -> int:
     from swarm.sim.sensors import cameras_command
 
-    return cameras_command(_config_from(args, {"mission.world": args.world, "mission.drones": args.vehicles}))
+    config = _config_from(args, {"mission.world": args.world, "mission.drones": args.vehicles})
+    if args.record is None:
+        return cameras_command(config)
+    from swarm.mission.recording import DepthRecording
+    from swarm.sim.camera import intrinsics  # Rerun's convention too: pixel centres at +0.5
+
+    camera = config.camera
+    since = args.since if args.since is not None else time.time()
+    recording_id = args.recording_id or f"{args.record.stem}-{round(since * 1000)}"
+    recording = DepthRecording(
+        args.record, recording_id, since, intrinsics(camera), (camera.width, camera.height), args.stream_to
+    )
+    try:
+        return cameras_command(config, on_frame=recording.frame)
+    finally:
+        recording.close()
 
 
 def _sim(args: argparse.Namespace) -> int:
@@ -566,7 +609,14 @@ def _observe(args: argparse.Namespace) -> int:
     from swarm.mission.observer import observe_command
 
     return observe_command(
-        _config_from(args, {}), args.status, args.patches, args.map, args.since, args.record, args.recording_id
+        _config_from(args, {}),
+        args.status,
+        args.patches,
+        args.map,
+        args.since,
+        args.record,
+        args.recording_id,
+        args.stream_to,
     )
 
 

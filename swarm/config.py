@@ -122,6 +122,8 @@ DEFAULT_MAX_TIME_S = 420.0
 # A lone drone needed 909 s to finish the warehouse (6,400 m^3), three drones 299 s: 0.25 s/m^3 per drone leaves
 # room for the slower runs and still ends a stuck mission.
 MAX_TIME_S_PER_M3_PER_DRONE = 0.25
+VIEW_MODES = ("native", "web")  # mission.view: a viewer swarm run starts; or a running viewer's URL
+VIEW_URL_SCHEMES = ("rerun+http://", "rerun+https://", "rerun://")
 
 
 class MissionSettings(_Section):
@@ -171,6 +173,18 @@ class MissionSettings(_Section):
         description="swarm run: the observer and the harness record the run to OUT/run.rrd (Rerun; headless, "
         "open it with swarm view OUT)",
     )
+    view: str | None = Field(
+        None,
+        description='swarm run: stream the recording live to a Rerun viewer while the swarm flies: "native" (a '
+        'window; needs a display), "web" (the web viewer at http://127.0.0.1:<view_port>) or the gRPC proxy URL '
+        "of a viewer already running (rerun+http://HOST:PORT/proxy)",
+    )
+    view_port: int = Field(9090, ge=1, le=65535, description='swarm run: the web viewer\'s port (view = "web")')
+    view_depth: bool = Field(
+        False,
+        description="swarm run: the recording also holds each drone's depth image (once a second) under its "
+        "camera's pose (OUT/cameras.rrd)",
+    )
     sim_nice: int = Field(
         -10,
         ge=-20,
@@ -185,6 +199,13 @@ class MissionSettings(_Section):
         if self.max_time_s is not None:
             return self.max_time_s
         return max(DEFAULT_MAX_TIME_S, MAX_TIME_S_PER_M3_PER_DRONE * volume_m3 / self.drones)
+
+    @field_validator("view")
+    @classmethod
+    def _view_is_a_mode_or_a_viewer(cls, view: str | None) -> str | None:
+        if view is None or view in VIEW_MODES or view.startswith(VIEW_URL_SCHEMES):
+            return view
+        raise ValueError(f"must be {' or '.join(VIEW_MODES)} or a viewer's rerun+http://HOST:PORT/proxy URL")
 
     @model_validator(mode="after")
     def _links_need_netns(self) -> MissionSettings:

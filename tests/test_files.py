@@ -61,7 +61,9 @@ def test_the_cli_reports_a_bad_file_as_one_line_and_fails(
     (tmp_path / "agents").mkdir()
     (tmp_path / "agents" / "agent-1.json").write_text('{"id": 1}')
 
-    def mission_reading_a_bad_summary(config: object, live: bool | None = None) -> dict[str, object]:
+    def mission_reading_a_bad_summary(
+        config: object, live: bool | None = None, stream_to: str | None = None
+    ) -> dict[str, object]:
         read_summary(tmp_path, 1)
         raise AssertionError("an invalid summary was read")
 

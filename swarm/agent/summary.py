@@ -50,6 +50,7 @@ class SyncStats(FileModel):
     holdings: DigestWire  # what it announced (`PatchDigest.announced`: all it held unless beyond the wire bounds)
     limits: dict[str, int]  # bounds that cut hostile or excessive input: pull claims, unannounced holdings
     content: dict[str, str] = {}  # patch id -> SHA-256 of the bytes held (PatchSync.content_hashes)
+    held_at: dict[str, float] = {}  # patch id -> unix time it was first held (sealed, or received and fused)
 
 
 class GivenUpFrontier(FileModel):

@@ -269,12 +269,15 @@ def observe_command(
     since: float | None = None,
     record: Path | None = None,
     recording_id: str | None = None,
+    stream_to: str | None = None,
 ) -> int:
     """Observe until SIGINT/SIGTERM; with `record`, write the Rerun recording there (`recording_id`: the run's,
-    so other processes' recordings of the same run merge with it; default a fresh one)."""
+    so other processes' recordings of the same run merge with it; default a fresh one), and with `stream_to`
+    stream it to that viewer too."""
     recording = None
     if record is not None:
         from swarm.mission.recording import MissionRecording
 
-        recording = MissionRecording(record, recording_id or f"{record.parent.name}-{round(time.time() * 1000)}")
+        recording_id = recording_id or f"{record.parent.name}-{round(time.time() * 1000)}"
+        recording = MissionRecording(record, recording_id, stream_to)
     return asyncio.run(Observer(config, status_path, patches_dir, map_path, since, recording).run())

@@ -50,10 +50,10 @@ from swarm.agent.summary import AgentSummary
 from swarm.bus.holdings import DigestWire
 from swarm.bus.messages import AgentState
 from swarm.mission.files import MissionReport
+from swarm.mission.rrd_files import RECORDING_NAME
 from swarm.roles.messages import FrontierReport, TargetAssignment
 
 APPLICATION_ID = "swarm"
-RECORDING_NAME = "run.rrd"
 TIMELINE = "mission"
 MAP_PERIOD_S = 5.0
 MAP_BYTES_PER_S = 150_000  # the file grows by at most this much per second from the map's changed tiles
@@ -63,6 +63,7 @@ TILE_GROWTH = 0.1  # between refreshes, a tile is logged again when its triangle
 TILE_GROWTH_MIN = 20  # or at least this many: a surface refined in place (its vertices shift) is not logged again
 TRAIL_PERIOD_S = 2.0
 POSE_PERIOD_S = 0.2  # heartbeats come at 5 Hz or more; a viewer needs no more
+DEPTH_PERIOD_S = 1.0  # a depth image a second per drone (38 kB each as millimetres): what a person scrubs past
 BODY_HALF_SIZE = (0.25, 0.25, 0.06)
 WORLD_RGBA = (200, 200, 200, 60)
 MAP_RGB = (90, 160, 230)
@@ -84,10 +85,15 @@ PALETTE: tuple[tuple[int, int, int], ...] = (
 )
 
 
-def run_recording_id(out: Path, started_wall: float) -> str:
-    """The recording id every process of one run uses: the run directory's name and the mission clock's zero
-    (ms), so two runs never share one and the processes of one always do."""
-    return f"{out.name}-{round(started_wall * 1000)}"
+def open_stream(path: Path, recording_id: str, stream_to: str | None = None) -> rr.RecordingStream:
+    """A recording stream of the run written to `path` and, with `stream_to` (a viewer's gRPC proxy URL,
+    `rerun+http://HOST:PORT/proxy`), also sent live to that viewer."""
+    stream = rr.RecordingStream(APPLICATION_ID, recording_id=recording_id)
+    if stream_to is None:
+        stream.save(path)
+    else:
+        stream.set_sinks(rr.FileSink(path), rr.GrpcSink(stream_to))
+    return stream
 
 
 def drone_color(drone: int) -> tuple[int, int, int]:
@@ -158,9 +164,39 @@ def tile_grew(logged: int | None, now: int) -> bool:
     return logged is None or abs(now - logged) > max(TILE_GROWTH_MIN, TILE_GROWTH * logged)
 
 
-def tile_path(tile: Tile) -> str:
+def tile_path(tile: Tile, root: str = "map") -> str:
     i, j, k = tile
-    return f"map/t{i}_{j}_{k}"
+    return f"{root}/t{i}_{j}_{k}"
+
+
+class MapTiles:
+    """A map's surface logged as `TILE_M` tiles under `root`: each refresh logs only the tiles that changed since
+    they were last logged (`tile_grew`; with `exact`, every tile that differs at all) and clears emptied ones."""
+
+    def __init__(self, stream: rr.RecordingStream, root: str = "map") -> None:
+        self.stream = stream
+        self.root = root
+        self._tiles: dict[Tile, tuple[int, int, float]] = {}
+
+    def log(self, vertices: np.ndarray, triangles: np.ndarray, exact: bool = False) -> int:
+        """Log the surface at the stream's current time; returns the bytes written (vertices and indices)."""
+        tiles = map_tiles(vertices, triangles)
+        written = 0
+        for tile, (tile_vertices, tile_triangles) in sorted(tiles.items()):
+            fingerprint = tile_fingerprint(tile_vertices, tile_triangles)
+            logged = self._tiles.get(tile)
+            if logged == fingerprint or not (exact or tile_grew(logged[1] if logged else None, len(tile_triangles))):
+                continue
+            self._tiles[tile] = fingerprint
+            self.stream.log(
+                tile_path(tile, self.root),
+                rr.Mesh3D(vertex_positions=tile_vertices, triangle_indices=tile_triangles, albedo_factor=MAP_RGB),
+            )
+            written += tile_vertices.nbytes + tile_triangles.nbytes
+        for tile in sorted(set(self._tiles) - set(tiles)):
+            del self._tiles[tile]
+            self.stream.log(tile_path(tile, self.root), rr.Clear(recursive=False))
+        return written
 
 
 def cluster_text(clusters: Sequence[Cluster]) -> str:
@@ -215,11 +251,10 @@ def report_events(report: MissionReport) -> list[Event]:
 class MissionRecording:
     """A run's recording, written to a file as it goes (headless: no viewer is started or needed)."""
 
-    def __init__(self, path: Path, recording_id: str) -> None:
+    def __init__(self, path: Path, recording_id: str, stream_to: str | None = None) -> None:
         self.path = path
         self.recording_id = recording_id
-        self.stream = rr.RecordingStream(APPLICATION_ID, recording_id=recording_id)
-        self.stream.save(path)
+        self.stream = open_stream(path, recording_id, stream_to)
         self.stream.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         self._poses = Throttle(POSE_PERIOD_S)
         self._trails = Throttle(TRAIL_PERIOD_S)
@@ -228,7 +263,7 @@ class MissionRecording:
         self._last_map_t: float | None = None
         self._map_period_s = MAP_PERIOD_S
         self._map_version: int | None = None
-        self._tiles: dict[Tile, tuple[int, int, float]] = {}
+        self._map = MapTiles(self.stream)
 
     def _at(self, t: float) -> None:
         self.stream.set_time(TIMELINE, duration=max(0.0, t))
@@ -267,22 +302,7 @@ class MissionRecording:
         started = time.thread_time()
         self._last_map_t, self._map_version = t, version
         self._at(t)
-        tiles = map_tiles(vertices, triangles)
-        written = 0
-        for tile, (tile_vertices, tile_triangles) in sorted(tiles.items()):
-            fingerprint = tile_fingerprint(tile_vertices, tile_triangles)
-            logged = self._tiles.get(tile)
-            if logged == fingerprint or not (exact or tile_grew(logged[1] if logged else None, len(tile_triangles))):
-                continue
-            self._tiles[tile] = fingerprint
-            self.stream.log(
-                tile_path(tile),
-                rr.Mesh3D(vertex_positions=tile_vertices, triangle_indices=tile_triangles, albedo_factor=MAP_RGB),
-            )
-            written += tile_vertices.nbytes + tile_triangles.nbytes
-        for tile in sorted(set(self._tiles) - set(tiles)):
-            del self._tiles[tile]
-            self.stream.log(tile_path(tile), rr.Clear(recursive=False))
+        written = self._map.log(vertices, triangles, exact)
         self._map_period_s = map_period_s(written, mesh_cpu_s + time.thread_time() - started)
         return written
 
@@ -380,6 +400,48 @@ class MissionRecording:
         self.stream.disconnect()
 
 
+class DepthRecording:
+    """Each drone's depth image under its camera's pose (`drones/K/camera`: the camera-to-world transform and its
+    pinhole; `drones/K/camera/depth`, millimetres), once every `period_s` per drone, from the camera driver
+    (`swarm cameras --record`, mission.view_depth). `since`: the mission clock's zero (unix time)."""
+
+    def __init__(
+        self,
+        path: Path,
+        recording_id: str,
+        since: float,
+        K: np.ndarray,
+        resolution: tuple[int, int],
+        stream_to: str | None = None,
+        period_s: float = DEPTH_PERIOD_S,
+    ) -> None:
+        self.stream = open_stream(path, recording_id, stream_to)
+        self.since = since
+        self.K = np.asarray(K, dtype=np.float64)
+        self.resolution = resolution
+        self._throttle = Throttle(period_s)
+        self._lock = threading.Lock()
+
+    def frame(self, drone: int, stamp: float, T_world_cam: np.ndarray, depth_m: np.ndarray) -> None:
+        """A rendered frame: the drone's camera pose (optical frame, 4x4) and its depth in metres (0: none)."""
+        t = stamp - self.since
+        if not self._throttle.ready(drone, t):
+            return
+        millimetres = np.clip(np.nan_to_num(depth_m) * 1000.0, 0, 65535).round().astype(np.uint16)
+        with self._lock:
+            self.stream.set_time(TIMELINE, duration=max(0.0, t))
+            self.stream.log(
+                f"drones/{drone}/camera",
+                rr.Transform3D(mat3x3=T_world_cam[:3, :3], translation=T_world_cam[:3, 3]),
+                rr.Pinhole(image_from_camera=self.K, resolution=self.resolution, camera_xyz=rr.ViewCoordinates.RDF),
+            )
+            self.stream.log(f"drones/{drone}/camera/depth", rr.DepthImage(millimetres, meter=1000.0))
+
+    def close(self) -> None:
+        self.stream.flush()
+        self.stream.disconnect()
+
+
 def summary_series(stream: rr.RecordingStream, summaries: Mapping[int, AgentSummary]) -> None:
     """Each agent's own counters, from its summary: bytes sent and received once a second, its frame rate."""
     for k, summary in sorted(summaries.items()):
@@ -391,13 +453,19 @@ def summary_series(stream: rr.RecordingStream, summaries: Mapping[int, AgentSumm
         stream.log(f"series/frame_rate_hz/{k}", rr.Scalars(summary.frame_rate_hz))
 
 
-def add_report(out: Path, recording_id: str, report: MissionReport, summaries: Mapping[int, AgentSummary]) -> Path:
+def add_report(
+    out: Path,
+    recording_id: str,
+    report: MissionReport,
+    summaries: Mapping[int, AgentSummary],
+    stream_to: str | None = None,
+) -> Path:
     """Add the harness's part (report events, the agents' counters) to OUT/run.rrd, merged with what the
-    observer recorded (or alone, when the observer wrote none). Returns the recording's path."""
+    observer recorded (or alone, when the observer wrote none), and to the live viewer at `stream_to`.
+    Returns the recording's path."""
     path = out / RECORDING_NAME
     part = out / f".{RECORDING_NAME}.harness"
-    stream = rr.RecordingStream(APPLICATION_ID, recording_id=recording_id)
-    stream.save(part)
+    stream = open_stream(part, recording_id, stream_to)
     for event in report_events(report):
         stream.set_time(TIMELINE, duration=max(0.0, event.t))
         stream.log("events", rr.TextLog(event.text, level=event.level))

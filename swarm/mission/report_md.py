@@ -1,20 +1,28 @@
-"""report.md: the mission report as a page a person reads (report.json stays the one for programs).
+"""report.md and report.html: the mission report as a page a person reads (report.json stays the one for programs).
 
 Everything on it comes from the `MissionReport`, so the page and report.json can never disagree; the figures are
 the PNG files `swarm.mission.plots` wrote beside it, linked by relative name so the run directory can be moved.
+report.html is the same page rendered by markdown-it with the figures inline (data URIs): one file that opens in
+any browser, sent or copied alone.
 """
 
 from __future__ import annotations
 
+import base64
+import html
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+
+from markdown_it import MarkdownIt
+
+from swarm.mission.rrd_files import RECORDING_NAME
 
 if TYPE_CHECKING:
     from swarm.mission.files import LeaderEntry, MissionReport
 
 REPORT_PAGE = "report.md"
-RECORDING = "run.rrd"  # swarm.mission.recording.RECORDING_NAME (not imported: that module imports rerun)
+REPORT_HTML = "report.html"
 LEADER_ENTRIES_SHOWN = 20
 
 FIGURE_CAPTIONS = {
@@ -91,9 +99,10 @@ def recording_lines(run_dir: str) -> list[str]:
     return [
         "## Recording",
         "",
-        f"[`{RECORDING}`]({RECORDING}): the whole mission in 3D on a timeline (map, drones, targets, frontiers, "
-        "leaders, faults). Open it with `swarm view " + run_dir + "` (or `swarm view --web " + run_dir + "` "
-        "without a display); `swarm export " + run_dir + " --mcap BAG` writes it as a ROS 2 bag.",
+        f"[`{RECORDING_NAME}`]({RECORDING_NAME}): the whole mission in 3D on a timeline (map, drones, targets, "
+        "frontiers, leaders, faults; each drone's own map, paths and log in `agents/agent-K.rrd`). "
+        f"Open it with `swarm view {run_dir}` (or `swarm view --web {run_dir}` without a display); "
+        f"`swarm export {run_dir} --mcap BAG` writes it as a ROS 2 bag.",
         "",
     ]
 
@@ -154,8 +163,41 @@ def render_report_page(report: MissionReport, recording: bool = False) -> str:
     return "\n".join(lines)
 
 
+HTML_STYLE = """
+body { font-family: system-ui, sans-serif; max-width: 60rem; margin: 2rem auto; padding: 0 1rem; color: #222; }
+table { border-collapse: collapse; margin: 0.5rem 0 1rem; }
+th, td { border: 1px solid #ccc; padding: 0.2rem 0.6rem; text-align: left; }
+th { background: #f2f2f2; }
+img { max-width: 100%; }
+code { background: #f4f4f4; padding: 0 0.2rem; }
+"""
+
+
+def render_report_html(page: str, run_dir: Path) -> str:
+    """The report page as one HTML document; a figure found in run_dir is inlined as a PNG data URI, any other
+    image keeps its link."""
+    md = MarkdownIt("commonmark", {"html": False}).enable("table")  # text from agents is text, never markup
+
+    def image(self: Any, tokens: Any, idx: int, options: Any, env: Any) -> str:
+        name = str(tokens[idx].attrGet("src") or "")
+        src, figure = name, run_dir / name
+        if name and "/" not in name and figure.is_file():
+            src = "data:image/png;base64," + base64.b64encode(figure.read_bytes()).decode()
+        alt = html.escape(FIGURE_CAPTIONS.get(name, name), quote=True)
+        return f'<img src="{html.escape(src, quote=True)}" alt="{alt}">'
+
+    md.add_render_rule("image", image)
+    title = html.escape(page.splitlines()[0].lstrip("# ") if page else "Exploration report")
+    return (
+        f'<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n<title>{title}</title>\n'
+        f"<style>{HTML_STYLE}</style>\n</head>\n<body>\n{md.render(page)}</body>\n</html>\n"
+    )
+
+
 def write_report_page(run_dir: Path, report: MissionReport) -> Path:
-    """Write report.md into run_dir and return its path."""
+    """Write report.md and report.html into run_dir and return report.md's path."""
     path = run_dir / REPORT_PAGE
-    path.write_text(render_report_page(report, recording=(run_dir / RECORDING).exists()))
+    page = render_report_page(report, recording=(run_dir / RECORDING_NAME).exists())
+    path.write_text(page)
+    (run_dir / REPORT_HTML).write_text(render_report_html(page, run_dir))
     return path

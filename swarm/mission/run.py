@@ -65,6 +65,7 @@ from swarm.mission.report import (
     write_report,
 )
 from swarm.mission.routes import ScriptedRoute, scripted_routes
+from swarm.mission.rrd_files import DEPTH_RECORDING_NAME, RECORDING_NAME, run_recording_id
 from swarm.netem.commands import NetemUnavailable, check_prerequisites
 from swarm.netem.network import SwarmNetwork
 from swarm.netem.profile import refuse_delay
@@ -113,6 +114,7 @@ class RunState:
     agent_argv: dict[int, list[str]] = field(default_factory=dict)
     started: float = 0.0
     started_wall: float = 0.0
+    stream_to: str | None = None  # a live viewer's gRPC proxy URL (swarm run --view)
     finished: float = 0.0
     status: str = "failed"
     reason: str = ""
@@ -229,12 +231,14 @@ def run_mission(
     live: bool | None = None,
     on_tick: Callable[[RunState], None] | None = None,
     plan: RunPlan | None = None,
+    stream_to: str | None = None,
 ) -> dict[str, Any]:
-    """Run the mission to its end and return the report (also written to OUT/report.json)."""
+    """Run the mission to its end and return the report (also written to OUT/report.json); with `stream_to` (a
+    Rerun viewer's gRPC proxy URL) its recording is also streamed there live."""
     plan = plan or prepare(config)
     out = plan.out
     out.mkdir(parents=True, exist_ok=True)
-    state = RunState()
+    state = RunState(stream_to=stream_to if config.mission.rrd else None)
     view = ProgressView(plan, live=live)
     try:
         if plan.scenario is not None:
@@ -274,12 +278,21 @@ def run_mission(
 
 def _record_report(plan: RunPlan, state: RunState, report: MissionReport) -> None:
     """Add the harness's part to OUT/run.rrd; a recording that cannot be written never costs the run its report."""
-    from swarm.mission.recording import RECORDING_NAME, add_report, run_recording_id  # rerun: 0.5 s to import
+    from swarm.mission.agent_views import record_agent_views
+    from swarm.mission.recording import add_report  # rerun: 0.5 s to import
 
+    recording_id = run_recording_id(plan.out, state.started_wall)
+    summaries = read_summaries(plan.out, report)
     try:
-        add_report(plan.out, run_recording_id(plan.out, state.started_wall), report, read_summaries(plan.out, report))
+        add_report(plan.out, recording_id, report, summaries, state.stream_to)
     except Exception as exc:  # noqa: BLE001 - as the figures: the report stands without it
         print(f"swarm run: warning: {RECORDING_NAME} not completed: {type(exc).__name__}: {exc}", file=sys.stderr)
+    try:
+        record_agent_views(
+            plan.out, recording_id, state.started_wall, plan.config, plan.volume, summaries, state.stream_to
+        )
+    except Exception as exc:  # noqa: BLE001 - likewise
+        print(f"swarm run: warning: agents' own recordings not written: {type(exc).__name__}: {exc}", file=sys.stderr)
 
 
 def was_interrupted(report: dict[str, Any]) -> bool:
@@ -308,7 +321,6 @@ def _start_simulator(plan: RunPlan, state: RunState) -> None:
     while True:
         status = read_sim_status(plan.out)
         if status is not None and status.ready:
-            _start_cameras(plan, state, sim_config.sim.host)
             return
         if state.sim.poll() is not None:
             raise SwarmError(f"simulator exited early: {state.sim.last_log_line() or 'no output'}")
@@ -333,7 +345,7 @@ def _start_cameras(plan: RunPlan, state: RunState, host: str) -> None:
     path = _write_config(plan.out / "config" / "cameras.toml", config)
     state.cameras = start_child(
         "cameras",
-        swarm_command("cameras", "--config", str(path)),
+        swarm_command("cameras", "--config", str(path), *_depth_recording_flags(plan, state)),
         plan.out / "logs" / "cameras.log",
         nice=plan.config.mission.sim_nice,
     )
@@ -414,6 +426,7 @@ def _start_swarm(plan: RunPlan, state: RunState) -> None:
         ),
         plan.out / "logs" / "observer.log",
     )
+    _start_cameras(plan, state, state.net.layout.control_host_address if state.net is not None else config.sim.host)
     routes = {route.drone_id: route for route in plan.routes}
     for k in range(1, config.mission.drones + 1):
         if net is not None:
@@ -462,13 +475,20 @@ def _start_swarm(plan: RunPlan, state: RunState) -> None:
         )
 
 
-def _recording_flags(plan: RunPlan, state: RunState) -> list[str]:
+def _recording_flags(plan: RunPlan, state: RunState, name: str = RECORDING_NAME) -> list[str]:
+    """A recording process's flags: its file OUT/name, the run's recording id, the live viewer if any."""
     if not plan.config.mission.rrd:
         return []
-    from swarm.mission.recording import RECORDING_NAME, run_recording_id
-
     recording_id = run_recording_id(plan.out, state.started_wall)
-    return ["--record", str(plan.out / RECORDING_NAME), "--recording-id", recording_id]
+    live = ["--stream-to", state.stream_to] if state.stream_to is not None else []
+    return ["--record", str(plan.out / name), "--recording-id", recording_id, *live]
+
+
+def _depth_recording_flags(plan: RunPlan, state: RunState) -> list[str]:
+    """With mission.view_depth, the camera driver records each drone's depth image beside run.rrd."""
+    if not (plan.config.mission.rrd and plan.config.mission.view_depth):
+        return []
+    return [*_recording_flags(plan, state, DEPTH_RECORDING_NAME), "--since", f"{state.started_wall:.3f}"]
 
 
 def _warn_unless_prioritised(plan: RunPlan, state: RunState) -> None:

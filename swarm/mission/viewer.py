@@ -5,6 +5,13 @@ The viewer is the `rerun` program bundled in the rerun-sdk wheel (package `rerun
 run: files with the same recording id (the run's, `swarm.mission.recording.run_recording_id`) open as one
 recording. Every server it starts (its gRPC proxy; with --web the HTTP server too) binds to loopback only;
 reach the web viewer from another machine through an SSH tunnel.
+
+`LiveViewer` is the viewer `swarm run --view` streams to while the swarm flies: one it starts (native, or the
+web viewer) or one already running, named by its gRPC proxy URL. The processes that record (observer, camera
+driver, harness) send their streams there as well as to their files (`swarm.mission.recording.open_stream`).
+
+Every viewer started here runs with `CI=1` in its environment: Rerun's viewer then sends no usage data
+(its analytics are off on CI machines); Swarm sends nothing off the machine.
 """
 
 from __future__ import annotations
@@ -13,10 +20,14 @@ import importlib.util
 import os
 import subprocess
 from pathlib import Path
+from urllib.parse import quote
 
+from swarm.config import VIEW_MODES
 from swarm.errors import SwarmError
+from swarm.mission.ports import ensure_free, find_free_base
 
 BIND = "127.0.0.1"
+GRPC_PORT = 9876  # Rerun's own default for its gRPC proxy; the next free one is taken
 DISPLAY_VARIABLES = ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET")
 
 
@@ -72,11 +83,80 @@ def serve_run(run_dir: Path, port: int) -> int:
     return _call(argv)
 
 
+def proxy_url(port: int) -> str:
+    return f"rerun+http://{BIND}:{port}/proxy"
+
+
+def viewer_env() -> dict[str, str]:
+    return {**os.environ, "CI": "1"}  # no usage data sent (module docstring)
+
+
+class LiveViewer:
+    """The viewer a run streams to: `mode` "native" or "web" starts one (on loopback, at a free gRPC port; the
+    web viewer's HTTP server at `web_port`), a rerun+http URL names one already running. `url` is where the
+    recording streams go. The viewer outlives the mission: `wait` until it is closed (native) or Ctrl-C (web)."""
+
+    def __init__(self, mode: str, web_port: int = 9090) -> None:
+        self.mode = mode
+        self.web_port = web_port
+        self.process: subprocess.Popen[bytes] | None = None
+        if mode not in VIEW_MODES:
+            self.url = mode
+            return
+        if mode == "native" and not has_display():
+            raise SwarmError("no display for --view (DISPLAY and WAYLAND_DISPLAY are unset): use --view web")
+        if mode == "web":
+            ensure_free(BIND, web_port, "tcp", "the web viewer")
+        self.grpc_port = find_free_base(BIND, 1, "tcp", GRPC_PORT, step=1)
+        self.url = proxy_url(self.grpc_port)
+
+    def argv(self) -> list[str]:
+        argv = [str(rerun_binary()), "--bind", BIND, "--port", str(self.grpc_port), "--expect-data-soon"]
+        if self.mode == "web":
+            argv += ["--serve-web", "--web-viewer-port", str(self.web_port)]
+        return argv
+
+    def start(self) -> LiveViewer:
+        if self.mode in VIEW_MODES:
+            try:
+                self.process = subprocess.Popen(
+                    self.argv(), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, env=viewer_env()
+                )
+            except OSError as exc:
+                raise SwarmError(f"cannot start the Rerun viewer: {exc}") from None
+            print(f"swarm run: {self.describe()}", flush=True)
+        return self
+
+    def describe(self) -> str:
+        if self.mode == "web":
+            return f"web viewer at http://{BIND}:{self.web_port}/?url={quote(self.url, safe='')} (streaming live)"
+        if self.mode == "native":
+            return f"viewer window open, streaming live ({self.url})"
+        return f"streaming live to the viewer at {self.url}"
+
+    def wait(self) -> int:
+        """After the mission: until the window is closed (native) or Ctrl-C (web); at once for a URL."""
+        if self.process is None:
+            return 0
+        if self.mode == "web":
+            print(f"swarm run: the recording stays served at http://{BIND}:{self.web_port} (Ctrl-C to stop)")
+        return _wait(self.process)
+
+    def close(self) -> None:
+        if self.process is not None and self.process.poll() is None:
+            self.process.terminate()
+            self.process.wait()
+
+
 def _call(argv: list[str]) -> int:
     try:
-        process = subprocess.Popen(argv, stdin=subprocess.DEVNULL)
+        process = subprocess.Popen(argv, stdin=subprocess.DEVNULL, env=viewer_env())
     except OSError as exc:
         raise SwarmError(f"cannot start the Rerun viewer: {exc}") from None
+    return _wait(process)
+
+
+def _wait(process: subprocess.Popen[bytes]) -> int:
     try:
         return process.wait()
     except KeyboardInterrupt:

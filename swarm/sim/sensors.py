@@ -36,6 +36,10 @@ from swarm.sim.kinematics import Body, tilt
 from swarm.sim.worlds import World, load_world
 
 # ENU <- NED and FRD <- FLU: the same axes swapped and flipped (PX4's attitude is NED / FRD, ROS's ENU / FLU)
+# what a camera driver hands each frame it publishes to: vehicle id, stamp (unix s), T_world_cam (4x4, optical
+# frame), depth (H, W) in metres with 0 for no return
+FrameHook = Callable[[int, float, np.ndarray, np.ndarray], None]
+
 _ENU_FROM_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 _FRD_FROM_FLU = np.diag([1.0, -1.0, -1.0])
 
@@ -75,8 +79,10 @@ class CameraDriver:
         seed: int = 0,
         log: Callable[[str], None] | None = None,
         drone_radius_m: float = 0.2,
+        on_frame: FrameHook | None = None,
     ) -> None:
         self.camera_settings = camera
+        self.on_frame = on_frame
         self.drone_radius_m = drone_radius_m
         self.streams = {k: camera.stream.under_vehicle(k) for k in vehicle_ids}
         self.cameras = {k: DepthCamera(world, camera, seed * 1000 + k) for k in vehicle_ids}
@@ -157,6 +163,8 @@ class CameraDriver:
         publisher.put(stream.info_topic, m.camera_info_message(pose.t, self.intrinsics))
         publisher.put(stream.depth_topic, m.image_message(pose.t, depth))
         self.published[vehicle_id] += 1
+        if self.on_frame is not None:
+            self.on_frame(vehicle_id, pose.t, T, depth)
 
 
 class OdometryPublisher:
@@ -181,10 +189,11 @@ class OdometryPublisher:
         self.session.close()
 
 
-def cameras_command(config: SwarmConfig) -> int:
+def cameras_command(config: SwarmConfig, on_frame: FrameHook | None = None) -> int:
     """`swarm cameras`: the simulated depth camera of each of config.mission.drones vehicles, as a camera driver
     on ROS 2 over Zenoh (camera.stream), until SIGINT/SIGTERM. It needs each vehicle's odometry: the simulator's
-    (sim.sensor_listen) or any publisher's."""
+    (sim.sensor_listen) or any publisher's. `on_frame` is handed every frame published (vehicle id, stamp,
+    camera-to-world transform, depth in metres), e.g. to record it."""
     world = load_world(config.mission.world)
     ids = list(range(1, config.mission.drones + 1))
     driver = CameraDriver(
@@ -194,6 +203,7 @@ def cameras_command(config: SwarmConfig) -> int:
         config.mission.seed,
         log=lambda text: print(text, file=sys.stderr, flush=True),
         drone_radius_m=config.sim.drone_radius_m,
+        on_frame=on_frame,
     )
     stop = threading.Event()
     handlers = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}

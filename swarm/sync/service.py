@@ -392,6 +392,7 @@ class PatchSync:
             "served_to": {str(k): v for k, v in sorted(self.served_to.items())},
             "holdings": self._announced.to_wire(),
             "content": self.content_hashes(),
+            "held_at": {str(pid): round(t, 3) for pid, t in sorted(self.held_at.items())},
             "limits": {
                 "pull_claims_over_quota": sum(pull.over_quota.values()),
                 "holdings_unannounced": self._digest.count - self._announced.count,

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import json
 import signal
+import subprocess
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -16,7 +18,10 @@ from swarm.config import load_config
 from swarm.mission.export import export_mcap
 from swarm.mission.recording import RECORDING_NAME, entity_rows, entity_spans, recording_ids
 from swarm.mission.report import read_observer_status, read_sim_status
+from swarm.mission.rrd_files import DEPTH_RECORDING_NAME
 from swarm.mission.run import run_mission
+from swarm.mission.viewer import proxy_url, rerun_binary, viewer_env
+from tests.bus.helpers import free_tcp_port
 from tests.helpers import SwarmPorts, log_events, processes_mentioning
 
 pytestmark = [pytest.mark.timeout(300), pytest.mark.mission]
@@ -26,8 +31,24 @@ def _config(out: Path, ports: SwarmPorts, **overrides: Any):
     return load_config(overrides={"mission.world": "box", "mission.out": str(out), **ports.settings(), **overrides})
 
 
+@pytest.fixture
+def live_viewer(tmp_path: Path) -> Iterator[tuple[str, Path]]:
+    """A headless Rerun server as `swarm run --view` streams to (the viewer's own gRPC proxy, from the rerun-sdk
+    wheel), saving all it receives: (its URL, the file)."""
+    saved = tmp_path / "live.rrd"
+    port = free_tcp_port()
+    argv = [str(rerun_binary()), "--serve-grpc", "--bind", "127.0.0.1", "--port", str(port), "--save", str(saved)]
+    server = subprocess.Popen(argv, env=viewer_env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        yield proxy_url(port), saved
+    finally:
+        server.terminate()
+        server.wait(timeout=10)
+
+
+@pytest.mark.filterwarnings("ignore:RRD file has no footer")  # the live server is stopped, not closed
 def test_killing_the_leader_hands_over_within_3_s_and_the_others_finish(
-    tmp_path: Path, swarm_ports: SwarmPorts
+    tmp_path: Path, swarm_ports: SwarmPorts, live_viewer: tuple[str, Path]
 ) -> None:
     out = tmp_path / "run"
     config = _config(
@@ -38,9 +59,11 @@ def test_killing_the_leader_hands_over_within_3_s_and_the_others_finish(
             "mission.max_time_s": 240.0,
             "mission.faults": ["kill:agent=1@6"],
             "mission.rrd": True,  # the default of swarm run, which the other mission tests turn off
+            "mission.view_depth": True,
         },
     )
-    report = run_mission(config, live=False)
+    url, saved = live_viewer
+    report = run_mission(config, live=False, stream_to=url)
     assert report["status"] == "complete", report["reason"]
     [kill] = report["faults"][0]["actions"]
     assert kill["result"] == "killed (exit -9)", kill
@@ -72,6 +95,8 @@ def test_killing_the_leader_hands_over_within_3_s_and_the_others_finish(
     assert 2 in leaders_after, report["leaders"]
     assert not processes_mentioning(str(out)), "swarm run left processes behind"
     _check_recording(out, report, kill["t"], tmp_path / "bag")
+    _check_own_views(out, report)
+    _check_live_stream(out, saved)
 
 
 def _check_recording(out: Path, report: dict[str, Any], kill_t: float, bag: Path) -> None:
@@ -111,6 +136,40 @@ def _check_recording(out: Path, report: dict[str, Any], kill_t: float, bag: Path
     for k in (1, 2, 3):
         assert counts[f"/drone{k}/odom"] == spans[f"/drones/{k}/pose"].rows
     assert counts["/map"] == 1
+
+
+def _check_own_views(out: Path, report: dict[str, Any]) -> None:
+    """Each drone's own recording (the map it held, its paths and log) and the depth images, under the run's id;
+    the killed drone wrote no summary (when it held what is not known), so it has no recording of its own."""
+    [recording_id] = recording_ids(out / RECORDING_NAME)
+    end = report["duration_s"]
+    assert not (out / "agents" / "agent-1.rrd").exists()
+    for agent in report["agents"][1:]:
+        k = agent["id"]
+        path = out / "agents" / f"agent-{k}.rrd"
+        assert recording_ids(path) == [recording_id]
+        spans = entity_spans([path])
+        assert any(e.startswith(f"/agents/{k}/map/") for e in spans), sorted(spans)
+        assert f"/agents/{k}/path" in spans and spans[f"/agents/{k}/log"].rows >= 5, sorted(spans)
+        held = entity_rows([path], f"/series/belief_patches/{k}", "Scalars:scalars")
+        assert held[-1][1] == [float(agent["patches_held"])], (k, held[-1], agent["patches_held"])
+    cameras = out / DEPTH_RECORDING_NAME
+    assert recording_ids(cameras) == [recording_id]
+    spans = entity_spans([cameras])
+    for k in (1, 2, 3):
+        depth = spans[f"/drones/{k}/camera/depth"]
+        assert depth.first_s < 10.0 and depth.rows >= 10, (k, depth)
+    assert spans["/drones/2/camera/depth"].last_s >= end - 10.0
+
+
+def _check_live_stream(out: Path, saved: Path) -> None:
+    """What the live viewer received is what the run's files hold: every entity, the same recording."""
+    files = sorted(out.rglob("*.rrd"))
+    assert recording_ids(saved) == recording_ids(out / RECORDING_NAME)
+    live, written = entity_spans([saved]), entity_spans(files)
+    assert set(live) == set(written), sorted(set(live) ^ set(written))
+    for entity in ("/series/explored/swarm", "/drones/2/pose", "/agents/2/log", "/drones/3/camera/depth"):
+        assert live[entity].rows == written[entity].rows, entity
 
 
 @pytest.mark.parametrize("strategy", ["uncoordinated", "frontier-only"])

@@ -33,12 +33,12 @@ from swarm.mission.recording import (
     patches_held,
     recording_ids,
     report_events,
-    run_recording_id,
     tile_fingerprint,
     tile_grew,
     tile_path,
     yaw_quaternion,
 )
+from swarm.mission.rrd_files import run_recording_id
 from swarm.mission.viewer import has_display, run_recordings, viewer_argv
 from swarm.patches.digest import PatchDigest
 from swarm.patches.meshing import write_ply
@@ -349,3 +349,43 @@ def test_the_report_page_says_how_to_open_the_recording(tmp_path: Path) -> None:
     assert "## Recording" not in write_report_page(tmp_path, report).read_text()
     (tmp_path / RECORDING_NAME).write_bytes(b"")
     assert "swarm view runs/r1" in write_report_page(tmp_path, report).read_text()
+
+
+def test_a_live_viewer_is_one_swarm_run_starts_on_loopback_or_one_named_by_its_url(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from swarm.mission import viewer
+
+    running = viewer.LiveViewer("rerun+http://127.0.0.1:9999/proxy")
+    assert running.url == "rerun+http://127.0.0.1:9999/proxy" and running.start().process is None
+    assert running.wait() == 0
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_SOCKET", raising=False)
+    with pytest.raises(SwarmError, match="no display for --view"):
+        viewer.LiveViewer("native")
+    checked: list[tuple[str, int]] = []
+    monkeypatch.setattr(viewer, "ensure_free", lambda host, port, kind, what: checked.append((host, port)))
+    monkeypatch.setattr(viewer, "find_free_base", lambda host, count, kind, start, step: start + 1)
+    web = viewer.LiveViewer("web", web_port=9191)
+    assert checked == [("127.0.0.1", 9191)]
+    assert web.url == "rerun+http://127.0.0.1:9877/proxy"
+    argv = web.argv()
+    assert argv[1:5] == ["--bind", "127.0.0.1", "--port", "9877"]
+    assert argv[-3:] == ["--serve-web", "--web-viewer-port", "9191"]
+    assert "rerun%2Bhttp%3A%2F%2F127.0.0.1%3A9877%2Fproxy" in web.describe()
+    assert viewer.viewer_env()["CI"] == "1"  # Rerun's viewer sends no usage data
+
+
+@pytest.mark.parametrize("view", ["native", "web", "rerun+http://127.0.0.1:9876/proxy", None])
+def test_mission_view_takes_a_mode_or_a_viewers_url(view: str | None) -> None:
+    from swarm.config import load_config
+
+    assert load_config(overrides={"mission.view": view}).mission.view == view
+
+
+def test_a_mission_view_that_is_neither_is_one_clear_error() -> None:
+    from swarm.config import ConfigError, load_config
+
+    with pytest.raises(ConfigError, match="mission.view.*native or web or a viewer's rerun"):
+        load_config(overrides={"mission.view": "http://127.0.0.1:9090"})

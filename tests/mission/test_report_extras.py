@@ -3,6 +3,7 @@ trajectories from heartbeats, the figures and report.md. No processes: the pure 
 
 from __future__ import annotations
 
+import base64
 import json
 from pathlib import Path
 from typing import Any
@@ -367,6 +368,19 @@ def test_report_page_has_the_headline_numbers_and_image_links(tmp_path: Path) ->
     assert "- 6.0 s: drone 2 leads 2" in text
     for name in PLOT_NAMES:
         assert f"![]({name})" in text
+
+
+def test_report_html_is_the_same_page_with_its_figures_inline_and_agent_text_escaped(tmp_path: Path) -> None:
+    report, observer, summaries = _models(*_synthetic_run(tmp_path))
+    report.reason = "drone 2 said <script>alert(1)</script>"
+    finish_report(tmp_path, report, observer, summaries)
+    page = (tmp_path / "report.html").read_text()
+    assert page.startswith("<!DOCTYPE html>") and "<title>Exploration report: box, 2 drones" in page
+    assert "<td>explored fraction</td>" in page and "<td>1.000</td>" in page
+    for name in PLOT_NAMES:
+        png = base64.b64encode((tmp_path / name).read_bytes()).decode()
+        assert f'src="data:image/png;base64,{png}"' in page, name
+    assert "<script>" not in page and "&lt;script&gt;alert(1)&lt;/script&gt;" in page
 
 
 def test_report_page_lists_twenty_leader_entries_and_counts_the_rest(tmp_path: Path) -> None:
