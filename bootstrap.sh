@@ -18,7 +18,7 @@
 set -euo pipefail
 cd "$(dirname "$0")"
 
-SYSTEM_PACKAGES=(libusb-1.0-0 libgl1 libegl1 libx11-6 libgomp1 iproute2 nftables docker-compose
+SYSTEM_PACKAGES=(libusb-1.0-0 libgl1 libegl1 libx11-6 libgomp1 iproute2 nftables docker-compose chromium
   podman runc catatonit iptables containernetworking-plugins debootstrap)
 
 say() { printf 'bootstrap: %s\n' "$*" >&2; }

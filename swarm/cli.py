@@ -58,6 +58,16 @@ def _non_negative_int(text: str) -> int:
     return _int_at_least(0, text)
 
 
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not value > 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
+    return value
+
+
 def _int_list(text: str) -> list[int]:
     return [_positive_int(p) for p in text.split(",")]
 
@@ -177,6 +187,15 @@ def build_parser() -> argparse.ArgumentParser:
         help="serve the web viewer instead (for a machine without a display); runs until Ctrl-C",
     )
     view.add_argument("--port", type=_positive_int, default=9090, help="with --web: the web viewer's port")
+    view.add_argument(
+        "--screenshot",
+        type=Path,
+        metavar="PNG",
+        help="write a picture of the web viewer showing the run, taken by headless Chromium (software WebGL), and exit",
+    )
+    view.add_argument(
+        "--wait", type=_positive_float, default=45.0, help="with --screenshot: seconds to let the viewer load (45)"
+    )
 
     export = sub.add_parser("export", help="export a finished run for other tools")
     export.set_defaults(handler=_export)
@@ -525,8 +544,11 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _view(args: argparse.Namespace) -> int:
-    from swarm.mission.viewer import serve_run, view_run
+    from swarm.mission.viewer import screenshot_run, serve_run, view_run
 
+    if args.screenshot is not None:
+        print(f"{screenshot_run(args.run_dir, args.screenshot, args.wait)}: the web viewer after {args.wait:g} s")
+        return 0
     code = serve_run(args.run_dir, args.port) if args.web else view_run(args.run_dir)
     return EXIT_FAILED if code else 0
 

@@ -44,13 +44,14 @@ from typing import Any
 
 import numpy as np
 import rerun as rr
+import rerun.blueprint as rrb
 from rerun.chunk import LazyChunkStream, RrdReader
 
 from swarm.agent.summary import AgentSummary
 from swarm.bus.holdings import DigestWire
 from swarm.bus.messages import AgentState
 from swarm.mission.files import MissionReport
-from swarm.mission.rrd_files import RECORDING_NAME
+from swarm.mission.rrd_files import BLUEPRINT_NAME, RECORDING_NAME
 from swarm.roles.messages import FrontierReport, TargetAssignment
 
 APPLICATION_ID = "swarm"
@@ -66,7 +67,7 @@ POSE_PERIOD_S = 0.2  # heartbeats come at 5 Hz or more; a viewer needs no more
 DEPTH_PERIOD_S = 1.0  # a depth image a second per drone (38 kB each as millimetres): what a person scrubs past
 BODY_HALF_SIZE = (0.25, 0.25, 0.06)
 WORLD_RGBA = (200, 200, 200, 60)
-MAP_RGB = (90, 160, 230)
+MAP_RGB = (90, 160, 230, 150)  # translucent: the drones, targets and paths inside the map stay in view
 
 Cluster = tuple[int, tuple[int, ...]]  # (leader, sorted member ids), as `swarm.mission.observer.clusters_of`
 
@@ -94,6 +95,28 @@ def open_stream(path: Path, recording_id: str, stream_to: str | None = None) -> 
     else:
         stream.set_sinks(rr.FileSink(path), rr.GrpcSink(stream_to))
     return stream
+
+
+def run_blueprint() -> rrb.Blueprint:
+    """The viewer's layout: the swarm in 3D (world, map, drones, frontiers; the agents' own maps and the depth
+    cameras are there to switch on), and beside it the explored fraction, the clusters and the events."""
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Spatial3DView(
+                name="swarm",
+                origin="/",
+                contents=["+ /world", "+ /map/**", "+ /drones/**", "+ /frontiers/**", "- /drones/*/camera/**"],
+            ),
+            rrb.Vertical(
+                rrb.TimeSeriesView(name="explored", origin="/series/explored"),
+                rrb.TextDocumentView(name="clusters", origin="/swarm/clusters"),
+                rrb.TextLogView(name="events", origin="/events"),
+                row_shares=[2, 1, 2],
+            ),
+            column_shares=[3, 1],
+        ),
+        collapse_panels=True,
+    )
 
 
 def drone_color(drone: int) -> tuple[int, int, int]:
@@ -255,6 +278,7 @@ class MissionRecording:
         self.path = path
         self.recording_id = recording_id
         self.stream = open_stream(path, recording_id, stream_to)
+        self.stream.send_blueprint(run_blueprint())
         self.stream.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         self._poses = Throttle(POSE_PERIOD_S)
         self._trails = Throttle(TRAIL_PERIOD_S)
@@ -472,6 +496,7 @@ def add_report(
     summary_series(stream, summaries)
     stream.flush()
     stream.disconnect()
+    run_blueprint().save(APPLICATION_ID, out / BLUEPRINT_NAME)  # the merge below keeps recordings only
     if not path.exists():
         part.replace(path)
         return path

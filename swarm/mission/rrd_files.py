@@ -7,6 +7,7 @@ from pathlib import Path
 
 RECORDING_NAME = "run.rrd"  # the observer's and the harness's recording of the run
 DEPTH_RECORDING_NAME = "cameras.rrd"  # each drone's depth image (mission.view_depth), from the camera driver
+BLUEPRINT_NAME = "run.rbl"  # the viewer's layout for the run (swarm.mission.recording.run_blueprint)
 
 
 def run_recording_id(out: Path, started_wall: float) -> str:

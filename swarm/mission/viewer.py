@@ -18,7 +18,9 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import socket
 import subprocess
+import time
 from pathlib import Path
 from urllib.parse import quote
 
@@ -32,14 +34,14 @@ DISPLAY_VARIABLES = ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET")
 
 
 def run_recordings(run_dir: Path) -> list[Path]:
-    """The run's .rrd files (its own and any under it, e.g. per-agent ones), sorted; SwarmError (one line) when
-    the directory does not exist or holds none."""
+    """The run's .rrd files (its own and any under it, e.g. per-agent ones), sorted, then its blueprint (.rbl,
+    the viewer's layout); SwarmError (one line) when the directory does not exist or holds no recording."""
     if not run_dir.is_dir():
         raise SwarmError(f"{run_dir}: no such run directory")
     paths = sorted(p for p in run_dir.rglob("*.rrd") if p.is_file())
     if not paths:
         raise SwarmError(f"{run_dir}: no recording (*.rrd) in it; was it run with --no-rrd?")
-    return paths
+    return paths + sorted(p for p in run_dir.glob("*.rbl") if p.is_file())  # the layout, if the run wrote one
 
 
 def rerun_binary() -> Path:
@@ -81,6 +83,41 @@ def serve_run(run_dir: Path, port: int) -> int:
     argv = viewer_argv(rerun_binary(), run_recordings(run_dir), web_port=port)
     print(f"web viewer at http://{BIND}:{port} (Ctrl-C to stop)", flush=True)
     return _call(argv)
+
+
+def screenshot_run(run_dir: Path, out: Path, wait_s: float = 45.0) -> Path:
+    """A PNG of the web viewer showing the run's recordings (`swarm.mission.screenshot`): the viewer is served
+    on free loopback ports while headless Chromium looks at it."""
+    from swarm.mission.screenshot import screenshot, viewer_page
+
+    paths = run_recordings(run_dir)
+    web_port = find_free_base(BIND, 1, "tcp", 9090, step=1)
+    grpc_port = find_free_base(BIND, 1, "tcp", GRPC_PORT, step=1)
+    argv = viewer_argv(rerun_binary(), paths, web_port=web_port, grpc_port=grpc_port)
+    try:
+        server = subprocess.Popen(
+            argv, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=viewer_env()
+        )
+    except OSError as exc:
+        raise SwarmError(f"cannot start the Rerun viewer: {exc}") from None
+    try:
+        _wait_listening(web_port, server)
+        return screenshot(viewer_page(web_port, proxy_url(grpc_port)), out, wait_s)
+    finally:
+        server.terminate()
+        server.wait()
+
+
+def _wait_listening(port: int, server: subprocess.Popen[bytes], timeout_s: float = 20.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if server.poll() is not None:
+            raise SwarmError(f"the Rerun viewer exited ({server.returncode}) before serving")
+        with socket.socket() as sock:
+            if sock.connect_ex((BIND, port)) == 0:
+                return
+        time.sleep(0.2)
+    raise SwarmError(f"the Rerun viewer did not serve on port {port} within {timeout_s:.0f} s")
 
 
 def proxy_url(port: int) -> str:

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from rerun.chunk import RrdReader
 from rosbags.highlevel import AnyReader
 
 from swarm.bus.messages import AgentState
@@ -38,7 +39,7 @@ from swarm.mission.recording import (
     tile_path,
     yaw_quaternion,
 )
-from swarm.mission.rrd_files import run_recording_id
+from swarm.mission.rrd_files import BLUEPRINT_NAME, run_recording_id
 from swarm.mission.viewer import has_display, run_recordings, viewer_argv
 from swarm.patches.digest import PatchDigest
 from swarm.patches.meshing import write_ply
@@ -260,7 +261,9 @@ def test_the_harness_part_merges_into_the_observers_recording(tmp_path: Path) ->
     assert spans["/series/bytes_sent/1"].rows == 5
     assert spans["/events"].rows == 2  # the observer's "agent 2 left" and the harness's end of mission
     assert [v for _, v in entity_rows([path], "/series/frame_rate_hz/1", "Scalars:scalars")] == [[9.5]]
-    assert sorted(p.name for p in tmp_path.iterdir()) == [RECORDING_NAME]  # no part left behind
+    assert sorted(p.name for p in tmp_path.iterdir()) == [BLUEPRINT_NAME, RECORDING_NAME]  # no part left behind
+    [blueprint] = RrdReader(tmp_path / BLUEPRINT_NAME).blueprints()
+    assert blueprint.application_id == "swarm"  # the layout the viewer opens the run with
 
 
 def test_without_the_observers_recording_the_harness_part_is_the_recording(tmp_path: Path) -> None:
@@ -331,11 +334,12 @@ def test_the_viewer_opens_every_recording_of_a_run_and_binds_to_loopback(tmp_pat
     (tmp_path / "agents").mkdir()
     for path in (tmp_path / RECORDING_NAME, tmp_path / "agents" / "agent-1.rrd"):
         path.write_bytes(b"")
+    (tmp_path / BLUEPRINT_NAME).write_bytes(b"")
     paths = run_recordings(tmp_path)
-    assert paths == [tmp_path / "agents" / "agent-1.rrd", tmp_path / RECORDING_NAME]
+    assert paths == [tmp_path / "agents" / "agent-1.rrd", tmp_path / RECORDING_NAME, tmp_path / BLUEPRINT_NAME]
     argv = viewer_argv(Path("/bin/rerun"), paths, web_port=9090)
     assert argv[:3] == ["/bin/rerun", "--bind", "127.0.0.1"]
-    assert "--web-viewer" in argv and argv[-2:] == [str(p) for p in paths]
+    assert "--web-viewer" in argv and argv[-3:] == [str(p) for p in paths]
     assert "--web-viewer" not in viewer_argv(Path("/bin/rerun"), paths)
     assert not has_display({}) and has_display({"DISPLAY": ":0"})
 
