@@ -10,7 +10,7 @@ share the run's recording id, so the viewer shows them beside `run.rrd`; every e
 
 =================================  ==========================================================================
 agents/K/map/tI_J_K                the map drone K held (every patch it held by then, fused), refreshed
-                                   every `BELIEF_PERIOD_S` of mission time when it changed, as tiles
+                                   every `BELIEF_PERIOD_S` of mission time, the tiles its new patches reach
 agents/K/path                      the last path it planned (its "path" events)
 agents/K/target                    its current target: the viewpoint and the line to the point it looks at
 agents/K/log                       every event of its log (phase, leader, target, give way, done, ...)
@@ -21,7 +21,10 @@ series/belief_patches/K            how many patches it held
 from __future__ import annotations
 
 import json
+import multiprocessing
+import os
 from collections.abc import Iterator
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -31,12 +34,12 @@ import rerun as rr
 
 from swarm.agent.summary import AgentSummary
 from swarm.config import SwarmConfig
-from swarm.mission.recording import TIMELINE, MapTiles, drone_color, open_stream
+from swarm.mission.recording import TIMELINE, MapTiles, blocks_in_tiles, drone_color, open_stream, tiles_near_blocks
 from swarm.patches import Lattice
 from swarm.patches.fused import FusedMap
 from swarm.patches.wire import PatchDecodeError, decode_patch
 
-BELIEF_PERIOD_S = 10.0  # a drone's map, every 10 s of the mission: enough to see who knew what, 3-5 s per agent
+BELIEF_PERIOD_S = 15.0  # a drone's map every 15 s of the mission: enough to see who knew what (office: 4 s an agent)
 WARN_EVENTS = frozenset({"give_way", "blocked_by", "no_path", "in_pocket", "path_blocked", "unreachable_given_up"})
 ERROR_EVENTS = frozenset({"failsafe", "flight_error", "taken_over", "illegal_transition", "patch_store_failed"})
 TARGET_ENDS = frozenset({"exploration_done", "target_explored"})  # the drone has no target after these
@@ -137,21 +140,50 @@ def log_belief(
     """The map drone k held over the mission, from the sealed patch files and the times it first held each;
     returns the patches fused (a patch file missing or not decoding is left out, as its agent would have)."""
     tiles = MapTiles(stream, f"agents/{k}/map")
+    lattice = fused.lattice
     fused_count = 0
     for t, ids in belief_snapshots(summary.sync.held_at, started_at, period_s):
+        changed = []
         for pid in ids:
             path = patches_dir / f"{pid}.patch"
             try:
-                fused.add(decode_patch(path.read_bytes(), fused.lattice, max_patch_bytes))
+                patch = decode_patch(path.read_bytes(), lattice, max_patch_bytes)
             except (OSError, PatchDecodeError):
                 continue
+            fused.add(patch)
+            changed.append(patch.blocks.keys)
             fused_count += 1
         stream.set_time(TIMELINE, duration=t)
         stream.log(f"series/belief_patches/{k}", rr.Scalars(float(fused_count)))
-        if fused.voxel_count:
-            vertices, triangles = fused.mesh()
-            tiles.log(vertices, triangles)
+        if changed:  # only the tiles the new patches reach are meshed again
+            near = tiles_near_blocks(np.vstack(changed), lattice)
+            blocks = blocks_in_tiles(fused.block_keys(), near, lattice)
+            vertices, triangles = fused.mesh(within=blocks)
+            tiles.log(vertices, triangles, only=near)
     return fused_count
+
+
+def record_agent_view(
+    out: Path,
+    k: int,
+    recording_id: str,
+    started_at: float,
+    config: SwarmConfig,
+    bounds: tuple[np.ndarray, np.ndarray],
+    summary: AgentSummary,
+    stream_to: str | None = None,
+) -> Path:
+    """Write OUT/agents/agent-K.rrd (and send it to the live viewer at `stream_to`); returns its path."""
+    path = out / "agents" / f"agent-{k}.rrd"
+    stream = open_stream(path, recording_id, stream_to)
+    try:
+        fused = FusedMap(Lattice.from_settings(config.mapping), bounds, config.mapping.known_weight)
+        log_belief(stream, k, summary, out / "agents" / "patches", fused, started_at, config.mapping.max_patch_bytes)
+        log_events(stream, k, agent_events(out / "logs", k, started_at))
+    finally:
+        stream.flush()
+        stream.disconnect()
+    return path
 
 
 def record_agent_views(
@@ -163,21 +195,11 @@ def record_agent_views(
     summaries: dict[int, AgentSummary],
     stream_to: str | None = None,
 ) -> list[Path]:
-    """Write OUT/agents/agent-K.rrd for every agent with a summary (and send it to the live viewer at
-    `stream_to`); returns the files written."""
-    written = []
-    lattice = Lattice.from_settings(config.mapping)
-    for k, summary in sorted(summaries.items()):
-        path = out / "agents" / f"agent-{k}.rrd"
-        stream = open_stream(path, recording_id, stream_to)
-        try:
-            fused = FusedMap(lattice, bounds, config.mapping.known_weight)
-            log_belief(
-                stream, k, summary, out / "agents" / "patches", fused, started_at, config.mapping.max_patch_bytes
-            )
-            log_events(stream, k, agent_events(out / "logs", k, started_at))
-        finally:
-            stream.flush()
-            stream.disconnect()
-        written.append(path)
-    return written
+    """Write OUT/agents/agent-K.rrd for every agent with a summary, a process per core (the swarm has landed:
+    the machine is the harness's; each agent's view is its own file); returns the files written."""
+    jobs = [(out, k, recording_id, started_at, config, bounds, s, stream_to) for k, s in sorted(summaries.items())]
+    if len(jobs) <= 1:
+        return [record_agent_view(*job) for job in jobs]
+    workers = min(len(jobs), os.cpu_count() or 1)
+    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        return list(pool.map(record_agent_view, *zip(*jobs)))

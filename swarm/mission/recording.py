@@ -52,6 +52,7 @@ from swarm.bus.holdings import DigestWire
 from swarm.bus.messages import AgentState
 from swarm.mission.files import MissionReport
 from swarm.mission.rrd_files import BLUEPRINT_NAME, RECORDING_NAME
+from swarm.patches.lattice import Lattice
 from swarm.roles.messages import FrontierReport, TargetAssignment
 
 APPLICATION_ID = "swarm"
@@ -175,6 +176,44 @@ def map_tiles(
     return tiles
 
 
+def _tile_ranges(keys: np.ndarray, lattice: Lattice, tile_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per block key, the first and last tile its world extent widened by one voxel reaches into."""
+    corner = lattice.origin_array + np.asarray(keys, dtype=np.float64) * lattice.block_size
+    lo = np.floor((corner - lattice.voxel_size) / tile_m).astype(np.int64)
+    hi = np.floor((corner + lattice.block_size + lattice.voxel_size) / tile_m).astype(np.int64)
+    return lo, hi
+
+
+def tiles_near_blocks(keys: np.ndarray, lattice: Lattice, tile_m: float = TILE_M) -> set[Tile]:
+    """The tiles the blocks `keys` reach into, widened by a voxel: where the surface can change when those
+    blocks change (a voxel's change moves only triangles within one voxel of it)."""
+    keys = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
+    if len(keys) == 0:
+        return set()
+    lo, hi = _tile_ranges(keys, lattice, tile_m)
+    tiles: set[Tile] = set()
+    for a, b in np.unique(np.hstack([lo, hi]), axis=0).reshape(-1, 2, 3):
+        for i in range(a[0], b[0] + 1):
+            for j in range(a[1], b[1] + 1):
+                for k in range(a[2], b[2] + 1):
+                    tiles.add((i, j, k))
+    return tiles
+
+
+def blocks_in_tiles(keys: np.ndarray, tiles: set[Tile], lattice: Lattice, tile_m: float = TILE_M) -> np.ndarray:
+    """The rows of (M,3) block `keys` that reach into one of `tiles`, widened by a voxel: every block the surface
+    inside those tiles is made from (a triangle's corners are voxels within one voxel of it)."""
+    keys = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
+    if len(keys) == 0 or not tiles:
+        return np.zeros((0, 3), dtype=np.int32)
+    lo, hi = _tile_ranges(keys, lattice, tile_m)
+    wanted = np.array(sorted(tiles), dtype=np.int64)
+    hit = np.zeros(len(keys), dtype=bool)
+    for tile in wanted:  # a few dozen tiles at most: a patch reaches the camera's range
+        hit |= np.all((lo <= tile) & (tile <= hi), axis=1)
+    return keys[hit].astype(np.int32)
+
+
 def tile_fingerprint(vertices: np.ndarray, triangles: np.ndarray) -> tuple[int, int, float]:
     """What a tile holds, independent of vertex and triangle order: counts and the sum of its corners (to the
     micrometre); equal for the same surface extracted again from an unchanged part of the map."""
@@ -201,9 +240,14 @@ class MapTiles:
         self.root = root
         self._tiles: dict[Tile, tuple[int, int, float]] = {}
 
-    def log(self, vertices: np.ndarray, triangles: np.ndarray, exact: bool = False) -> int:
-        """Log the surface at the stream's current time; returns the bytes written (vertices and indices)."""
+    def log(
+        self, vertices: np.ndarray, triangles: np.ndarray, exact: bool = False, only: set[Tile] | None = None
+    ) -> int:
+        """Log the surface at the stream's current time; returns the bytes written (vertices and indices).
+        `only`: the surface given is that of these tiles alone (a partial mesh); the other tiles keep theirs."""
         tiles = map_tiles(vertices, triangles)
+        if only is not None:
+            tiles = {tile: mesh for tile, mesh in tiles.items() if tile in only}
         written = 0
         for tile, (tile_vertices, tile_triangles) in sorted(tiles.items()):
             fingerprint = tile_fingerprint(tile_vertices, tile_triangles)
@@ -217,6 +261,8 @@ class MapTiles:
             )
             written += tile_vertices.nbytes + tile_triangles.nbytes
         for tile in sorted(set(self._tiles) - set(tiles)):
+            if only is not None and tile not in only:
+                continue
             del self._tiles[tile]
             self.stream.log(tile_path(tile, self.root), rr.Clear(recursive=False))
         return written

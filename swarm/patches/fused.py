@@ -187,10 +187,17 @@ class FusedMap:
         total[held] = self._sum[rows, cols]
         return _classify(weight, total, self.known_units)
 
-    def arrays(self) -> TsdfArrays:
+    def block_keys(self) -> np.ndarray:
+        """(M,3) int32 keys of the blocks with an observed voxel, sorted."""
+        return self._observed_blocks()[0]
+
+    def arrays(self, within: np.ndarray | None = None) -> TsdfArrays:
         """The fused TSDF as float arrays (blocks with an observed voxel, keys sorted): tsdf = S / (127 W),
-        weight = W in the lattice's weight (W units * unit)."""
+        weight = W in the lattice's weight (W units * unit). `within`: only these block keys ((K,3))."""
         keys, weight, total = self._observed_blocks()
+        if within is not None:
+            keep = _rows_in(keys, np.asarray(within, dtype=np.int32).reshape(-1, 3))
+            keys, weight, total = keys[keep], weight[keep], total[keep]
         with np.errstate(invalid="ignore", divide="ignore"):
             tsdf = np.where(weight > 0, total / (TSDF_SCALE * weight.astype(np.float64)), 0.0)
         return TsdfArrays(keys, tsdf.astype(np.float32), (weight * self.lattice.weight_unit).astype(np.float32))
@@ -340,12 +347,14 @@ class FusedMap:
         states[...] = out.reshape(shape[::-1]).transpose(2, 1, 0)
         return states
 
-    def mesh(self) -> tuple[np.ndarray, np.ndarray]:
-        """Marching-cubes surface of the known voxels: (V,3) float64 world vertices, (F,3) int32 triangles."""
+    def mesh(self, within: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Marching-cubes surface of the known voxels: (V,3) float64 world vertices, (F,3) int32 triangles;
+        `within`: of these blocks only (a triangle that spans two blocks needs both)."""
         from swarm.patches.meshing import extract_mesh
 
         # Open3D's threshold is strict (w > threshold): half a unit below the known threshold
-        return extract_mesh(self.lattice, self.arrays(), (self.known_units - 0.5) * self.lattice.weight_unit)
+        arrays = self.arrays(within)
+        return extract_mesh(self.lattice, arrays, (self.known_units - 0.5) * self.lattice.weight_unit)
 
     def write_mesh(self, path: str | Path) -> tuple[int, int]:
         """Write the mesh as .ply; returns (vertices, triangles)."""
@@ -354,6 +363,17 @@ class FusedMap:
         vertices, triangles = self.mesh()
         write_ply(path, vertices, triangles)
         return len(vertices), len(triangles)
+
+
+def _rows_in(keys: np.ndarray, wanted: np.ndarray) -> np.ndarray:
+    """Boolean mask of the rows of (M,3) `keys` that are among (K,3) `wanted`."""
+    if len(keys) == 0 or len(wanted) == 0:
+        return np.zeros(len(keys), dtype=bool)
+    as_rows = np.dtype([("x", np.int32), ("y", np.int32), ("z", np.int32)])
+    return np.isin(
+        np.ascontiguousarray(keys, dtype=np.int32).view(as_rows).ravel(),
+        np.ascontiguousarray(wanted, dtype=np.int32).view(as_rows).ravel(),
+    )
 
 
 def _reduce_cells(voxels: np.ndarray, combine: np.ufunc, r: int, f: int) -> np.ndarray:

@@ -12,8 +12,18 @@ import pytest
 
 from swarm.config import load_config
 from swarm.mission.agent_views import BELIEF_PERIOD_S, agent_events, belief_snapshots, record_agent_views
-from swarm.mission.recording import DepthRecording, entity_rows, entity_spans, recording_ids
+from swarm.mission.recording import (
+    DepthRecording,
+    blocks_in_tiles,
+    entity_rows,
+    entity_spans,
+    map_tiles,
+    recording_ids,
+    tile_fingerprint,
+    tiles_near_blocks,
+)
 from swarm.patches import Lattice
+from swarm.patches.fused import FusedMap
 from swarm.patches.wire import decode_patch
 from swarm.sim.worlds import load_world
 from tests.file_models import agent_summary
@@ -64,9 +74,9 @@ def test_each_agent_gets_a_recording_of_the_map_it_held_its_paths_targets_and_lo
         pid = str(decode_patch(data, lattice, config.mapping.max_patch_bytes).id)
         (patches / f"{pid}.patch").write_bytes(data)
         ids.append(pid)
-    # drone 1 held its own patches within the first 10 s and drone 2's only after 25 s; one id it held has no
+    # drone 1 held its own patches within the first period and drone 2's only in the third; one id it held has no
     # file (a patch it could not have fused either) and is left out
-    held_at = {pid: STARTED + (3.0 if pid.startswith("1.") else 25.0) for pid in ids}
+    held_at = {pid: STARTED + (3.0 if pid.startswith("1.") else 2.5 * BELIEF_PERIOD_S) for pid in ids}
     held_at["3.1.0"] = STARTED + 5.0
     summary = agent_summary(1)
     summary.sync.held_at = held_at
@@ -92,7 +102,7 @@ def test_each_agent_gets_a_recording_of_the_map_it_held_its_paths_targets_and_lo
     assert tiles and min(s.first_s for s in tiles.values()) == BELIEF_PERIOD_S
     assert max(s.last_s for s in tiles.values()) == 3 * BELIEF_PERIOD_S  # drone 2's patches changed it at 30 s
     held = entity_rows([path], "/series/belief_patches/1", "Scalars:scalars")
-    assert held == [(10.0, [float(len(own))]), (30.0, [float(len(own) + len(other))])]
+    assert held == [(BELIEF_PERIOD_S, [float(len(own))]), (3 * BELIEF_PERIOD_S, [float(len(own) + len(other))])]
     [(t, [viewpoint])] = entity_rows([path], "/agents/1/target", "Points3D:positions")
     assert t == pytest.approx(4.0) and viewpoint == pytest.approx([2.0, 2.0, 1.0])
     [(t, [strip])] = entity_rows([path], "/agents/1/path", "LineStrips3D:strips")
@@ -123,3 +133,28 @@ def test_a_depth_recording_holds_each_drones_camera_pose_and_depth_once_per_peri
     [(_, [buffer]), *_] = entity_rows([path], "/drones/1/camera/depth", "DepthImage:buffer")
     millimetres = np.frombuffer(bytes(buffer), dtype=np.uint16)
     assert millimetres[0] == 0 and set(millimetres[1:].tolist()) == {2500}
+
+
+def test_a_surface_meshed_from_the_blocks_near_new_patches_is_the_full_surface_in_their_tiles() -> None:
+    config = load_config(overrides={"mission.world": "box"})
+    world = load_world("box")
+    lattice = Lattice.from_settings(config.mapping)
+    fused = FusedMap(lattice, world.bounds, config.mapping.known_weight)
+    first = spin_patches(config, producer=1, yaws=range(0, 180, 30))
+    later = spin_patches(config, producer=2, yaws=[200])  # one look: a part of the room
+    for data in first:
+        fused.add(decode_patch(data, lattice, config.mapping.max_patch_bytes))
+    new_keys = []
+    for data in later:
+        patch = decode_patch(data, lattice, config.mapping.max_patch_bytes)
+        fused.add(patch)
+        new_keys.append(patch.blocks.keys)
+    near = tiles_near_blocks(np.vstack(new_keys), lattice)
+    everything = map_tiles(*fused.mesh())
+    assert near and set(everything) - near, "the later patches should reach some tiles and not others"
+    blocks = blocks_in_tiles(fused.block_keys(), near, lattice)
+    assert 0 < len(blocks) < len(fused.block_keys())
+    partial = map_tiles(*fused.mesh(within=blocks))
+    for tile in near & set(everything):
+        assert tile_fingerprint(*partial[tile]) == tile_fingerprint(*everything[tile]), tile
+    assert set(everything) & near == set(partial) & near
