@@ -22,6 +22,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from swarm.agent.events import log_if_failed
 from swarm.agent.flight import PASS_CLEARANCE_M, Flight
 from swarm.agent.mapping import MappingTask
 from swarm.aio import wait_event
@@ -197,7 +198,7 @@ class Exploration:
         """The mission: go to targets as they come until the exploration is done, then return home. The decision
         loop starts here, once airborne, and runs until `close` (a done leader keeps saying so)."""
         self.flight = flight
-        self._decisions = asyncio.create_task(self.decide_forever())
+        self._decisions = log_if_failed(asyncio.create_task(self.decide_forever(), name="decisions"), self.log)
         idle_since: float | None = None  # when the drone was last left without a target
         while not self.done:
             target = self.target

@@ -20,6 +20,7 @@ import os
 import signal
 import sys
 import time
+from collections.abc import Coroutine
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, NoReturn
@@ -29,7 +30,7 @@ import zenoh
 
 from swarm.agent.autopilot import Autopilot, local_frame
 from swarm.agent.epoch import next_epoch
-from swarm.agent.events import EventLog
+from swarm.agent.events import EventLog, log_if_failed
 from swarm.agent.exploration import Exploration
 from swarm.agent.flight import Flight, Mission, Neighbour, parked, retrace, route_mission
 from swarm.agent.lifecycle import Stage, next_stage
@@ -112,7 +113,13 @@ class Agent:
         loop.set_default_executor(ThreadPoolExecutor(self.config.agent.mavsdk_threads, thread_name_prefix="mavsdk"))
         self._install_signal_handlers(loop)
         self.log("starting", epoch=self.epoch, autopilot=self.config.agent.autopilot, pid=os.getpid())
-        bus = await AsyncBus.open(self.config.agent_bus(), self.config.mission.name)
+        mapping = await self._start_mapping(loop)
+        try:
+            bus = await AsyncBus.open(self.config.agent_bus(), self.config.mission.name)
+        except BaseException:
+            if mapping is not None:
+                await mapping.abandon()
+            raise
         autopilot = Autopilot(
             self.config.agent.autopilot,
             self.config.mission.origin,
@@ -130,7 +137,6 @@ class Agent:
         )
         keys = self.keys = bus.keys
         mapping_stop = asyncio.Event()
-        mapping = self._make_mapping(loop)
         self.sync = PatchSync(
             bus,
             self.config.sync,
@@ -176,7 +182,10 @@ class Agent:
         bus.subscribe(keys.all_states, AgentState, self._on_state)
         bus.watch_liveliness(keys.all_alive, self._on_token_join, self._on_token_leave)
         self.sync.start()
-        background = [asyncio.create_task(self._heartbeat(bus)), asyncio.create_task(self._upkeep(bus))]
+        background = [
+            self._background(self._heartbeat(bus), "heartbeat"),
+            self._background(self._upkeep(bus), "upkeep"),
+        ]
         if mapping is not None:
             self._run_mapping(mapping, autopilot, mapping_stop, background)
         final = Phase.FAILED
@@ -208,6 +217,15 @@ class Agent:
             await bus.close()
         self.log("exit", phase=final.value)
         return {Phase.LANDED: EXIT_OK, Phase.FAILSAFE: EXIT_FAILSAFE}.get(final, EXIT_FLIGHT_FAILED)
+
+    async def _start_mapping(self, loop: asyncio.AbstractEventLoop) -> MappingTask | None:
+        """The mapping task with its camera started (None with camera.source = "none"). A camera that cannot be
+        used is a ConfigError or SwarmError of one line, raised before the agent opens the bus or connects to its
+        autopilot: the drone does not take off without it."""
+        mapping = self._make_mapping(loop)
+        if mapping is not None:
+            await mapping.start()
+        return mapping
 
     def _make_mapping(self, loop: asyncio.AbstractEventLoop) -> MappingTask | None:
         camera = self.config.camera
@@ -264,8 +282,12 @@ class Agent:
         def home_z() -> float | None:
             return autopilot.home_world[2] if autopilot.home_world is not None else None
 
-        background.append(asyncio.create_task(mapping.run(autopilot.telemetry, home_z, stop)))
-        background.append(asyncio.create_task(mapping.measure_baseline(stop)))
+        background.append(self._background(mapping.run(autopilot.telemetry, home_z, stop), "mapping"))
+        background.append(self._background(mapping.measure_baseline(stop), "baseline"))
+
+    def _background(self, work: Coroutine[Any, Any, None], name: str) -> asyncio.Task[None]:
+        """A task that runs beside the flight until the agent exits; logged if it dies of an error."""
+        return log_if_failed(asyncio.create_task(work, name=name), self.log)
 
     async def _validate_only(self, data: bytes, pid: PatchId) -> None:
         """The sync's sink without a map (camera "none"): validate, hold and relay, fuse nothing; the same checks

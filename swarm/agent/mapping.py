@@ -39,6 +39,7 @@ from swarm.agent.autopilot import TelemetryCache
 from swarm.agent.sensing import DepthFrame, StreamSource
 from swarm.aio import wait_event
 from swarm.config import SwarmConfig, Vec3
+from swarm.errors import SwarmError
 from swarm.explore.frontiers import ExplorationGrid, Frontier, ViewModel
 from swarm.files import TEMP_SUFFIX, write_atomic, write_durable
 from swarm.patches.fused import OCCUPIED
@@ -180,12 +181,33 @@ class MappingTask:
             self._keep(sealed)
         self.busy_s += time.perf_counter() - started
 
+    async def start(self) -> None:
+        """Start the camera's stream, in the mapping thread, before the agent opens anything else or flies: a
+        source that cannot start (no rclpy, a bag without depth, a sensor session that cannot open) is a
+        SwarmError of one line, whatever the source raised, and the task is left closed. A drone does not take off
+        without its camera: it would fly on and map nothing."""
+        try:
+            await asyncio.get_running_loop().run_in_executor(self._worker, self.source.start)
+        except Exception as exc:
+            await self.abandon()
+            if isinstance(exc, SwarmError):
+                raise
+            reason = " ".join(f"{type(exc).__name__}: {exc}".split())
+            raise SwarmError(f'camera.source = "{self.config.camera.source}" cannot start: {reason}') from exc
+
+    async def abandon(self) -> None:
+        """Close the source and stop the worker: the agent stops before its flight began (nothing was mapped)."""
+        # a half-started source is closed as well as it can be: the error that stopped the agent is the one to report
+        with contextlib.suppress(Exception):
+            await asyncio.get_running_loop().run_in_executor(self._worker, self.source.close)
+        self._worker.shutdown(wait=False)
+
     async def run(self, telemetry: TelemetryCache, home_z: Callable[[], float | None], stop: asyncio.Event) -> None:
-        """Frames as the camera publishes them: the newest one not taken yet, integrated while airborne (one the
-        mapping thread was too busy to take is counted by the source as not taken: `frames_skipped`)."""
+        """Frames as the camera publishes them, from a source `start` started: the newest one not taken yet,
+        integrated while airborne (one the mapping thread was too busy to take is counted by the source as not
+        taken: `frames_skipped`)."""
         source = self.source
         loop = asyncio.get_running_loop()
-        await loop.run_in_executor(self._worker, source.start)
         last_frame, silent = time.monotonic(), False
         try:
             while not stop.is_set():

@@ -3,6 +3,7 @@ world's surfaces, and every bag it cannot use is one clear line."""
 
 from __future__ import annotations
 
+import json
 import math
 import subprocess
 import time
@@ -21,7 +22,7 @@ from swarm.sensing.frames import camera_mount, camera_to_world
 from swarm.sim.camera import DepthCamera
 from swarm.sim.sensors import body_pose
 from swarm.sim.worlds import load_world
-from tests.helpers import swarm_cmd
+from tests.helpers import SwarmPorts, swarm_cmd
 
 POSE, INFO, DEPTH = "/odom", "/camera/depth/camera_info", "/camera/depth/image_rect_raw"
 
@@ -166,3 +167,34 @@ def test_replaying_a_bag_without_depth_is_one_clear_error(tmp_path: Path) -> Non
     config = load_config()
     with pytest.raises(SwarmError, match="camera.replay_bag: bag .* has no depth image topic"):
         BagReplaySource(bag, config.camera.stream, camera_mount(config.camera)).start()
+
+
+@pytest.mark.sim
+def test_an_agent_replaying_a_bag_without_depth_exits_with_one_line_before_it_opens_bus_or_autopilot(
+    tmp_path: Path, swarm_ports: SwarmPorts
+) -> None:
+    bag = tmp_path / "no-depth"
+    _record(bag, seconds=0.2, with_depth=False)
+    config = tmp_path / "agent.toml"
+    config.write_text(
+        f"""
+[mission]
+volume = {{ min = [0.0, 0.0, 0.0], max = [20.0, 20.0, 3.0] }}
+[camera]
+source = "replay"
+replay_bag = "{bag}"
+[agent]
+autopilot = "udpin://127.0.0.1:{swarm_ports.vehicle_base}"
+[bus]
+base_port = {swarm_ports.bus_base}
+"""
+    )
+    started = time.monotonic()
+    done = subprocess.run(swarm_cmd("agent", "--config", str(config)), capture_output=True, text=True, timeout=60)
+    assert done.returncode != 0
+    assert done.stderr.strip().splitlines() == [
+        f"swarm agent: error: camera.replay_bag: bag {bag} has no depth image topic (sensor_msgs/msg/Image)"
+    ]
+    # refused before anything that flies: nothing logged after `starting` (no bus, no autopilot connection)
+    assert [json.loads(line)["event"] for line in done.stdout.splitlines()] == ["starting"]
+    assert time.monotonic() - started < 15.0  # less than the autopilot's connect timeout: it was never waited for
