@@ -31,6 +31,11 @@ class SensorInputError(SwarmError, ValueError):
     """A sensor message that cannot be used (counted and dropped by the stream that received it)."""
 
 
+class UnknownEncodingError(SensorInputError):
+    """An image whose encoding is no depth encoding this reads (rgb8 from a colour topic, say): a well-formed
+    message on the wrong topic, counted apart from broken ones."""
+
+
 @lru_cache(maxsize=1)
 def typestore() -> Any:
     """The ROS 2 message definitions (Humble: these messages are the same in every distribution since)."""
@@ -98,7 +103,7 @@ def depth_of(image: Any) -> tuple[float, np.ndarray]:
     padding allowed) and `is_bigendian` honoured."""
     kind = _DEPTH_DTYPES.get(image.encoding)
     if kind is None:
-        raise SensorInputError(f"depth encoding '{image.encoding}' is not one of {', '.join(_DEPTH_DTYPES)}")
+        raise UnknownEncodingError(f"depth encoding '{image.encoding}' is not one of {', '.join(_DEPTH_DTYPES)}")
     h, w, step = int(image.height), int(image.width), int(image.step)
     if not (0 < h <= MAX_IMAGE_SIDE and 0 < w <= MAX_IMAGE_SIDE):
         raise SensorInputError(f"depth image of {w}x{h} pixels")

@@ -6,8 +6,8 @@ camera pose at each image's stamp. An image that arrives before the pose sample 
 while the images behind it span at most `max_wait_s` of stamps (a time, so the same at any camera rate; a stalled
 pose stream holds at most that much of the camera's stream) and at most `max_pending` images (memory). Every
 message it cannot use is counted under its reason (`dropped`) and never reaches the map: a malformed message, an
-image before any camera info, an image whose size differs from the camera info's, a stamp with no pose (stale,
-too new, across a gap, or none in time).
+image in an encoding that is not depth (none of 16UC1, mono16, 32FC1), an image before any camera info, an image
+whose size differs from the camera info's, a stamp with no pose (stale, too new, across a gap, or none in time).
 """
 
 from __future__ import annotations
@@ -32,6 +32,7 @@ from swarm.sensing.messages import (
     Intrinsics,
     Pose,
     SensorInputError,
+    UnknownEncodingError,
     depth_of,
     deserialize,
     intrinsics_of,
@@ -82,6 +83,9 @@ class FrameAssembler:
     def on_image(self, message: Any) -> None:
         try:
             stamp, depth = depth_of(_decoded(message, IMAGE))
+        except UnknownEncodingError:
+            self.dropped["unknown encoding"] += 1
+            return
         except SensorInputError:
             self.dropped["bad image"] += 1
             return

@@ -7,10 +7,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from swarm.config import load_config
 from swarm.sensing import messages as m
 from swarm.sensing.frames import mount_transform
 from swarm.sensing.poses import PoseBuffer
-from swarm.sensing.stream import FrameAssembler
+from swarm.sensing.stream import FrameAssembler, StreamInbox
 
 K = np.array([[8.0, 0.0, 7.5], [0.0, 8.0, 5.5], [0.0, 0.0, 1.0]])
 DEPTH = np.full((12, 16), 2.0, dtype=np.float32)
@@ -91,3 +92,38 @@ def test_an_image_waits_for_its_pose_a_time_not_a_count_of_images() -> None:
     for t in (0.1, 0.2, 0.3, 0.4):
         frames.on_image(m.image_message(t, DEPTH))
     assert dict(frames.dropped) == {"no pose in time": 1}
+
+
+def _colour_image(t: float) -> bytes:
+    """A well-formed rgb8 image of the camera info's size: a colour topic where the depth topic should be."""
+    return m.serialize(
+        m.typestore().types[m.IMAGE](
+            header=m.header(t, "camera_optical"),
+            height=12,
+            width=16,
+            encoding="rgb8",
+            is_bigendian=0,
+            step=16 * 3,
+            data=np.zeros(12 * 16 * 3, dtype=np.uint8),
+        )
+    )
+
+
+def test_a_colour_image_and_a_stale_one_are_counted_by_their_reasons_and_never_become_frames() -> None:
+    """Through a live source's inbox, as CDR bytes: after 12 s of odometry at 50 Hz (more than the pose buffer
+    keeps), an image stamped 11.5 s before the newest pose is stale; an rgb8 image is no depth."""
+    inbox = StreamInbox(load_config().camera.stream, np.eye(4))
+    (info_topic, info_type, on_info), (pose_topic, pose_type, on_pose), (depth_topic, image_type, on_image) = (
+        inbox.topics()
+    )
+    inbox.deliver(info_topic, info_type, on_info, m.serialize(m.camera_info_message(0.0, m.Intrinsics(16, 12, K))))
+    for i in range(600):
+        pose = m.serialize(m.odometry_message(_pose(100.0 + i / 50, 0.01 * i)))
+        inbox.deliver(pose_topic, pose_type, on_pose, pose)
+    inbox.deliver(depth_topic, image_type, on_image, m.serialize(m.image_message(100.5, DEPTH)))
+    inbox.deliver(depth_topic, image_type, on_image, _colour_image(111.9))
+    assert inbox.wait_frame(0.0) is None
+    inbox.deliver(depth_topic, image_type, on_image, m.serialize(m.image_message(111.9, DEPTH)))  # the same, in depth
+    frame = inbox.wait_frame(0.0)
+    assert frame is not None and frame.t == pytest.approx(111.9)
+    assert inbox.counters() == {"frames": 1, "not_taken": 0, "pose stale": 1, "unknown encoding": 1}
