@@ -328,7 +328,7 @@ class Agent:
     def _neighbours(self) -> list[Neighbour]:
         """Other drones in the air where their last heartbeats put them now (position + velocity x age); one
         whose heartbeats stopped, or whose agent vanished while flying, is where it was last heard, hovering
-        (a vehicle whose agent died holds its position, and no camera here sees drones); so is one whose agent
+        (a vehicle whose agent died holds its position, and peers are masked out of the map); so is one whose agent
         lost its telemetry (failsafe): silent, an obstacle that gives way to nobody."""
         now = time.monotonic()
         found = []

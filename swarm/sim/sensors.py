@@ -15,7 +15,7 @@ import struct
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -49,6 +49,27 @@ def body_pose(t: float, position_enu: np.ndarray, roll: float, pitch: float, yaw
     ned_from_frd = Rotation.from_euler("ZYX", [yaw_ned, pitch, roll]).as_matrix()
     enu_from_flu = _ENU_FROM_NED @ ned_from_frd @ _FRD_FROM_FLU
     return m.Pose(t, np.asarray(position_enu, dtype=np.float64).copy(), Rotation.from_matrix(enu_from_flu).as_quat())
+
+
+def render_with_peers(
+    depth: np.ndarray,
+    rays: np.ndarray,
+    T_world_cam: np.ndarray,
+    peers: Sequence[np.ndarray | Sequence[float]],
+    drone_radius_m: float,
+    camera: CameraSettings,
+) -> np.ndarray:
+    """`depth`, the world's z-depth image (0 = no return), with the other drones in it as a real camera sees them:
+    each a sphere of `drone_radius_m` just above its position (as the collision check has it), drawn where it is
+    nearer than the world (or where the world gave no return) and within the camera's range. `rays` are
+    `pixel_rays` of the camera's intrinsics. Changes `depth` in place and returns it."""
+    if len(peers) == 0:
+        return depth
+    centres = np.asarray(peers, dtype=np.float64).reshape(-1, 3) + np.array([0.0, 0.0, drone_radius_m + GROUND_GAP_M])
+    drones = sphere_depth(rays, T_world_cam, centres, drone_radius_m).astype(np.float32)
+    seen = (drones >= camera.min_range_m) & (drones <= camera.max_range_m) & ((depth <= 0) | (drones < depth))
+    depth[seen] = drones[seen]
+    return depth
 
 
 class StreamPublisher:
@@ -151,13 +172,7 @@ class CameraDriver:
         started = time.perf_counter()
         camera = self.cameras[vehicle_id]
         T = camera_to_world(pose, self.mount)
-        depth = camera.render(T)
-        if others:  # the other drones, as the collision check sees them: a sphere just above each position
-            centres = np.asarray(others) + np.array([0.0, 0.0, self.drone_radius_m + GROUND_GAP_M])
-            drones = sphere_depth(self._rays, T, centres, self.drone_radius_m).astype(np.float32)
-            s = self.camera_settings
-            seen = (drones >= s.min_range_m) & (drones <= s.max_range_m) & ((depth <= 0) | (drones < depth))
-            depth[seen] = drones[seen]
+        depth = render_with_peers(camera.render(T), self._rays, T, others, self.drone_radius_m, self.camera_settings)
         self.render_s += time.perf_counter() - started
         stream = self.streams[vehicle_id]
         publisher.put(stream.info_topic, m.camera_info_message(pose.t, self.intrinsics))

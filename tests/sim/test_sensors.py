@@ -1,6 +1,7 @@
-"""The simulated vehicles' sensors as ROS 2 streams: the PX4 attitude becomes a ROS pose, and a map built from
-the camera driver's images, heard through real Zenoh sessions by a side that never loads the world, lies on the
-world's surfaces along a flight that tilts (and would not, were the attitude ignored)."""
+"""The simulated vehicles' sensors as ROS 2 streams: the PX4 attitude becomes a ROS pose; the cameras see each
+other (a drone-sized return where a peer is); and a map built from the camera driver's images, heard through real
+Zenoh sessions by a side that never loads the world, lies on the world's surfaces along a flight that tilts (and
+would not, were the attitude ignored)."""
 
 from __future__ import annotations
 
@@ -14,13 +15,16 @@ import pytest
 import zenoh
 from scipy.spatial.transform import Rotation
 
-from swarm.config import load_config
+from swarm.config import CameraSettings, load_config
 from swarm.patches.mapper import Mapper
 from swarm.sensing import messages as m
 from swarm.sensing.frames import camera_mount, camera_to_world
+from swarm.sensing.peers import pixel_rays
 from swarm.sensing.zenoh_source import ZenohSensorSource, session_config
-from swarm.sim.sensors import CameraDriver, StreamPublisher, body_pose
-from swarm.sim.worlds import load_world, mission_volume
+from swarm.sim.camera import DepthCamera
+from swarm.sim.collisions import GROUND_GAP_M
+from swarm.sim.sensors import CameraDriver, StreamPublisher, body_pose, render_with_peers
+from swarm.sim.worlds import World, boxes_to_mesh, load_world, mission_volume
 from tests.helpers import loopback_zenoh
 from tests.sensing.flight import flight
 
@@ -36,6 +40,58 @@ def test_px4_attitude_becomes_an_enu_flu_pose() -> None:
     assert np.allclose(nose_up_east[:, 0], [math.cos(math.radians(10)), 0, math.sin(math.radians(10))])
     right_wing_down = _axes(body_pose(0.0, np.zeros(3), math.radians(10), 0.0, 0.0))
     assert right_wing_down[2, 1] == pytest.approx(math.sin(math.radians(10)))  # the left side goes up
+
+
+def _wall_at_x(d: float) -> World:
+    vertices, triangles = boxes_to_mesh([((d, -50.0, -50.0), (d + 0.2, 50.0, 50.0))], exact=1)
+    return World("wall", vertices, triangles, (0.0, 0.0, 0.0))
+
+
+def test_a_peer_in_front_of_the_camera_is_a_drone_sized_return_and_without_it_the_world_alone() -> None:
+    settings, radius = CameraSettings(), 0.2
+    camera = DepthCamera(_wall_at_x(5.0), settings)
+    T = camera.pose((0.0, 0.0, 1.0), 0.0)  # looking along +x at the wall 5 m away
+    rays = pixel_rays(np.asarray(camera.intrinsics), settings.height, settings.width)
+    world = camera.render(T)
+    assert np.array_equal(render_with_peers(world.copy(), rays, T, [], radius, settings), world)
+    peer = np.array([2.0, 0.0, 1.0 - radius - GROUND_GAP_M])  # its body's centre on the optical axis, 2 m out
+    seen = render_with_peers(world.copy(), rays, T, [peer], radius, settings)
+    drone = seen != world
+    assert drone[settings.height // 2, settings.width // 2]
+    assert float(seen[drone].min()) == pytest.approx(2.0 - radius, abs=0.01)
+    assert np.all(seen[drone] < 2.0 + radius)
+    rows, cols = np.nonzero(drone)
+    fx = camera.intrinsics[0][0]
+    for pixels in (cols.max() - cols.min() + 1, rows.max() - rows.min() + 1):
+        assert pixels / fx * 2.0 == pytest.approx(2 * radius, abs=0.05)  # 0.4 m across at 2 m, both ways
+    behind_the_wall = peer + np.array([4.0, 0.0, 0.0])  # its near side 0.8 m behind the wall
+    assert np.array_equal(render_with_peers(world.copy(), rays, T, [behind_the_wall], radius, settings), world)
+
+
+class _Published:
+    """A publisher that keeps what it is given (the driver's publishing without Zenoh)."""
+
+    def __init__(self) -> None:
+        self.messages: dict[str, object] = {}
+
+    def put(self, topic: str, message: object) -> None:
+        self.messages[topic] = message
+
+
+def test_the_camera_driver_publishes_the_other_drones_in_each_depth_image() -> None:
+    """Drone 1 hovers facing east with drone 2 two metres ahead: its image has a return nearer than the wall."""
+    settings = CameraSettings()
+    driver = CameraDriver(_wall_at_x(5.0), settings, [1, 2], drone_radius_m=0.2)
+    driver._poses = {1: body_pose(10.0, np.array([0.0, 0.0, 1.0]), 0.0, 0.0, math.radians(90))}
+    nearest = []
+    for peer in (None, body_pose(10.0, np.array([2.0, 0.0, 0.8]), 0.0, 0.0, 0.0)):
+        if peer is not None:
+            driver._poses[2] = peer
+        published = _Published()
+        driver._publish(1, published)  # type: ignore[arg-type]
+        _, depth = m.depth_of(published.messages[driver.streams[1].depth_topic])
+        nearest.append(float(depth[depth > 0].min()))
+    assert nearest[0] > 4.5 and 1.5 < nearest[1] < 2.0  # the wall alone; then drone 2 in front of it
 
 
 @pytest.fixture
