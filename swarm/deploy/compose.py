@@ -184,7 +184,7 @@ def plan(
     routes: dict[int, Any] = {}
     lo, hi = mission_volume(world, m.volume)  # the agents are told the volume: they load no world
     if config.explore.strategy == "scripted":
-        from swarm.mission.routes import scripted_routes
+        from swarm.sim.routes import scripted_routes
 
         planned = scripted_routes(world, spawns, lo, hi, config.sim.drone_radius_m, config.agent.cruise_speed_m_s)
         routes = {route.drone_id: route for route in planned}

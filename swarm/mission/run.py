@@ -64,12 +64,12 @@ from swarm.mission.report import (
     run_priority,
     write_report,
 )
-from swarm.mission.routes import ScriptedRoute, scripted_routes
 from swarm.mission.rrd_files import DEPTH_RECORDING_NAME, RECORDING_NAME, run_recording_id
 from swarm.netem.commands import NetemUnavailable, check_prerequisites
 from swarm.netem.network import SwarmNetwork
 from swarm.netem.profile import refuse_delay
 from swarm.netem.scenario import Scenario, load_scenario
+from swarm.sim.routes import ScriptedRoute, scripted_routes
 from swarm.sim.worlds import World, load_world, mission_time_limit_s, mission_volume, spawn_points
 
 SIM_READY_TIMEOUT_S = 30.0

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from swarm.mission.routes import SAFETY_MARGIN_M, TAKEOFF_AND_LANDING_S, scripted_routes
+from swarm.sim.routes import SAFETY_MARGIN_M, TAKEOFF_AND_LANDING_S, scripted_routes
 from swarm.sim.worlds import load_world, spawn_points
 
 RADIUS = 0.2
