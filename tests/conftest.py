@@ -49,6 +49,7 @@ class UnitTestDidIO(AssertionError):
     pass
 
 
+@pytest.hookimpl(tryfirst=True)  # before xdist's own hook, which reads the groups
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     for item in items:
         if not any(item.get_closest_marker(tier) for tier in HEAVY_TIERS):
@@ -58,14 +59,14 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 
 
 # ----- sharing the machine --------------------------------------------------------------------------------------
-# `./bootstrap.sh test` runs the heavier tiers on two workers (pytest-xdist, `--dist loadgroup`). Whole missions and
-# everything in network namespaces go to one group, run one at a time on one worker: a mission lives on the
-# mission clock, and namespaces, bridges and nftables tables belong to the machine. The other worker meanwhile
-# takes the rest (Zenoh sessions, simulated vehicles, single flights, fuzzing): a box mission uses about 0.7 of
-# the two cores. A test marked `alone` (it loads both cores, or measures how fast the machine answers) runs with
+# `./bootstrap.sh test` runs the heavier tiers on two workers (pytest-xdist, `--dist loadgroup`): a box mission
+# uses about 0.7 of the two cores, so two tests fit beside each other, missions included (each has its own ports,
+# directories and, in namespaces, its own tagged names). Everything in network namespaces goes to one group, run
+# one at a time on one worker: bridges, veths and nftables tables are the kernel's, and a netns test counts what it
+# leaves behind. A test marked `alone` (it loads both cores, or measures how fast the machine answers) runs with
 # nothing beside it: every heavier test holds a shared lock on one file of the run, an `alone` test holds it
 # exclusively. Without xdist nothing is locked.
-ONE_AT_A_TIME_TIERS = ("mission", "netns")
+ONE_AT_A_TIME_TIERS = ("netns",)
 ONE_AT_A_TIME_GROUP = "one_at_a_time"
 
 
