@@ -3,8 +3,8 @@
 #
 #   ./bootstrap.sh run  [swarm run flags]   fly a simulated swarm in a built-in world, report in runs/
 #   ./bootstrap.sh test                     run the test suite: the lint gates (ruff), the type check (mypy),
-#                                           the unit tier (on 2 workers), then every other tier; each stops the
-#                                           run on its failure
+#                                           the unit and fuzz tiers, then every other tier (each on 2 workers);
+#                                           each stops the run on its failure
 #   ./bootstrap.sh test [pytest flags]      pytest with these flags (e.g. -m unit -n 2, or one file)
 #   ./bootstrap.sh env                      only set up; prints the environment's path
 #
@@ -81,9 +81,10 @@ case "$job" in
     "$env_dir/bin/ruff" format --check --quiet .
     say "gates: mypy (pyproject.toml: the package, strict on the runtime packages)"
     "$env_dir/bin/mypy"
-    say "unit tier (pytest -m unit -n 2)"
-    "$env_dir/bin/python" -m pytest -m unit -n 2 -q
-    say "every other tier (pytest -m 'not unit'; the 25 slowest tests are listed at the end)"
-    exec "$env_dir/bin/python" -m pytest -m "not unit" --durations=25 ;;
+    say "unit and fuzz tiers (pytest -m 'unit or fuzz' -n 2)"
+    "$env_dir/bin/python" -m pytest -m "unit or fuzz" -n 2 -q
+    say "every other tier on 2 workers: two tests at a time, network namespaces one at a time, 'alone' tests" \
+      "alone (tests/conftest.py); the 25 slowest tests are listed at the end"
+    exec "$env_dir/bin/python" -m pytest -m "not unit and not fuzz" -n 2 --dist loadgroup --durations=25 ;;
   env) echo "$env_dir" ;;
 esac

@@ -1,3 +1,4 @@
+import fcntl
 import os
 from collections.abc import Iterator
 from pathlib import Path
@@ -48,10 +49,39 @@ class UnitTestDidIO(AssertionError):
     pass
 
 
+@pytest.hookimpl(tryfirst=True)  # before xdist's own hook, which reads the groups
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     for item in items:
         if not any(item.get_closest_marker(tier) for tier in HEAVY_TIERS):
             item.add_marker(pytest.mark.unit)
+        if any(item.get_closest_marker(tier) for tier in ONE_AT_A_TIME_TIERS):
+            item.add_marker(pytest.mark.xdist_group(ONE_AT_A_TIME_GROUP))
+
+
+# ----- sharing the machine --------------------------------------------------------------------------------------
+# `./bootstrap.sh test` runs the heavier tiers on two workers (pytest-xdist, `--dist loadgroup`): a box mission
+# uses about 0.7 of the two cores, so two tests fit beside each other, missions included (each has its own ports,
+# directories and, in namespaces, its own tagged names). Everything in network namespaces goes to one group, run
+# one at a time on one worker: bridges, veths and nftables tables are the kernel's, and a netns test counts what it
+# leaves behind. A test marked `alone` (it loads both cores, or measures how fast the machine answers) runs with
+# nothing beside it: every heavier test holds a shared lock on one file of the run, an `alone` test holds it
+# exclusively. Without xdist nothing is locked.
+ONE_AT_A_TIME_TIERS = ("netns",)
+ONE_AT_A_TIME_GROUP = "one_at_a_time"
+
+
+@pytest.fixture(autouse=True)
+def _share_the_machine(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    if os.environ.get("PYTEST_XDIST_WORKER") is None or request.node.get_closest_marker("unit") is not None:
+        yield
+        return
+    lock = tmp_path_factory.getbasetemp().parent / "machine.lock"  # the run's directory, shared by its workers
+    with open(lock, "a") as held:
+        fcntl.flock(held, fcntl.LOCK_EX if request.node.get_closest_marker("alone") else fcntl.LOCK_SH)
+        try:
+            yield
+        finally:
+            fcntl.flock(held, fcntl.LOCK_UN)
 
 
 @pytest.fixture(autouse=True)

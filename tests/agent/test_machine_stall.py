@@ -16,7 +16,7 @@ from swarm.bus.phase import Phase
 from tests.helpers import kill_all, log_events, swarm_cmd
 from tests.sim.support import free_port_block, wait_until
 
-pytestmark = [pytest.mark.timeout(120), pytest.mark.sim]
+pytestmark = [pytest.mark.timeout(120), pytest.mark.sim, pytest.mark.alone]  # stalls are timed
 
 FREEZE_S = 1.8  # longer than the 1.5 s telemetry timeout, shorter than the 2 s that counted as a stall before
 

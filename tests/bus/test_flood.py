@@ -17,7 +17,7 @@ from swarm.bus.codec import SCHEMA_VERSION
 from swarm.bus.messages import AgentState
 from tests.bus.helpers import make_state, wait_until
 
-pytestmark = [pytest.mark.bus, pytest.mark.timeout(60)]
+pytestmark = [pytest.mark.bus, pytest.mark.timeout(60), pytest.mark.alone]  # it measures the loop's lag
 
 FLOOD_S = 2.0
 

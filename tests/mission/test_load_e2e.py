@@ -20,7 +20,7 @@ from swarm.config import load_config
 from swarm.mission.run import RunState, run_mission
 from tests.helpers import SwarmPorts, kill_all, log_events, processes_mentioning
 
-pytestmark = [pytest.mark.timeout(300), pytest.mark.mission]
+pytestmark = [pytest.mark.timeout(300), pytest.mark.mission, pytest.mark.alone]  # it loads both cores
 
 LOAD_S = 3.0
 LOAD_AFTER_FLYING_S = 1.0  # every agent has been in its FLYING phase this long when the load starts
