@@ -472,6 +472,13 @@ class SensorStreamSettings(_Section):
         description="Zenoh endpoints of the camera's side (rmw_zenohd listens on 7447)",
     )
     listen: list[str] = Field(default_factory=list, description="Zenoh endpoints this session listens on")
+    connect_timeout_s: float = Field(
+        10.0,
+        ge=0.0,
+        le=600.0,
+        description="how long the sensor session keeps trying its connect endpoints before the agent gives up "
+        "(a robot's Zenoh router may come up after the agent); 0: one try",
+    )
     max_gap_s: PositiveFloat = Field(0.25, description="an image between poses further apart is dropped")
     max_hold_s: float = Field(
         0.05,

@@ -46,6 +46,7 @@ def session_config(settings: SensorStreamSettings) -> zenoh.Config:
         "mode": settings.mode,
         "connect/endpoints": settings.connect,
         "listen/endpoints": settings.listen,
+        "connect/timeout_ms": round(settings.connect_timeout_s * 1000),  # open waits for an endpoint this long
         "scouting/multicast/enabled": False,
     }
     for key, value in values.items():

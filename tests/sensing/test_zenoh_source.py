@@ -4,7 +4,11 @@ and the source gives frames with the pose at each image's stamp; junk on the sam
 
 from __future__ import annotations
 
+import json
+import random
 import struct
+import threading
+import time
 from collections.abc import Iterator
 
 import numpy as np
@@ -13,6 +17,8 @@ import zenoh
 from scipy.spatial.transform import Rotation
 
 from swarm.config import SensorStreamSettings
+from swarm.errors import BusError
+from swarm.mission.ports import find_free_base
 from swarm.sensing import messages as m
 from swarm.sensing.frames import mount_transform
 from swarm.sensing.zenoh_source import ZenohSensorSource, topic_key
@@ -89,3 +95,35 @@ def test_frames_arrive_with_the_pose_at_their_stamp_and_junk_is_counted(
         assert source.counters()["bad image"] == 1 and source.counters()["frames"] == 1
     finally:
         source.close()
+
+
+@pytest.mark.bus
+def test_the_sensor_session_waits_for_a_router_that_comes_up_late_and_gives_up_on_one_that_never_does() -> None:
+    port = find_free_base("127.0.0.1", 1, "tcp", random.randrange(30000, 50000))
+    endpoint = f"tcp/127.0.0.1:{port}"
+    mount = mount_transform((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    never = ZenohSensorSource(SensorStreamSettings(connect=[endpoint], connect_timeout_s=1.0), mount)
+    started = time.monotonic()
+    with pytest.raises(BusError, match="sensor stream session"):
+        never.start()
+    assert 0.9 < time.monotonic() - started < 8.0  # it tried for its second, then said so
+    late = ZenohSensorSource(SensorStreamSettings(connect=[endpoint], connect_timeout_s=20.0), mount)
+    router: list[zenoh.Session] = []
+
+    def router_comes_up() -> None:
+        config = zenoh.Config()
+        config.insert_json5("mode", '"router"')
+        config.insert_json5("listen/endpoints", json.dumps([endpoint]))
+        config.insert_json5("scouting/multicast/enabled", "false")
+        router.append(zenoh.open(config))
+
+    timer = threading.Timer(1.5, router_comes_up)
+    timer.start()
+    try:
+        late.start()  # blocks until the router listens
+        assert router, "the session opened before any router listened"
+    finally:
+        timer.join()
+        late.close()
+        for session in router:
+            session.close()
