@@ -116,6 +116,7 @@ def run_blueprint() -> rrb.Blueprint:
             ),
             column_shares=[3, 1],
         ),
+        rrb.TimePanel(timeline=TIMELINE, play_state="following"),  # live: the newest; a finished run: its end
         collapse_panels=True,
     )
 

@@ -154,13 +154,19 @@ class LiveViewer:
         return argv
 
     def start(self) -> LiveViewer:
+        """Start the viewer (its own log stays out of the mission's output) and wait until it listens."""
         if self.mode in VIEW_MODES:
             try:
                 self.process = subprocess.Popen(
-                    self.argv(), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, env=viewer_env()
+                    self.argv(),
+                    stdin=subprocess.DEVNULL,
+                    stdout=subprocess.DEVNULL,
+                    stderr=subprocess.DEVNULL,
+                    env=viewer_env(),
                 )
             except OSError as exc:
                 raise SwarmError(f"cannot start the Rerun viewer: {exc}") from None
+            _wait_listening(self.grpc_port, self.process)
             print(f"swarm run: {self.describe()}", flush=True)
         return self
 
