@@ -83,8 +83,8 @@ case "$job" in
     "$env_dir/bin/mypy"
     say "unit and fuzz tiers (pytest -m 'unit or fuzz' -n 2)"
     "$env_dir/bin/python" -m pytest -m "unit or fuzz" -n 2 -q
-    say "every other tier on 2 workers: two tests at a time, network namespaces one at a time, 'alone' tests" \
+    say "every other tier on 2 workers: two tests at a time, network tests one at a time, 'alone' tests" \
       "alone (tests/conftest.py); the 25 slowest tests are listed at the end"
-    exec "$env_dir/bin/python" -m pytest -m "not unit and not fuzz" -n 2 --dist loadgroup --durations=25 ;;
+    exec "$env_dir/bin/python" -m pytest -m "not unit and not fuzz" -n 2 --durations=25 ;;
   env) echo "$env_dir" ;;
 esac

@@ -1,6 +1,7 @@
 import fcntl
 import os
 from collections.abc import Iterator
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 
 import pytest
@@ -49,25 +50,25 @@ class UnitTestDidIO(AssertionError):
     pass
 
 
-@pytest.hookimpl(tryfirst=True)  # before xdist's own hook, which reads the groups
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     for item in items:
         if not any(item.get_closest_marker(tier) for tier in HEAVY_TIERS):
             item.add_marker(pytest.mark.unit)
-        if any(item.get_closest_marker(tier) for tier in ONE_AT_A_TIME_TIERS):
-            item.add_marker(pytest.mark.xdist_group(ONE_AT_A_TIME_GROUP))
 
 
 # ----- sharing the machine --------------------------------------------------------------------------------------
-# `./bootstrap.sh test` runs the heavier tiers on two workers (pytest-xdist, `--dist loadgroup`): a box mission
-# uses about 0.7 of the two cores, so two tests fit beside each other, missions included (each has its own ports,
-# directories and, in namespaces, its own tagged names). Everything in network namespaces goes to one group, run
-# one at a time on one worker: bridges, veths and nftables tables are the kernel's, and a netns test counts what it
-# leaves behind. A test marked `alone` (it loads both cores, or measures how fast the machine answers) runs with
-# nothing beside it: every heavier test holds a shared lock on one file of the run, an `alone` test holds it
-# exclusively. Without xdist nothing is locked.
-ONE_AT_A_TIME_TIERS = ("netns",)
-ONE_AT_A_TIME_GROUP = "one_at_a_time"
+# `./bootstrap.sh test` runs the heavier tiers on two workers (pytest-xdist, `-n 2`): a box mission uses about 0.7
+# of the two cores, so two tests fit beside each other, missions included (each has its own ports and
+# directories). Two kinds of test may not, and wait on a lock file of the run (flock, which the kernel releases
+# when a worker dies):
+# - a test that changes the machine's network (marked netns or containers: namespaces, bridges, veths, nftables
+#   tables, Podman's networks, all the kernel's, and those tests count what is left behind) holds `network.lock`:
+#   one such test at a time;
+# - a test marked `alone` (it loads both cores, or measures how fast the machine answers) holds `machine.lock`
+#   exclusively; every other heavier test holds it shared, so nothing runs beside an `alone` test.
+# (xdist's own `--dist loadgroup` would place the network tests on one worker, but with pytest 9 it groups nothing:
+# it renames `item._nodeid`, which pytest 9 no longer reads.) Without xdist nothing is locked.
+ONE_AT_A_TIME_MARKS = ("netns", "containers")
 
 
 @pytest.fixture(autouse=True)
@@ -75,13 +76,24 @@ def _share_the_machine(request: pytest.FixtureRequest, tmp_path_factory: pytest.
     if os.environ.get("PYTEST_XDIST_WORKER") is None or request.node.get_closest_marker("unit") is not None:
         yield
         return
-    lock = tmp_path_factory.getbasetemp().parent / "machine.lock"  # the run's directory, shared by its workers
-    with open(lock, "a") as held:
-        fcntl.flock(held, fcntl.LOCK_EX if request.node.get_closest_marker("alone") else fcntl.LOCK_SH)
+    run_dir = tmp_path_factory.getbasetemp().parent  # shared by the run's workers
+    network = any(request.node.get_closest_marker(mark) for mark in ONE_AT_A_TIME_MARKS)
+    alone = request.node.get_closest_marker("alone") is not None
+    with ExitStack() as held:  # the network lock first: a test waiting for it holds nothing an `alone` test needs
+        if network:
+            held.enter_context(_flock(run_dir / "network.lock", fcntl.LOCK_EX))
+        held.enter_context(_flock(run_dir / "machine.lock", fcntl.LOCK_EX if alone else fcntl.LOCK_SH))
+        yield
+
+
+@contextmanager
+def _flock(path: Path, mode: int) -> Iterator[None]:
+    with open(path, "a") as lock:
+        fcntl.flock(lock, mode)
         try:
             yield
         finally:
-            fcntl.flock(held, fcntl.LOCK_UN)
+            fcntl.flock(lock, fcntl.LOCK_UN)
 
 
 @pytest.fixture(autouse=True)

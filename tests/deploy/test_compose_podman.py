@@ -22,7 +22,7 @@ import pytest
 from swarm.config import load_config
 from swarm.deploy.image import BASE_IMAGE, build_base, build_image, ca_bundle_of, image_exists
 
-pytestmark = [pytest.mark.timeout(1800), pytest.mark.mission]
+pytestmark = [pytest.mark.timeout(1800), pytest.mark.mission, pytest.mark.containers]
 
 REPO = Path(__file__).resolve().parents[2]
 IMAGE = "localhost/swarm-agent"

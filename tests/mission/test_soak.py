@@ -78,7 +78,8 @@ def test_a_patch_is_lost_when_a_survivor_lacks_it_holds_other_bytes_or_its_seq_i
     assert audit({}, []) == PatchAudit()
 
 
-@pytest.mark.mission  # a real mission
+@pytest.mark.mission
+@pytest.mark.netns  # as root the soak flies on a netns radio: with the other namespace tests, one at a time
 def test_a_one_mission_soak_flies_a_real_mission_and_measures_every_agent(
     tmp_path: Path, swarm_ports: SwarmPorts
 ) -> None:
