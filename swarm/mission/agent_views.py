@@ -41,7 +41,9 @@ from swarm.patches.wire import PatchDecodeError, decode_patch
 
 BELIEF_PERIOD_S = 15.0  # a drone's map every 15 s of the mission: enough to see who knew what (office: 4 s an agent)
 WARN_EVENTS = frozenset({"give_way", "blocked_by", "no_path", "in_pocket", "path_blocked", "unreachable_given_up"})
-ERROR_EVENTS = frozenset({"failsafe", "flight_error", "taken_over", "illegal_transition", "patch_store_failed"})
+ERROR_EVENTS = frozenset(
+    {"failsafe", "flight_error", "taken_over", "illegal_transition", "patch_store_failed", "task_failed"}
+)
 TARGET_ENDS = frozenset({"exploration_done", "target_explored"})  # the drone has no target after these
 FLIGHT_ENDS = frozenset({"landing", "landed", "failsafe"})
 
