@@ -4,7 +4,9 @@ For a machine without a display or a GPU (CI, a server): the viewer's web app re
 software rasteriser (SwiftShader), and Chromium is driven over the DevTools protocol on a pipe (its
 `--remote-debugging-pipe`: JSON messages ended by NUL on file descriptors 3 and 4, no socket and no extra
 library). Every host name but loopback is made unresolvable (`--host-resolver-rules`), so the page cannot reach
-the network: the viewer's page asks for web fonts, which it then draws without.
+the network: the viewer's page asks for web fonts, which it then draws without. Chromium's profile, cache and
+temporary files go into a directory of its own that is removed afterwards (`--user-data-dir`, and HOME, TMPDIR and
+the XDG directories pointed there): nothing is left in the home directory or /tmp.
 
 Chromium comes from Debian's `chromium` package; without it the command says so in one line.
 """
@@ -17,6 +19,7 @@ import json
 import os
 import shutil
 import subprocess
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -27,6 +30,9 @@ from swarm.errors import SwarmError
 CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome")
 WINDOW = (1600, 1000)
 LOOPBACK_ONLY = "MAP * ~NOTFOUND, EXCLUDE 127.0.0.1, EXCLUDE localhost"
+# Chromium writes its crash database under the home directory whatever --user-data-dir says, and its profile
+# lock's socket directory under TMPDIR (a socket path: a TMPDIR of over about 60 characters fails)
+SCRATCH_VARIABLES = ("HOME", "TMPDIR", "XDG_CONFIG_HOME", "XDG_CACHE_HOME")
 
 
 def chromium_binary() -> str:
@@ -84,6 +90,11 @@ class DevTools:
 def screenshot(page: str, out: Path, wait_s: float) -> Path:
     """Open `page` in headless Chromium, let it run for `wait_s` (the viewer compiles, connects and loads the
     recording), and write what it shows to `out` (PNG)."""
+    with tempfile.TemporaryDirectory(prefix="swarm-chromium-") as scratch:
+        return _screenshot(page, out, wait_s, Path(scratch))
+
+
+def _screenshot(page: str, out: Path, wait_s: float, scratch: Path) -> Path:
     to_chrome_r, to_chrome_w = os.pipe()
     from_chrome_r, from_chrome_w = os.pipe()
     argv = [
@@ -95,6 +106,8 @@ def screenshot(page: str, out: Path, wait_s: float) -> Path:
         f"--host-resolver-rules={LOOPBACK_ONLY}",
         f"--window-size={WINDOW[0]},{WINDOW[1]}",
         "--remote-debugging-pipe",
+        f"--user-data-dir={scratch / 'profile'}",
+        "--no-first-run",
         "about:blank",
     ]
 
@@ -114,6 +127,7 @@ def screenshot(page: str, out: Path, wait_s: float) -> Path:
             stderr=subprocess.DEVNULL,
             pass_fds=(3, 4),
             preexec_fn=child_fds,
+            env={**os.environ, **{name: str(scratch) for name in SCRATCH_VARIABLES}},
         )
     finally:
         os.close(to_chrome_r)

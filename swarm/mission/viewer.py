@@ -96,7 +96,11 @@ def screenshot_run(run_dir: Path, out: Path, wait_s: float = 45.0) -> Path:
     argv = viewer_argv(rerun_binary(), paths, web_port=web_port, grpc_port=grpc_port)
     try:
         server = subprocess.Popen(
-            argv, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=viewer_env()
+            argv,
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            env=viewer_env(open_browser=False),
         )
     except OSError as exc:
         raise SwarmError(f"cannot start the Rerun viewer: {exc}") from None
@@ -124,8 +128,14 @@ def proxy_url(port: int) -> str:
     return f"rerun+http://{BIND}:{port}/proxy"
 
 
-def viewer_env() -> dict[str, str]:
-    return {**os.environ, "CI": "1"}  # no usage data sent (module docstring)
+def viewer_env(open_browser: bool | None = None) -> dict[str, str]:
+    """The viewer's environment: no usage data sent (module docstring). The web viewer opens the system's browser
+    on its page: only when `open_browser` (default: when there is a display); else BROWSER is `true`, which it
+    runs instead (headless, a browser started for nothing writes its profile into the home directory)."""
+    env = {**os.environ, "CI": "1"}
+    if not (has_display() if open_browser is None else open_browser):
+        env["BROWSER"] = "true"
+    return env
 
 
 class LiveViewer:

@@ -381,6 +381,18 @@ def test_a_live_viewer_is_one_swarm_run_starts_on_loopback_or_one_named_by_its_u
     assert viewer.viewer_env()["CI"] == "1"  # Rerun's viewer sends no usage data
 
 
+def test_a_web_viewer_opens_the_systems_browser_only_where_there_is_a_display(monkeypatch: pytest.MonkeyPatch) -> None:
+    from swarm.mission import viewer
+
+    for name in (*viewer.DISPLAY_VARIABLES, "BROWSER"):
+        monkeypatch.delenv(name, raising=False)
+    assert viewer.viewer_env()["BROWSER"] == "true"  # Rerun runs `true URL` instead of a browser
+    assert viewer.viewer_env(open_browser=False)["BROWSER"] == "true"
+    assert "BROWSER" not in viewer.viewer_env(open_browser=True)
+    monkeypatch.setenv("DISPLAY", ":0")
+    assert "BROWSER" not in viewer.viewer_env()
+
+
 @pytest.mark.parametrize("view", ["native", "web", "rerun+http://127.0.0.1:9876/proxy", None])
 def test_mission_view_takes_a_mode_or_a_viewers_url(view: str | None) -> None:
     from swarm.config import load_config

@@ -4,6 +4,8 @@ Chromium (./bootstrap.sh installs Debian's)."""
 
 from __future__ import annotations
 
+import shutil
+import tempfile
 from pathlib import Path
 
 import matplotlib.image
@@ -34,7 +36,27 @@ def _map_share(png: Path) -> float:
     return float(np.mean((b > r + 60) & (b > g + 20)))
 
 
-def test_the_web_viewer_shows_the_map_of_a_recorded_run(tmp_path: Path) -> None:
+def _chromium_leftovers(*folders: Path) -> list[Path]:
+    return [p for folder in folders if folder.exists() for p in folder.iterdir() if "chromium" in p.name.lower()]
+
+
+def test_the_web_viewer_shows_the_map_of_a_recorded_run(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # Chromium's profile, cache and lock directory would land in HOME and TMPDIR: both are the test's own here
+    # (a short TMPDIR: Chromium's lock is a socket, whose path is limited to 108 bytes)
+    home, temp = tmp_path / "home", Path(tempfile.mkdtemp(prefix="swarm-test-", dir="/tmp"))
+    home.mkdir()
+    monkeypatch.setenv("HOME", str(home))
+    monkeypatch.setenv("TMPDIR", str(temp))
+    monkeypatch.setattr(tempfile, "tempdir", None)  # read TMPDIR again
+    try:
+        _check_the_viewer(tmp_path)
+        left = _chromium_leftovers(temp, home, home / ".config", home / ".cache")
+        assert not left, f"Chromium left {left}"
+    finally:
+        shutil.rmtree(temp, ignore_errors=True)
+
+
+def _check_the_viewer(tmp_path: Path) -> None:
     config = load_config(overrides={"mission.world": "box"})
     world = load_world("box")
     fused = FusedMap(Lattice.from_settings(config.mapping), world.bounds, config.mapping.known_weight)
