@@ -93,23 +93,27 @@ def screenshot_run(run_dir: Path, out: Path, wait_s: float = 45.0) -> Path:
     paths = run_recordings(run_dir)
     web_port = find_free_base(BIND, 1, "tcp", 9090, step=1)
     grpc_port = find_free_base(BIND, 1, "tcp", GRPC_PORT, step=1)
-    argv = viewer_argv(rerun_binary(), paths, web_port=web_port, grpc_port=grpc_port)
-    try:
-        server = subprocess.Popen(
-            argv,
-            stdin=subprocess.DEVNULL,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-            env=viewer_env(open_browser=False),
-        )
-    except OSError as exc:
-        raise SwarmError(f"cannot start the Rerun viewer: {exc}") from None
+    server = _start_quietly(viewer_argv(rerun_binary(), paths, web_port=web_port, grpc_port=grpc_port), False)
     try:
         _wait_listening(web_port, server)
         return screenshot(viewer_page(web_port, proxy_url(grpc_port)), out, wait_s)
     finally:
         server.terminate()
         server.wait()
+
+
+def _start_quietly(argv: list[str], open_browser: bool | None = None) -> subprocess.Popen[bytes]:
+    """A viewer started in the background, its output kept out of ours (`viewer_env` for `open_browser`)."""
+    try:
+        return subprocess.Popen(
+            argv,
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            env=viewer_env(open_browser),
+        )
+    except OSError as exc:
+        raise SwarmError(f"cannot start the Rerun viewer: {exc}") from None
 
 
 def _wait_listening(port: int, server: subprocess.Popen[bytes], timeout_s: float = 20.0) -> None:
@@ -166,16 +170,7 @@ class LiveViewer:
     def start(self) -> LiveViewer:
         """Start the viewer (its own log stays out of the mission's output) and wait until it listens."""
         if self.mode in VIEW_MODES:
-            try:
-                self.process = subprocess.Popen(
-                    self.argv(),
-                    stdin=subprocess.DEVNULL,
-                    stdout=subprocess.DEVNULL,
-                    stderr=subprocess.DEVNULL,
-                    env=viewer_env(),
-                )
-            except OSError as exc:
-                raise SwarmError(f"cannot start the Rerun viewer: {exc}") from None
+            self.process = _start_quietly(self.argv())
             _wait_listening(self.grpc_port, self.process)
             print(f"swarm run: {self.describe()}", flush=True)
         return self
