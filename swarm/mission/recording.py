@@ -54,6 +54,7 @@ from swarm.mission.files import MissionReport
 from swarm.mission.rrd_files import BLUEPRINT_NAME, RECORDING_NAME
 from swarm.patches.lattice import Lattice
 from swarm.roles.messages import FrontierReport, TargetAssignment
+from swarm.sensing.messages import depth_millimetres
 
 APPLICATION_ID = "swarm"
 TIMELINE = "mission"
@@ -498,7 +499,7 @@ class DepthRecording:
         t = stamp - self.since
         if not self._throttle.ready(drone, t):
             return
-        millimetres = np.clip(np.nan_to_num(depth_m) * 1000.0, 0, 65535).round().astype(np.uint16)
+        millimetres = depth_millimetres(depth_m)
         with self._lock:
             self.stream.set_time(TIMELINE, duration=max(0.0, t))
             self.stream.log(

@@ -168,13 +168,18 @@ def header(t: float, frame_id: str) -> Any:
     )
 
 
+def depth_millimetres(depth_m: np.ndarray) -> np.ndarray:
+    """Depth in metres (0 or NaN = invalid) as 16UC1's little-endian millimetres (0 = invalid, 65.535 m at most)."""
+    return np.clip(np.rint(np.nan_to_num(np.asarray(depth_m, dtype=np.float32)) * 1000.0), 0, 65535).astype("<u2")
+
+
 def image_message(t: float, depth_m: np.ndarray, frame_id: str = "camera_optical", encoding: str = "32FC1") -> Any:
     """A depth image of `depth_m` (metres, 0 = invalid): 32FC1 metres (0 -> NaN) or 16UC1 millimetres."""
     depth = np.asarray(depth_m, dtype=np.float32)
     if encoding == "32FC1":
         pixels = np.where(depth > 0, depth, np.float32(np.nan)).astype("<f4")
     elif encoding == "16UC1":
-        pixels = np.clip(np.rint(depth * 1000.0), 0, 65535).astype("<u2")
+        pixels = depth_millimetres(depth)
     else:
         raise ValueError(f"cannot write depth as '{encoding}'")
     h, w = depth.shape
