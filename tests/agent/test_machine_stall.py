@@ -1,7 +1,7 @@
 """A stall of the whole machine is not a lost link: the simulator and an airborne agent, both real processes, are
-stopped together for 1.8 s (as when the machine does not run them) and continued; the agent, which did not run
-either, does not count that silence and flies on. The other half of the rule, a link that stops while the agent
-listens, is `test_failsafe.py`."""
+stopped for 1.8 s (as when the machine does not run them; the agent 0.2 s after the simulator) and continued;
+the agent, which did not run either, does not count that silence and flies on. The other half of the rule, a
+link that stops while the agent listens, is `test_failsafe.py`."""
 
 from __future__ import annotations
 
@@ -19,6 +19,7 @@ from tests.sim.support import free_port_block, wait_until
 pytestmark = [pytest.mark.timeout(120), pytest.mark.sim, pytest.mark.alone]  # stalls are timed
 
 FREEZE_S = 1.8  # longer than the 1.5 s telemetry timeout, shorter than the 2 s that counted as a stall before
+DRAIN_S = 0.2  # loopback delivers in milliseconds; the agent then listens this long, well under the 0.5 s asserted
 
 
 def test_a_stall_of_simulator_and_agent_together_is_not_taken_for_a_lost_link(tmp_path: Path) -> None:
@@ -61,8 +62,12 @@ def test_a_stall_of_simulator_and_agent_together_is_not_taken_for_a_lost_link(tm
     )
     try:
         wait_until(lambda: any(e.get("phase") == Phase.HOVERING for e in log_events(log)), 60, "hovering")
-        for proc in (sim, agent):
-            proc.send_signal(signal.SIGSTOP)
+        # The vehicle first, and the agent once the vehicle's last samples, still on their way through
+        # mavsdk_server, have reached it: stopped with them unread, it would read them on waking as fresh (a
+        # sample is dated when the agent reads it), then hear the still stopped vehicle's silence and fail safe.
+        sim.send_signal(signal.SIGSTOP)
+        time.sleep(DRAIN_S)
+        agent.send_signal(signal.SIGSTOP)
         time.sleep(FREEZE_S)
         # The agent first, and the vehicle only once the agent has looked at its telemetry: on a loaded machine
         # the vehicle's next samples could otherwise reach the agent before it ran, and it would see no gap at all.
