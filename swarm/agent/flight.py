@@ -81,6 +81,7 @@ LAND_CLEAR_M = PASS_CLEARANCE_M  # a drone this close horizontally under us is i
 GROUNDED_M = 0.3  # a drone this low above our home's floor, and slow, sits on the ground
 LAND_ASIDE_M = 1.0  # ... so we land this far beside it
 LAND_SPOT_TOLERANCE_M = 0.1
+WAITING_AT_M = 0.3  # a slow drone this close to where it is heading is waiting there (waiting_aside)
 SILENT_CLEAR_M = 0.45  # a segment passing a silent drone closer than this touches it (two 0.2 m airframes + margin)
 
 ENTERING_HORIZON_S = 0.5  # the drone with the right of way holds for one that will be in its way this soon
@@ -442,9 +443,12 @@ class Flight:
             if n.id < self.settings.id and distance < self.separation_m:
                 return n
             if n.id > self.settings.id and distance < PRIORITY_PAUSE_FRACTION * self.separation_m:
-                # where it is, or where it will be in a moment (one coming out of a doorway across our way)
+                # where it is, or where it will be in a moment (one coming out of a doorway across our way); one
+                # that waits where it stepped aside to is held for only when our segment would touch it: it moves
+                # on once we pass, and holding for it deadlocks both (box: 190 s, our way round it 0.56 m off)
+                clearance = SILENT_CLEAR_M if waiting_aside(n) else PASS_CLEARANCE_M
                 soon = peer + np.asarray(n.velocity, dtype=float) * ENTERING_HORIZON_S
-                if any(_in_the_way(p, position, target, PASS_CLEARANCE_M) for p in (peer, soon)):
+                if any(_in_the_way(p, position, target, clearance) for p in (peer, soon)):
                     return n
         return None
 
@@ -800,6 +804,13 @@ def parked(peer: Neighbour) -> bool:
     Stepping aside for it, the way a drone gives way to a lower id, only ends when the yield times out, and the
     same path then meets it again (box, 3 drones: drone 3 gave way to idle drone 2 for 200 s)."""
     return peer.heading_to is None and float(np.linalg.norm(peer.velocity)) < SLOW_M_S
+
+
+def waiting_aside(peer: Neighbour) -> bool:
+    """A live drone hovering where it is heading (a refuge it stepped aside to): it waits for someone to pass."""
+    if peer.heading_to is None or float(np.linalg.norm(peer.velocity)) >= SLOW_M_S:
+        return False
+    return float(np.linalg.norm(np.subtract(peer.position, peer.heading_to))) < WAITING_AT_M
 
 
 def choose_refuge(candidates: list[np.ndarray], peer: Neighbour) -> np.ndarray:

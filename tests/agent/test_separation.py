@@ -284,3 +284,26 @@ def test_a_drone_that_stepped_up_flies_back_down_before_going_on_along_its_segme
     assert on, "it never went on"
     assert max(p[2] for p in on) < left_at[2] + 0.15
     assert math.dist(track[-1][:2], EAST[:2]) < 0.6
+
+
+@pytest.mark.sim
+def test_the_drone_with_the_right_of_way_passes_one_waiting_at_its_refuge_unless_it_would_touch_it() -> None:
+    # drone 2 stepped aside for drone 1 and waits at its refuge; drone 1's way round it passes 0.56 m off. Held
+    # for as a drone in its way (0.6 m), each waited for the other for 190 s (box, uncoordinated)
+    settings = sim_config(free_port_block()).agent.model_copy(update={"id": 1})
+    here, target = np.array([1.0, 2.0, 1.5]), np.array([3.0, 2.0, 1.5])
+    waiting = Neighbour(2, (2.0, 2.56, 1.5), (0.0, 0.0, 0.0), heading_to=(2.0, 2.56, 1.5))
+    flight = Flight(
+        Autopilot("udpin://127.0.0.1:9", sim_config(free_port_block()).mission.origin),
+        settings,
+        lambda *a, **kw: None,
+        separation_m=1.2,
+        neighbours=lambda: [waiting],
+    )
+    assert flight._rival(here, target) is None  # 0.56 m off our line, waiting for us: pass it
+    in_it = waiting._replace(position=(2.0, 2.3, 1.5), heading_to=(2.0, 2.3, 1.5))
+    flight.neighbours = lambda: [in_it]
+    assert flight._rival(here, target) == in_it  # 0.3 m off: we would touch it, hold
+    on_its_way = waiting._replace(heading_to=(2.0, 5.0, 1.5))
+    flight.neighbours = lambda: [on_its_way]
+    assert flight._rival(here, target) == on_its_way  # about to move (its way ahead): hold, as before
