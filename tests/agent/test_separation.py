@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -33,15 +34,8 @@ ALTITUDE = 1.5
 def test_a_silent_drone_is_an_obstacle_held_for_only_when_our_segment_would_touch_it() -> None:
     # Drone 1 went silent (agent killed, vehicle hovering). Giving way to it by id would never end (a soak
     # mission livelocked so for 400 s); holding for it is right only when the segment passes through it.
-    settings = sim_config(free_port_block()).agent.model_copy(update={"id": 2})
     silent = [Neighbour(1, (2.0, 0.0, 1.5), (0.0, 0.0, 0.0), silent=True)]
-    flight = Flight(
-        Autopilot("udpin://127.0.0.1:9", sim_config(free_port_block()).mission.origin),
-        settings,
-        lambda *a, **kw: None,
-        separation_m=1.2,
-        neighbours=lambda: silent,
-    )
+    flight = _offline_flight(2, lambda: silent)
     here = np.array([1.0, 0.0, 1.5])
     assert flight._rival(here, here) is None  # hovering near it: no stepping aside
     assert flight._rival(here, np.array([3.0, 0.0, 1.5])) is not None  # straight through it: hold
@@ -198,17 +192,10 @@ def test_a_drone_coming_down_onto_one_on_the_ground_lands_beside_it() -> None:
 @pytest.mark.sim
 def test_the_drone_with_the_right_of_way_holds_for_one_about_to_cross_its_way() -> None:
     # drone 1 flies west along a corridor; drone 3 comes out of a doorway 0.8 m ahead, still 0.7 m off its line
-    settings = sim_config(free_port_block()).agent.model_copy(update={"id": 1})
     here, target = np.array([22.0, 9.6, 1.5]), np.array([15.0, 9.6, 1.5])
     leaving_the_door = Neighbour(3, (21.4, 8.9, 1.5), (0.0, 1.0, 0.0), heading_to=(21.4, 11.0, 1.5))
     standing_in_it = leaving_the_door._replace(velocity=(0.0, 0.0, 0.0), heading_to=None)
-    flight = Flight(
-        Autopilot("udpin://127.0.0.1:9", sim_config(free_port_block()).mission.origin),
-        settings,
-        lambda *a, **kw: None,
-        separation_m=1.2,
-        neighbours=lambda: [standing_in_it],
-    )
+    flight = _offline_flight(1, lambda: [standing_in_it])
     assert flight._rival(here, target) is None  # 0.7 m off our line and staying there: carry on
     flight.neighbours = lambda: [leaving_the_door]
     assert flight._rival(here, target) == leaving_the_door  # it will be on our line in half a second: hold
@@ -290,16 +277,9 @@ def test_a_drone_that_stepped_up_flies_back_down_before_going_on_along_its_segme
 def test_the_drone_with_the_right_of_way_passes_one_waiting_at_its_refuge_unless_it_would_touch_it() -> None:
     # drone 2 stepped aside for drone 1 and waits at its refuge; drone 1's way round it passes 0.56 m off. Held
     # for as a drone in its way (0.6 m), each waited for the other for 190 s (box, uncoordinated)
-    settings = sim_config(free_port_block()).agent.model_copy(update={"id": 1})
     here, target = np.array([1.0, 2.0, 1.5]), np.array([3.0, 2.0, 1.5])
     waiting = Neighbour(2, (2.0, 2.56, 1.5), (0.0, 0.0, 0.0), heading_to=(2.0, 2.56, 1.5))
-    flight = Flight(
-        Autopilot("udpin://127.0.0.1:9", sim_config(free_port_block()).mission.origin),
-        settings,
-        lambda *a, **kw: None,
-        separation_m=1.2,
-        neighbours=lambda: [waiting],
-    )
+    flight = _offline_flight(1, lambda: [waiting])
     assert flight._rival(here, target) is None  # 0.56 m off our line, waiting for us: pass it
     in_it = waiting._replace(position=(2.0, 2.3, 1.5), heading_to=(2.0, 2.3, 1.5))
     flight.neighbours = lambda: [in_it]
@@ -307,3 +287,11 @@ def test_the_drone_with_the_right_of_way_passes_one_waiting_at_its_refuge_unless
     on_its_way = waiting._replace(heading_to=(2.0, 5.0, 1.5))
     flight.neighbours = lambda: [on_its_way]
     assert flight._rival(here, target) == on_its_way  # about to move (its way ahead): hold, as before
+
+
+def _offline_flight(agent_id: int, neighbours: Callable[[], list[Neighbour]]) -> Flight:
+    """A Flight of drone `agent_id` whose autopilot is never connected: for its separation rules alone."""
+    config = sim_config(free_port_block())
+    settings = config.agent.model_copy(update={"id": agent_id})
+    autopilot = Autopilot("udpin://127.0.0.1:9", config.mission.origin)
+    return Flight(autopilot, settings, lambda *a, **kw: None, separation_m=1.2, neighbours=neighbours)
