@@ -293,6 +293,15 @@ def build_parser() -> argparse.ArgumentParser:
     sync.add_argument("--no-mission", action="store_true", help="skip the bandwidth missions (swarm run)")
     sync.add_argument("--out", type=Path, help="where to keep the runs (default a temp dir)")
     _add_config_flags(sync)
+    fleet = bench_sub.add_parser(
+        "fleet", help="exploring swarms of growing size: CPU, memory, camera rate and stage costs of every agent"
+    )
+    fleet.set_defaults(handler=_bench_fleet)
+    fleet.add_argument("--drones", type=_int_list, default=[5, 8, 10, 12], help="swarm sizes, e.g. 5,8,10,12")
+    fleet.add_argument("--world", default="office")
+    fleet.add_argument("--profile", action="store_true", help="a py-spy profile of agent 1 in each run's directory")
+    fleet.add_argument("--out", type=Path, help="where to keep the runs (default a temp dir)")
+    _add_config_flags(fleet)
     explore = bench_sub.add_parser("explore", help="time to 95 %% with 1..N drones, coordinated vs uncoordinated")
     explore.set_defaults(handler=_bench_explore)
     explore.add_argument("--drones", type=_int_list, default=[1, 2, 3], help="swarm sizes, e.g. 1,2,3,5")
@@ -672,6 +681,12 @@ def _bench_sync(args: argparse.Namespace) -> int:
 
     config = _config_from(args, {"mission.world": args.world})
     return bench_sync(config, args.drones, args.out, mission=not args.no_mission)
+
+
+def _bench_fleet(args: argparse.Namespace) -> int:
+    from swarm.mission.bench_fleet import bench_fleet
+
+    return bench_fleet(_config_from(args, {"mission.world": args.world}), args.drones, args.out, profile=args.profile)
 
 
 def _bench_explore(args: argparse.Namespace) -> int:

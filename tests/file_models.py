@@ -57,6 +57,7 @@ def agent_summary_data(agent_id: int = 1, **overrides: Any) -> dict[str, Any]:
         "timeline": [[float(i), 100 * i, 200 * i] for i in range(5)],
         **SCRIPTED_EXPLORATION,
         **NO_MAPPING,
+        "stages": {"integrate": {"calls": 10, "total_ms": 52.0, "p50_ms": 5.1, "max_ms": 8.3}},
         **overrides,
     }
 

@@ -33,6 +33,7 @@ from swarm.explore.planner import NoPathError, path_is_free, plan_path, plan_pat
 from swarm.roles.membership import PeerTable
 from swarm.roles.messages import FrontierReport, TargetAssignment
 from swarm.roles.protocol import Effects, ExplorationCore, ReportLimits, Situation, Target
+from swarm.stages import NO_CLOCK, StageClock
 
 PLAN_EXPANSIONS = 150_000
 PARKED_PEER_S = 10.0  # a peer this drone gave a segment up for is planned round for this long
@@ -57,8 +58,10 @@ class Exploration:
         top_z: float,
         log: Callable[..., None],
         obstacles: Callable[[], list[Vec3]] = list,
+        clock: StageClock = NO_CLOCK,
     ) -> None:
         self.config = config
+        self.clock = clock  # stage costs (swarm.stages): decision, assignment, planning
         self.settings = config.explore
         self.strategy = config.explore.strategy
         self.id = config.agent.id
@@ -159,8 +162,12 @@ class Exploration:
             in_pocket=self.grid.in_pocket(here),
             tracks={k: self.peers.peers[k].track_array() for k in members if k in self.peers.peers},
         )
-        self._apply(self.core.decide(time.monotonic(), situation))
-        self.decision_ms.append((time.perf_counter() - started) * 1000)
+        with self.clock.measure("assignment"):  # the core: reports merged, targets assigned, termination
+            effects = self.core.decide(time.monotonic(), situation)
+        self._apply(effects)
+        elapsed = time.perf_counter() - started
+        self.decision_ms.append(elapsed * 1000)
+        self.clock.record("decision", elapsed)
         if self.core.loops % STATUS_EVERY_LOOPS == 0:  # a trace of quiet stretches (no new target for minutes)
             self.log(
                 "explore_status",
@@ -273,6 +280,7 @@ class Exploration:
         if around is not None:
             try:
                 path = await asyncio.to_thread(
+                    self._timed_plan,
                     plan_path_around,
                     grid.planning_grid,
                     here,
@@ -287,12 +295,18 @@ class Exploration:
                 self.log("path", waypoints=[_r(p) for p in path], around=_r(around))
                 return path[1:] if path[0] == here else path
         try:
-            path = await asyncio.to_thread(plan_path, grid.planning_grid, here, goal, max_expansions=PLAN_EXPANSIONS)
+            path = await asyncio.to_thread(
+                self._timed_plan, plan_path, grid.planning_grid, here, goal, max_expansions=PLAN_EXPANSIONS
+            )
         except NoPathError as exc:
             self.log("no_path", goal=_r(goal), reason=str(exc))
             return None
         self.log("path", waypoints=[_r(p) for p in path])
         return path[1:] if path[0] == here else path
+
+    def _timed_plan(self, planner: Callable[..., list[Vec3]], *args: Any, **kwargs: Any) -> list[Vec3]:
+        with self.clock.measure("planning"):  # a plan that fails (NoPathError) costs as much and counts
+            return planner(*args, **kwargs)
 
     async def _plan_to_another_viewpoint(self, target: Target) -> list[Vec3] | None:
         """A path to another place this drone's map lets it look at the target's point from, or None. A

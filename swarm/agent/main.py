@@ -55,6 +55,7 @@ from swarm.sensing.peers import PeerSighting
 from swarm.sensing.replay_source import BagReplaySource
 from swarm.sensing.ros2_source import Ros2SensorSource
 from swarm.sensing.zenoh_source import ZenohSensorSource
+from swarm.stages import StageClock
 from swarm.sync.service import PatchSync
 
 EXIT_OK, EXIT_FLIGHT_FAILED, EXIT_FAILSAFE = 0, 1, 3
@@ -106,6 +107,7 @@ class Agent:
         self.sharing = config.explore.strategy != "frontier-only"
         self._last_seen: dict[int, tuple[Phase, tuple[float, float, float]]] = {}  # peer -> (phase, position)
         self.lost_in_air: dict[int, tuple[float, float, float]] = {}  # peers that vanished while flying
+        self.clock = StageClock()  # what each stage costs, for the summary (swarm.stages)
 
     async def run(self) -> int:
         loop = asyncio.get_running_loop()
@@ -162,6 +164,7 @@ class Agent:
                 float(mapping.bounds[1][2]),
                 self.log,
                 obstacles=self._obstacles,
+                clock=self.clock,
             )
             self.exploration.start()
             mission, homeward = self.exploration.fly, self.exploration.fly_home
@@ -267,6 +270,7 @@ class Agent:
             on_sealed,
             peers=self._sightings,
             signing=self.signing,
+            clock=self.clock,
         )
 
     def _sightings(self) -> list[PeerSighting]:
@@ -487,6 +491,7 @@ class Agent:
                 "timeline": self.timeline,
                 **(self.exploration.summary() if self.exploration is not None else SCRIPTED_EXPLORATION),
                 **(mapping.summary() if mapping is not None else NO_MAPPING),
+                "stages": self.clock.summary(),
             }
         )
         path = Path(out_dir) / f"agent-{self.id}.json"

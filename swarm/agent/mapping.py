@@ -49,6 +49,7 @@ from swarm.patches.sealer import patch_block_limit
 from swarm.patches.signing import Signing
 from swarm.patches.wire import PatchDecodeError
 from swarm.sensing.peers import PeerSighting, mask_peers
+from swarm.stages import NO_CLOCK, StageClock
 
 SealedCallback = Callable[[PatchId, bytes], None]
 STREAM_WAIT_S = 0.2  # a stream source is polled this often for the stop event when no frame comes
@@ -134,8 +135,10 @@ class MappingTask:
         on_sealed: SealedCallback | None = None,
         peers: Callable[[], list[PeerSighting]] = list,
         signing: Signing | None = None,
+        clock: StageClock = NO_CLOCK,
     ) -> None:
         self.config = config
+        self.clock = clock  # stage costs (swarm.stages): integrate, store_patch, fuse_patch, occupancy, ...
         self.bounds = bounds
         self.source = source
         self.log = log
@@ -176,9 +179,13 @@ class MappingTask:
 
     def _integrate(self, frame: DepthFrame, started: float) -> None:
         self.frames += 1
-        sealed = self.mapper.integrate(frame.depth, frame.K, frame.T_world_cam, frame.t, self.config.camera.max_range_m)
+        with self.clock.measure("integrate"):  # the open patch's TSDF, and sealing when this frame triggers it
+            sealed = self.mapper.integrate(
+                frame.depth, frame.K, frame.T_world_cam, frame.t, self.config.camera.max_range_m
+            )
         if sealed is not None:
-            self._keep(sealed)
+            with self.clock.measure("store_patch"):
+                self._keep(sealed)
         self.busy_s += time.perf_counter() - started
 
     async def start(self) -> None:
@@ -242,7 +249,8 @@ class MappingTask:
         if peers and radius > 0:
             centre = np.array([0.0, 0.0, self.config.explore.body_height_m / 2])
             centres = [p.at(frame.t) + centre for p in peers]
-            depth, masked = mask_peers(frame.depth, frame.K, frame.T_world_cam, centres, radius)
+            with self.clock.measure("mask_peers"):
+                depth, masked = mask_peers(frame.depth, frame.K, frame.T_world_cam, centres, radius)
             if masked:
                 self.pixels_masked += masked
                 frame = dataclasses.replace(frame, depth=depth)
@@ -284,7 +292,9 @@ class MappingTask:
         await asyncio.get_running_loop().run_in_executor(self._worker, self._receive, data, pid)
 
     def _receive(self, data: bytes, pid: PatchId) -> None:
-        if self.mapper.receive_wire(data, pid, self.config.mapping.max_patch_bytes):
+        with self.clock.measure("fuse_patch"):  # decode, validate (signature included) and fuse
+            received = self.mapper.receive_wire(data, pid, self.config.mapping.max_patch_bytes)
+        if received:
             self.patches_received += 1
 
     async def explore_view(
@@ -303,25 +313,27 @@ class MappingTask:
         resolution, voxel = self.config.mapping.planning_resolution_m, self.config.mapping.voxel_size_m
         refine = round(resolution / voxel)
         occupied_fine = None
-        with self.mapper.current_map() as fused:
+        with self.clock.measure("occupancy"), self.mapper.current_map() as fused:
             origin, states = fused.occupancy_grid(resolution, min_known=self.config.explore.seen_fraction)
             if refine > 1 and abs(refine * voxel - resolution) < 1e-9:
                 top = origin + np.array(states.shape) * resolution
                 occupied_fine = fused.occupancy_grid(voxel, origin, top)[1] == OCCUPIED
         for point in obstacles:
             _mark_occupied(states, origin, resolution, point, self.config.sim.drone_radius_m)
-        grid = ExplorationGrid.from_states(
-            origin,
-            resolution,
-            states,
-            self.config.explore,
-            floor_z,
-            top_z,
-            free_points=[position],
-            occupied_fine=occupied_fine,
-            view=ViewModel.from_camera(self.config.camera),
-        )
-        return grid, grid.frontiers(position)
+        with self.clock.measure("planning_grid"):
+            grid = ExplorationGrid.from_states(
+                origin,
+                resolution,
+                states,
+                self.config.explore,
+                floor_z,
+                top_z,
+                free_points=[position],
+                occupied_fine=occupied_fine,
+                view=ViewModel.from_camera(self.config.camera),
+            )
+        with self.clock.measure("frontiers"):  # view gains included (also timed alone: view_gain)
+            return grid, grid.frontiers(position, self.clock)
 
     async def measure_baseline(self, stop: asyncio.Event) -> None:
         """Add up, once per exploration loop, what sending the whole fused map would cost, until `stop`.
@@ -340,10 +352,14 @@ class MappingTask:
             loops += 1
             if loops < BASELINE_SAMPLE_LOOPS and not stop.is_set():
                 continue
-            size = await loop.run_in_executor(self._worker, self.mapper.fused.wire_size)
+            size = await loop.run_in_executor(self._worker, self._measure_wire_size)
             self.baseline_bytes += interpolated_bytes(previous, size, loops)
             self.baseline_loops += loops
             previous, loops = size, 0
+
+    def _measure_wire_size(self) -> int:
+        with self.clock.measure("whole_map_baseline"):  # a figure for the report, paid on the mapping thread
+            return self.mapper.fused.wire_size()
 
     async def seal_last(self) -> None:
         """Seal what is open (after the flight), so nothing seen is lost."""

@@ -68,6 +68,15 @@ class WholeMapBaseline(FileModel):
     bytes: int
 
 
+class StageCost(FileModel):
+    """One stage's cost over the run (`swarm.stages.StageClock.summary`)."""
+
+    calls: int
+    total_ms: float
+    p50_ms: float
+    max_ms: float
+
+
 class AgentSummary(FileModel):
     id: int
     epoch: int
@@ -115,6 +124,8 @@ class AgentSummary(FileModel):
     patches_received: int
     fused_digest: str | None
     whole_map_baseline: WholeMapBaseline | None
+    # stage -> {calls, total_ms, p50_ms, max_ms} (swarm.stages): integrate, fuse_patch, occupancy, frontiers, ...
+    stages: dict[str, StageCost]
 
 
 SCRIPTED_EXPLORATION = {

@@ -64,6 +64,7 @@ from scipy import ndimage
 from swarm.config import CameraSettings, ExploreSettings, Vec3
 from swarm.explore.grid import OccupancyGrid
 from swarm.patches.fused import FREE, OCCUPIED, UNKNOWN
+from swarm.stages import NO_CLOCK, StageClock
 
 START_SEARCH_RADIUS_M = 1.5  # a position's reachable set starts at the safe cell nearest it, this far at most
 POCKET_M3 = 0.5  # a reachable set smaller than this is a pocket the map closed round the drone, not its space
@@ -251,9 +252,9 @@ class ExplorationGrid:
         clear &= self._segments_within(starts + top, centres[order] + top, ~self._occupied)
         return _vec3(centres[order[np.argmax(clear)]]) if clear.any() else None
 
-    def frontiers(self, position: Vec3) -> list[Frontier]:
+    def frontiers(self, position: Vec3, clock: StageClock = NO_CLOCK) -> list[Frontier]:
         """The frontier groups seen from `position`'s reachable space, by gain (the view gain when the grid has
-        a camera, else the box gain), largest first."""
+        a camera, else the box gain), largest first; `clock` times the view gains (stage `view_gain`)."""
         reach = self.reachable(position)
         if not reach.any():
             return []
@@ -277,7 +278,9 @@ class ExplorationGrid:
                 found.append(Frontier(_vec3(target), _vec3(viewpoint), float(gains[g]), int(counts[g])))
         if self.view is None or not found:
             return found
-        worth = [f for f in self._with_view_gains(found) if f.gain >= self.settings.min_view_gain_m3]
+        with clock.measure("view_gain"):
+            gained = self._with_view_gains(found)
+        worth = [f for f in gained if f.gain >= self.settings.min_view_gain_m3]
         return sorted(worth, key=lambda f: -f.gain)
 
     def _with_view_gains(self, found: list[Frontier]) -> list[Frontier]:

@@ -98,32 +98,39 @@ class SwarmCoverage:
         self.producer_timeline: dict[int, list[tuple[float, float]]] = {}
         self.overlap = 0.0
         self.unexplored: list[dict[str, Any]] = []
+        self.patch_bytes = 0  # the wire bytes of the patches fused
+        self.map_bytes = 0  # the fused map's wire size at the last final update
         self._producer_known: dict[int, np.ndarray] = {}  # reachable cells each producer's map knows (cached)
         self._changed: set[int] = set()  # producers whose map grew since their mask was computed
         self._lock = threading.Lock()
 
-    def update(self, t: float) -> None:
-        """Fuse the patch files not seen yet, then measure explored_fraction, per producer and overlap."""
+    def update(self, t: float, final: bool = False) -> None:
+        """Fuse the patch files not seen yet, then measure explored_fraction, per producer and overlap; `final`:
+        the map's wire size too (a pass over the whole map, 0.25 s for the office: only at the end)."""
         with self._lock:
             for path in sorted(self.patches_dir.glob("*.patch")):
                 if path.name in self.seen:
                     continue
                 self.seen.add(path.name)
                 try:
-                    patch = decode_patch(path.read_bytes(), self.lattice, self.config.mapping.max_patch_bytes)
+                    data = path.read_bytes()
+                    patch = decode_patch(data, self.lattice, self.config.mapping.max_patch_bytes)
                 except PatchDecodeError as exc:
                     self.rejected[exc.reason] = self.rejected.get(exc.reason, 0) + 1
                     continue
                 except OSError:
                     self.seen.discard(path.name)  # being written: try again next time
                     continue
-                self.fused.add(patch)
+                if self.fused.add(patch):
+                    self.patch_bytes += len(data)
                 self._add_to_producer(patch)
             known = self.fused.state_at(self.space.centres) != UNKNOWN
             self.fraction = float(np.count_nonzero(known)) / len(known) if len(known) else 0.0
             self.unexplored = unexplored_regions(self.space, known)
             self.timeline.append((round(t, 2), round(self.fraction, 4)))
             self._measure_producers(t)
+            if final:
+                self.map_bytes = self.fused.wire_size()
 
     def _add_to_producer(self, patch: Patch) -> None:
         """Fuse a patch into its producer's own map: what that drone's camera saw, whoever relayed it."""
@@ -175,4 +182,6 @@ class SwarmCoverage:
             "explored_by_agent": {str(k): list(v) for k, v in sorted(self.producer_timeline.items())},
             "overlap_fraction": round(self.overlap, 4),
             "unexplored": self.unexplored,
+            "patch_bytes": self.patch_bytes,
+            "map_bytes": self.map_bytes,
         }

@@ -83,6 +83,8 @@ class ObserverStatus(FileModel):
     explored_by_agent: dict[str, list[tuple[float, float]]]
     overlap_fraction: float
     unexplored: list[UnexploredRegion]  # the largest first, at most UNEXPLORED_REGIONS_KEPT
+    patch_bytes: int = 0  # the wire bytes of every patch fused (each sealed patch once)
+    map_bytes: int = 0  # the final fused map's wire size (`FusedMap.wire_size`); 0 until the observer's last look
 
 
 NO_COVERAGE: dict[str, Any] = {
@@ -94,6 +96,8 @@ NO_COVERAGE: dict[str, Any] = {
     "explored_by_agent": {},
     "overlap_fraction": 0.0,
     "unexplored": [],
+    "patch_bytes": 0,
+    "map_bytes": 0,
 }
 
 
@@ -193,6 +197,10 @@ class Bandwidth(FileModel):
     baseline_ratio: float | None
     baseline_loop_s: float | None
     agent_seconds: float
+    # every sealed patch's bytes once, against the final map's (observer): how much the patches repeat the map
+    patch_bytes: int = 0
+    map_bytes: int = 0
+    patch_to_map_ratio: float | None = None
 
 
 class PhantomCheck(FileModel):

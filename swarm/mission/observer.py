@@ -175,7 +175,7 @@ class Observer:
     def _measure(self, t: float, final: bool) -> None:
         """Fuse the new patches and measure (coverage thread); record the fraction, and the map when due."""
         assert self.coverage is not None
-        self.coverage.update(t)
+        self.coverage.update(t, final=final)
         if self.recording is None:
             return
         try:

@@ -113,7 +113,7 @@ def build_report(
             plan.out / "map.ply", seen.trajectories, plan.world, plan.config.sim.drone_radius_m + GROUND_GAP_M
         ),
         converged=converged(summaries, sealed_patch_ids(plan.out / "agents" / "patches")),
-        bandwidth=bandwidth(summaries),
+        bandwidth=bandwidth(summaries, seen),
         collision_events=sim.collision_events if sim is not None else [],
         # the simulator's loop ran this late (its process or the machine did not run): no telemetry meanwhile
         sim_stalls=sim.stalls if sim is not None else [],
@@ -261,13 +261,14 @@ def converged(summaries: dict[int, AgentSummary], sealed: set[str]) -> bool:
     return all(held_patch_ids(s) == sealed for s in summaries.values())
 
 
-def bandwidth(summaries: dict[int, AgentSummary]) -> Bandwidth:
+def bandwidth(summaries: dict[int, AgentSummary], seen: ObserverStatus | None = None) -> Bandwidth:
     """Bus bytes received per agent-second, against the whole-map baseline in the same run.
 
     Received bytes are what crossed the network (a publication reaches each peer separately). The baseline is
     what it would have cost for every agent to send its whole fused map to every other agent once per
     exploration loop: the sum, over agents and loops, of the map's wire size times the number of receivers.
-    Both are divided by the same agent-seconds (each agent's whole run, flight and linger).
+    Both are divided by the same agent-seconds (each agent's whole run, flight and linger). From the observer
+    (`seen`): the bytes of every sealed patch, once each, against the final map's wire size.
     """
     n = len(summaries)
     agent_seconds = sum(s.duration_s for s in summaries.values())
@@ -283,6 +284,9 @@ def bandwidth(summaries: dict[int, AgentSummary]) -> Bandwidth:
         baseline_ratio=round(baseline_per_s / per_s, 2) if per_s > 0 else None,
         baseline_loop_s=loop_s,
         agent_seconds=round(agent_seconds, 2),
+        patch_bytes=seen.patch_bytes if seen is not None else 0,
+        map_bytes=seen.map_bytes if seen is not None else 0,
+        patch_to_map_ratio=round(seen.patch_bytes / seen.map_bytes, 2) if seen is not None and seen.map_bytes else None,
     )
 
 

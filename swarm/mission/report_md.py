@@ -54,7 +54,7 @@ def _seconds(value: Any) -> str:
 
 def headline_rows(report: MissionReport) -> list[tuple[str, str]]:
     """The figures a run is judged by, formatted: how fast and how much it explored, and what it cost."""
-    ratio = report.bandwidth.baseline_ratio
+    ratio, repeat = report.bandwidth.baseline_ratio, report.bandwidth.patch_to_map_ratio
     rows = [("duration", _seconds(report.duration_s)), ("explored fraction", f"{report.explored_fraction:.3f}")]
     rows += [(f"time to {float(th):.0%}", _seconds(t)) for th, t in report.time_to.items()]
     rows += [
@@ -64,6 +64,7 @@ def headline_rows(report: MissionReport) -> list[tuple[str, str]]:
         ("phantom obstacles along the flown paths", str(report.phantoms.phantoms if report.phantoms else "-")),
         ("bandwidth (bytes per agent-second)", f"{report.bandwidth.bytes_per_agent_s}"),
         ("whole-map baseline ratio", "-" if ratio is None else f"{ratio}x"),
+        ("patch bytes against the final map's", "-" if repeat is None else f"{repeat}x"),
     ]
     return rows
 

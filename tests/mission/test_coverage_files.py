@@ -34,3 +34,21 @@ def test_corrupt_patch_files_are_counted_and_never_fused(tmp_path: Path) -> None
     assert coverage.fused.digest() != only_good
     assert coverage.fraction > first
     assert [t for t, _ in coverage.snapshot()["explored_timeline"]] == [1.0, 2.0]
+
+
+def test_the_patch_bytes_count_each_fused_patch_once_and_the_map_size_is_taken_at_the_end(tmp_path: Path) -> None:
+    config = load_config(None, {"mission.world": "box", "mapping.patch_frames": 6})
+    good = spin_patches(config, producer=1, epoch=7)
+    (tmp_path / "a.patch").write_bytes(good[0])
+    (tmp_path / "b.patch").write_bytes(good[1][:-5])  # cut short: refused, not counted
+    coverage = SwarmCoverage(config, tmp_path)
+    coverage.update(t=1.0)
+    assert coverage.snapshot()["patch_bytes"] == len(good[0])
+    assert coverage.snapshot()["map_bytes"] == 0, "the whole map is measured only at the end"
+
+    (tmp_path / "c.patch").write_bytes(good[1])
+    (tmp_path / "d.patch").write_bytes(good[0])  # the same patch again under another name: fused once
+    coverage.update(t=2.0, final=True)
+    snapshot = coverage.snapshot()
+    assert snapshot["patch_bytes"] == len(good[0]) + len(good[1])
+    assert snapshot["map_bytes"] == coverage.fused.wire_size() > 0
