@@ -16,6 +16,11 @@ validated
 and fused in the same worker thread (`receive`). At the end the open patch is sealed too, so nothing seen is
 lost, and the agent writes its own fused mesh.
 
+A decision (`explore_view`) takes the map's occupancy grids in the mapping thread (kept and updated from what
+changed: `swarm.patches.fused`), then builds the planning grid and the frontiers from that copy in a decision
+thread of its own: measured with 5 drones in the office, those took 85 ms and 43 ms of the mapping thread's time
+per decision at the median, during which no frame was integrated.
+
 For the bandwidth report the task also measures, once per `explore.loop_s`, what sending its whole fused
 map would cost (`FusedMap.wire_size`): the whole-map baseline patch sharing is compared with.
 """
@@ -176,6 +181,9 @@ class MappingTask:
         self.pixels_masked = 0
         self.camera_silences = 0  # times the stream went silent for CAMERA_SILENT_S in the air
         self._worker = ThreadPoolExecutor(1, thread_name_prefix="mapping")
+        # the planning grid and frontiers are built from an occupancy snapshot on their own thread, so that a
+        # decision holds the mapping thread (and the camera's frames) only while the snapshot is taken
+        self._decider = ThreadPoolExecutor(1, thread_name_prefix="decision")
 
     def _integrate(self, frame: DepthFrame, started: float) -> None:
         self.frames += 1
@@ -208,6 +216,7 @@ class MappingTask:
         with contextlib.suppress(Exception):
             await asyncio.get_running_loop().run_in_executor(self._worker, self.source.close)
         self._worker.shutdown(wait=False)
+        self._decider.shutdown(wait=False)
 
     async def run(self, telemetry: TelemetryCache, home_z: Callable[[], float | None], stop: asyncio.Event) -> None:
         """Frames as the camera publishes them, from a source `start` started: the newest one not taken yet,
@@ -301,15 +310,16 @@ class MappingTask:
         self, floor_z: float, top_z: float, position: Vec3, obstacles: Sequence[Vec3] = ()
     ) -> tuple[ExplorationGrid, list[Frontier]]:
         """The exploration grid of the current map (the open patch included: what we saw a moment ago counts)
-        and its frontiers as seen from `position`; computed in the mapping thread, which owns the map.
+        and its frontiers as seen from `position`. The occupancy snapshot is taken in the mapping thread, which
+        owns the map; the grid and frontiers are built from it in the decision thread, while frames go on.
         `obstacles` are points the camera cannot see but must be avoided (a drone whose agent died in the air)."""
-        return await asyncio.get_running_loop().run_in_executor(
-            self._worker, self._explore_view, floor_z, top_z, position, obstacles
-        )
+        loop = asyncio.get_running_loop()
+        snapshot = await loop.run_in_executor(self._worker, self._occupancy)
+        view = self._explore_view
+        return await loop.run_in_executor(self._decider, view, snapshot, floor_z, top_z, position, obstacles)
 
-    def _explore_view(
-        self, floor_z: float, top_z: float, position: Vec3, obstacles: Sequence[Vec3]
-    ) -> tuple[ExplorationGrid, list[Frontier]]:
+    def _occupancy(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """(origin, planning-grid states, occupied voxels or None) of the map now: copies the caller owns."""
         resolution, voxel = self.config.mapping.planning_resolution_m, self.config.mapping.voxel_size_m
         refine = round(resolution / voxel)
         occupied_fine = None
@@ -318,6 +328,18 @@ class MappingTask:
             if refine > 1 and abs(refine * voxel - resolution) < 1e-9:
                 top = origin + np.array(states.shape) * resolution
                 occupied_fine = fused.occupancy_grid(voxel, origin, top)[1] == OCCUPIED
+        return origin, states, occupied_fine
+
+    def _explore_view(
+        self,
+        snapshot: tuple[np.ndarray, np.ndarray, np.ndarray | None],
+        floor_z: float,
+        top_z: float,
+        position: Vec3,
+        obstacles: Sequence[Vec3],
+    ) -> tuple[ExplorationGrid, list[Frontier]]:
+        origin, states, occupied_fine = snapshot
+        resolution = self.config.mapping.planning_resolution_m
         for point in obstacles:
             _mark_occupied(states, origin, resolution, point, self.config.sim.drone_radius_m)
         with self.clock.measure("planning_grid"):
@@ -374,6 +396,7 @@ class MappingTask:
         """Write this agent's own fused mesh and stop the worker; nothing can be received after this."""
         await asyncio.get_running_loop().run_in_executor(self._worker, self._write_mesh)
         self._worker.shutdown(wait=True)
+        self._decider.shutdown(wait=True)
 
     def _write_mesh(self) -> None:
         if self.out_dir is not None and self.mapper.fused.voxel_count > 0:
