@@ -59,9 +59,11 @@ class Exploration:
         log: Callable[..., None],
         obstacles: Callable[[], list[Vec3]] = list,
         clock: StageClock = NO_CLOCK,
+        patches_to_come: Callable[[list[int]], int] = lambda members: 0,
     ) -> None:
         self.config = config
         self.clock = clock  # stage costs (swarm.stages): decision, assignment, planning
+        self.patches_to_come = patches_to_come  # members -> patches they hold that our map lacks (the sync's)
         self.settings = config.explore
         self.strategy = config.explore.strategy
         self.id = config.agent.id
@@ -161,6 +163,7 @@ class Exploration:
             map=self.grid,
             in_pocket=self.grid.in_pocket(here),
             tracks={k: self.peers.peers[k].track_array() for k in members if k in self.peers.peers},
+            patches_to_come=self.patches_to_come([k for k in members if k != self.id]),
         )
         with self.clock.measure("assignment"):  # the core: reports merged, targets assigned, termination
             effects = self.core.decide(time.monotonic(), situation)

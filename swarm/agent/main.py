@@ -165,6 +165,7 @@ class Agent:
                 self.log,
                 obstacles=self._obstacles,
                 clock=self.clock,
+                patches_to_come=self.sync.scheduler.missing_from,
             )
             self.exploration.start()
             mission, homeward = self.exploration.fly, self.exploration.fly_home

@@ -257,6 +257,12 @@ class PullScheduler:
         self._refresh()
         return sorted(self._holders)
 
+    def missing_from(self, peers: Iterable[int]) -> int:
+        """How many tracked missing ids one of `peers` lists (patches of theirs this map does not hold yet)."""
+        self._refresh()
+        wanted = set(peers)
+        return sum(1 for holders in self._holders.values() if holders & wanted)
+
     def in_flight(self) -> dict[PatchId, int]:
         """In-flight id -> holder asked."""
         return {pid: self._in_flight[token].holder for pid, token in self._token_of.items()}

@@ -40,7 +40,9 @@ Invariants:
 - Done means the cluster's fused map has no reachable frontier left with gain: the leader's merged set minus what
   no member can reach is empty while the leader is not in a pocket, and it stays so for a whole loop in which
   every member reported afresh, in pockets none of them (a member's pocket is believed for POCKET_TRUST_LOOPS
-  loops; patches in flight can hide frontiers for a moment). Only
+  loops; patches in flight can hide frontiers for a moment), and the leader's map holds every patch its members
+  hold (`Situation.patches_to_come`, believed for as long as pockets: a member announcing patches it never serves
+  must not hold the cluster for ever). Only
   then does the leader publish `done`, and again every decision, so that a lost message or a late member still
   hears it.
 """
@@ -159,6 +161,7 @@ class Situation:
     map: MapQueries
     in_pocket: bool = False  # this drone's own cell is shut in by its map: nothing is unreachable from here
     tracks: dict[int, np.ndarray] = field(default_factory=dict)  # (N, 3) each member's heartbeat track
+    patches_to_come: int = 0  # patches a member of the cluster holds that this drone's map does not have yet
 
 
 @dataclass
@@ -199,6 +202,7 @@ REJECTED_KINDS = (
     "assignment_outside_volume",  # an explorer's: a target its leader sent outside the mission volume
     "arrival_wake_limited",  # an arrival within ARRIVAL_WAKE_GAP_S of the member's last: no extra decision
     "pocket_distrusted",  # done although a member says it is in a pocket: POCKET_TRUST_LOOPS loops without candidates
+    "patches_never_came",  # done although a member lists patches this map lacks: as long a wait as for a pocket
 )
 
 
@@ -525,9 +529,12 @@ class ExplorationCore:
         fresh = all(k in self.reports and self.reports[k][0] > self.empty_since for k in others)
         pockets = [k for k in others if k in self.reports and self.reports[k][1].in_pocket]
         trusted = now - self.empty_since < POCKET_TRUST_LOOPS * self.settings.loop_s
-        if fresh and not (pockets and trusted) and now - self.empty_since >= self.settings.loop_s:
+        waiting = (pockets or situation.patches_to_come > 0) and trusted
+        if fresh and not waiting and now - self.empty_since >= self.settings.loop_s:
             if pockets:
                 self.rejected["pocket_distrusted"] += 1
+            if situation.patches_to_come > 0:
+                self.rejected["patches_never_came"] += 1
             self.finish(effects, reason)
             if situation.leader == self.id and self.strategy != "uncoordinated":
                 effects.publish.append(self._done_message(members))

@@ -264,3 +264,15 @@ def test_a_digest_claiming_2_to_the_63_ids_of_real_producers_does_not_crowd_out_
     assert s.stats.received == 15  # every real patch, from the honest holders
     assert s.stats.over_quota == {5: 1}  # the claim was cut at peer 5's quota (once: its digest never changed)
     assert s.stats.failures.get(5, 0) > 0 and set(s.stats.failures) == {5}
+
+
+def test_missing_from_counts_the_ids_the_given_peers_list_that_are_not_held() -> None:
+    s, _ = make()
+    s.update_peer(2, (1, 0, 0), digest(0, 1, 2))
+    s.update_peer(3, (2, 0, 0), digest(2, 3, producer=8))
+    s.set_held({pid(0)})
+    assert s.missing_from([2]) == 2  # seqs 1 and 2 of producer 9
+    assert s.missing_from([3]) == 2
+    assert s.missing_from([2, 3]) == 4 and s.missing_from([]) == 0 and s.missing_from([7]) == 0
+    s.note_received(pid(1))
+    assert s.missing_from([2]) == 1

@@ -177,6 +177,39 @@ def test_a_member_claiming_a_pocket_forever_holds_the_cluster_only_for_a_while()
     assert core.done and core.rejected["pocket_distrusted"] == 1
 
 
+def test_the_leader_is_not_done_while_its_members_hold_patches_its_map_lacks() -> None:
+    """A member's patches still on their way can hold the frontier the leader's map does not show yet (seen: a
+    leader declared done with the upper room unexplored; the patches that made it reachable came after)."""
+    core = _core(drone=1)
+    cluster, positions = [1, 2], {2: (5.0, 1.0, 1.5)}
+
+    def decide(t: float, to_come: int) -> None:
+        core.on_report(t - 0.05, 2, _report(2, int(t * 10)), leader=1)
+        situation = _situation([], cluster=cluster, positions=positions)
+        situation.patches_to_come = to_come
+        core.decide(t, situation)
+
+    for step in range(4):
+        decide(step * LOOP + 0.1, to_come=3)
+    assert not core.done
+    decide(4 * LOOP + 0.1, to_come=0)  # they came, and the map still has nothing to explore
+    assert core.done and core.rejected["patches_never_came"] == 0
+
+
+def test_patches_a_member_lists_but_never_serves_hold_the_cluster_only_for_a_while() -> None:
+    core = _core(drone=1)
+    cluster, positions = [1, 2], {2: (5.0, 1.0, 1.5)}
+    t = 0.1
+    while not core.done and t < (POCKET_TRUST_LOOPS + 3) * LOOP:
+        core.on_report(t - 0.05, 2, _report(2, int(t * 10)), leader=1)
+        situation = _situation([], cluster=cluster, positions=positions)
+        situation.patches_to_come = 1
+        core.decide(t, situation)
+        t += LOOP
+    assert core.done and t > (POCKET_TRUST_LOOPS - 1) * LOOP
+    assert core.rejected["patches_never_came"] == 1
+
+
 def test_a_members_arrivals_wake_the_leader_at_most_once_a_gap() -> None:
     core = _core(drone=1)
     wakes = [core.on_report(i * 0.02, 2, _report(2, i + 1, arrived=True), leader=1).wake for i in range(100)]
