@@ -239,12 +239,16 @@ class FusedMap:
     def wire_size(self, level: int = 3) -> int:
         """Bytes of this whole map compressed the way a patch is (keys int16, tsdf int8, weight uint16, zstd):
         what sending the whole fused map once would cost, the baseline patch sharing is measured against."""
+        return compressed_size(self.wire_raw(), level)
+
+    def wire_raw(self) -> bytes:
+        """The whole map's arrays as a patch lays them out, before compression (`wire_size` compresses them;
+        a caller may do that on another thread, off the map's)."""
         keys, weight, total = self._observed_blocks()
         tsdf = np.where(weight > 0, np.rint(total / np.maximum(weight, 1)), 0).astype(np.int8)
-        raw = b"".join(
+        return b"".join(
             (keys.astype("<i2").tobytes(), tsdf.tobytes(), np.minimum(weight, 65535).astype("<u2").tobytes())
         )
-        return len(zstandard.ZstdCompressor(level=level).compress(raw))
 
     def occupancy_grid(
         self,
@@ -410,6 +414,11 @@ class _CellCache:
 
     cells: np.ndarray
     seen: np.ndarray
+
+
+def compressed_size(raw: bytes, level: int = 3) -> int:
+    """The zstd-compressed size of `raw` at `level` (patches use 3)."""
+    return len(zstandard.ZstdCompressor(level=level).compress(raw))
 
 
 def _rows_in(keys: np.ndarray, wanted: np.ndarray) -> np.ndarray:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from swarm.agent.mapping import interpolated_bytes
+from swarm.agent.mapping import BASELINE_SAMPLE_LOOPS, baseline_interval, interpolated_bytes
 
 pytestmark = pytest.mark.unit
 
@@ -28,3 +28,23 @@ def test_a_growing_map_sampled_every_five_loops_is_close_to_measuring_every_loop
         sampled += interpolated_bytes(previous, sizes[end - 1], 5)
         previous = sizes[end - 1]
     assert abs(sampled - every_loop) / every_loop < 0.05
+
+
+def test_the_map_is_measured_after_1_2_4_8_16_loops_then_every_sample_interval() -> None:
+    counted, at = 0, []
+    while counted < 100:
+        counted += baseline_interval(counted)
+        at.append(counted)
+    assert at[:7] == [1, 2, 4, 8, 16, 32, 32 + BASELINE_SAMPLE_LOOPS] and BASELINE_SAMPLE_LOOPS == 20
+
+
+def test_a_map_that_grows_fast_then_slowly_sampled_that_way_is_understated_and_close() -> None:
+    sizes = [int(50_000 * (1 - 0.9 ** (k + 1))) for k in range(120)]  # one size per loop: quick, then levelling
+    every_loop = sum(sizes)
+    sampled, previous, counted = 0, 0, 0
+    while counted < len(sizes):
+        step = min(baseline_interval(counted), len(sizes) - counted)
+        counted += step
+        sampled += interpolated_bytes(previous, sizes[counted - 1], step)
+        previous = sizes[counted - 1]
+    assert sampled <= every_loop and (every_loop - sampled) / every_loop < 0.05
