@@ -570,6 +570,17 @@ class MappingSettings(_Section):
     known_weight: PositiveFloat = Field(1.0, description="a voxel is known once its summed weight reaches this")
     patch_frames: int = Field(15, ge=1, le=255, description="seal the open patch every K frames")
     patch_distance_m: PositiveFloat = Field(2.0, description="... or after the drone moved this far")
+    patch_stretch: int = Field(
+        3,
+        ge=1,
+        le=16,
+        description="an open patch that has little new to say (under novel_block_fraction of its blocks absent "
+        "from the map) at those triggers goes on until this many times them: fewer, larger patches where a drone "
+        "looks again at what it has mapped (1: seal at the triggers always)",
+    )
+    novel_block_fraction: float = Field(
+        0.2, ge=0.0, le=1.0, description="share of an open patch's blocks new to the map that makes it worth sealing"
+    )
     planning_resolution_m: PositiveFloat = Field(0.2, description="occupancy grid exported for planning")
     max_patch_bytes: int = Field(4 << 20, ge=1024, description="larger patches are rejected on receipt")
     max_patch_blocks: int | None = Field(

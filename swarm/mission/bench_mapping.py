@@ -195,6 +195,9 @@ class _TimedBackend:
     def extract(self) -> Any:
         return self.inner.extract()
 
+    def keys(self) -> np.ndarray:
+        return self.inner.keys()
+
     def reset(self) -> None:
         self.inner.reset()
 

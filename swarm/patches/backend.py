@@ -62,6 +62,10 @@ class TsdfBackend(Protocol):
         """Every allocated block, keys sorted (a copy)."""
         ...
 
+    def keys(self) -> np.ndarray:
+        """(N,3) int32 keys of the blocks with an observed voxel, in no order (a copy)."""
+        ...
+
     def reset(self) -> None:
         """Forget everything (the next frame starts a fresh volume)."""
         ...
@@ -167,6 +171,14 @@ class VoxelBlockGridBackend:
             coord = ((keys[:, axis : axis + 1].astype(np.float32) * r + local[None, :, axis]) * v) - camera[axis]
             dist2 += coord * coord
         return 1.0 / np.maximum(dist2, np.float32(MIN_WEIGHT_DISTANCE_M**2))
+
+    def keys(self) -> np.ndarray:
+        hashmap = self._vbg.hashmap()
+        rows = hashmap.active_buf_indices().numpy().astype(np.int64)
+        _, weight = self._views()
+        rows = rows[weight[rows].any(axis=1)]  # a block the carving allocated may have no voxel the frames reached
+        keys: np.ndarray = hashmap.key_tensor().numpy()[rows].astype(np.int32)
+        return keys
 
     def extract(self) -> TsdfArrays:
         hashmap = self._vbg.hashmap()

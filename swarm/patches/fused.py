@@ -192,6 +192,17 @@ class FusedMap:
         total = int(np.prod(self._vhi - self._vlo + 1))
         return int(np.count_nonzero(known & inside)) / total
 
+    def novelty(self, keys: np.ndarray) -> float:
+        """The share of (N,3) block keys inside the map's volume that hold no observed voxel here yet (0 for none
+        inside)."""
+        inside, slots = self._slots(keys, allocate=False)
+        if not len(slots):
+            return 0.0
+        held = slots >= 0
+        observed = np.zeros(len(slots), dtype=bool)
+        observed[held] = self._weight[slots[held]].any(axis=1)
+        return float(np.count_nonzero(~observed)) / len(slots)
+
     def state_at(self, points: np.ndarray) -> np.ndarray:
         """(N,) uint8 state (UNKNOWN, FREE, OCCUPIED) of the voxels nearest to (N,3) world points."""
         keys, flat = self.lattice.voxel_to_block(self.lattice.point_to_voxel(points))

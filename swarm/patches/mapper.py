@@ -59,6 +59,9 @@ class Mapper:
             settings.patch_distance_m,
             max_blocks=max_blocks,
             volume=bounds,
+            stretch=settings.patch_stretch,
+            novelty=lambda keys: self.fused.novelty(keys),
+            novel_fraction=settings.novel_block_fraction,
         )
         self.private = PatchStore(self.lattice)
         self.public = PatchStore(self.lattice)

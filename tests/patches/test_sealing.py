@@ -66,7 +66,7 @@ def test_distance_travelled_seals_a_patch() -> None:
 
 
 def test_received_patches_are_stored_once_and_own_ones_are_not_stored_again() -> None:
-    settings = MappingSettings(patch_frames=3)
+    settings = MappingSettings(patch_frames=3, patch_stretch=1)
     a = Mapper(settings, producer=1, epoch=1, bounds=BOUNDS)
     b = Mapper(settings, producer=2, epoch=1, bounds=BOUNDS)
     patches = [p for f in rotate_in_place()[:9] if (p := a.integrate(f.depth, f.K, f.T, f.t, MAX_RANGE))]
@@ -92,3 +92,37 @@ def test_a_received_patch_keeps_the_bytes_it_came_in() -> None:
     data = a.data(patch.id)
     assert b.receive(decode_patch(data, b.lattice, settings.max_patch_bytes), data)
     assert b.data(patch.id) == data and b.public.info(patch.id).voxel_count == patch.voxel_count
+
+
+def _looking_at_one_wall(n: int) -> list:
+    """n frames from one spot, turning a little each way: after the first few, nothing new is seen."""
+    K = intrinsics()
+    from tests.patches.scene import Frame
+
+    return [
+        Frame(render_room(K, pose(CENTRE, 10.0 * (i % 2), 0.0)), K, pose(CENTRE, 10.0 * (i % 2), 0.0), 0.1 * i)
+        for i in range(n)
+    ]
+
+
+def test_a_patch_with_little_new_goes_on_to_the_stretched_trigger_and_keeps_every_frame() -> None:
+    frames = _looking_at_one_wall(40)
+    plain = Mapper(MappingSettings(patch_frames=5, patch_distance_m=100.0, patch_stretch=1), 1, 0, BOUNDS)
+    stretched = Mapper(MappingSettings(patch_frames=5, patch_distance_m=100.0, patch_stretch=3), 1, 0, BOUNDS)
+    spans = {}
+    for name, mapper in (("plain", plain), ("stretched", stretched)):
+        sealed = [p for f in frames if (p := mapper.integrate(f.depth, f.K, f.T, f.t, MAX_RANGE)) is not None]
+        spans[name] = [p.span.frames for p in sealed]
+        mapper.seal()
+    assert spans["plain"] == [5] * 8
+    # the first patch is all new; after it the same wall again: 15 frames a patch, none of them left out
+    assert spans["stretched"] == [5, 15, 15] and stretched.sealer.stretched > 0 and plain.sealer.stretched == 0
+    assert stretched.fused.voxel_count == plain.fused.voxel_count  # the same voxels observed: only fewer patches
+
+
+def test_a_patch_that_sees_new_space_is_sealed_at_the_normal_trigger() -> None:
+    mapper = Mapper(MappingSettings(patch_frames=5, patch_distance_m=100.0, patch_stretch=3), 1, 0, BOUNDS)
+    frames = rotate_in_place(yaws=8, pitches=(0.0,))  # a turn: each 5 frames look somewhere else
+    sealed = [p for f in frames if (p := mapper.integrate(f.depth, f.K, f.T, f.t, MAX_RANGE)) is not None]
+    assert sealed and sealed[0].span.frames == 5
+    assert mapper.fused.novelty(sealed[0].blocks.keys) == 0.0  # what is sealed is in the map
