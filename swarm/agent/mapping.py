@@ -360,7 +360,7 @@ class MappingTask:
     async def measure_baseline(self, stop: asyncio.Event) -> None:
         """Add up, once per exploration loop, what sending the whole fused map would cost, until `stop`.
 
-        The map's wire size is measured after 1, 2, 4, 8, 16 loops, then every `BASELINE_SAMPLE_LOOPS` loops
+        The map's wire size is measured after 1, 2, 4, 8, 16, 32 loops, then every `BASELINE_SAMPLE_LOOPS` loops
         (`baseline_interval`: a map grows fastest at first), not every loop: a measurement
         compresses the whole map (office, 5 drones on 2 cores: 0.14 s at the median; the hall: 2 s), and the
         baseline is a figure for the report, not something the drone needs. The map's arrays are copied in the
