@@ -51,6 +51,7 @@ class Mapper:
             raise ValueError(f"the signing key is drone {signing.signer.producer}'s, not {producer}'s")
         self.signer = signing.signer if signing is not None else None
         self.verifier = signing.verifier if signing is not None else None
+        self.fused = FusedMap(self.lattice, bounds, known_weight)
         self.sealer = PatchSealer(
             backend,
             producer,
@@ -60,12 +61,11 @@ class Mapper:
             max_blocks=max_blocks,
             volume=bounds,
             stretch=settings.patch_stretch,
-            novelty=lambda keys: self.fused.novelty(keys),
+            novelty=self.fused.novelty,
             novel_fraction=settings.novel_block_fraction,
         )
         self.private = PatchStore(self.lattice)
         self.public = PatchStore(self.lattice)
-        self.fused = FusedMap(self.lattice, bounds, known_weight)
 
     def integrate(
         self, depth: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray, t: float, max_range: float

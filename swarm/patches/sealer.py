@@ -80,7 +80,7 @@ class PatchSealer:
         self.stretch = stretch if novelty is not None else 1
         self.novelty = novelty  # the share of (N,3) block keys the map does not hold yet
         self.novel_fraction = novel_fraction
-        self.stretched = 0  # triggers passed because the open patch had little new
+        self.stretched = 0  # frames at which a due seal was put off because the open patch had little new
         self.backend = backend
         self.lattice: Lattice = backend.lattice
         self.producer = producer
@@ -119,10 +119,12 @@ class PatchSealer:
         self._open_frames += 1
         if self.max_blocks is not None and 2 * self.backend.block_count >= self.max_blocks:
             return self.seal()
+        # how far the open patch is along each trigger: 1 is due, `stretch` is as long as it may go on
         frames, travelled = self._open_frames / self.patch_frames, self._travelled / self.patch_distance_m
         if frames >= self.stretch or travelled >= self.stretch:
             return self.seal()
-        due = self._open_frames >= self.patch_frames or self._travelled >= self.patch_distance_m
+        due = frames >= 1 or travelled >= 1
+        # checked at every frame past the trigger (about 0.5 ms), so new space seen meanwhile is sealed at once
         if due and self.stretch > 1 and self._has_little_new():
             self.stretched += 1
             return None
