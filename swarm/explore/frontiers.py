@@ -55,7 +55,7 @@ import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cached_property, lru_cache
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -76,6 +76,7 @@ _CONNECT_26 = np.ones((3, 3, 3), dtype=bool)
 _BITS = 64
 VIEW_RAY_SPACING_DEG = 6.0  # the view gain's rays: 195 for a 90 x 74 degree camera, enough to rank candidates
 _VIEW_CHUNK = 16  # candidates ray-cast at once: bounds the temporaries at ~16 x 200 x 40 samples
+YAW_BINS = 360  # the view gain turns the camera to the nearest whole degree (its ray offsets are cached per degree)
 LOOK_YAWS = 8  # headings tried for a frontier looked at from its own cell with its unknown straight up or down
 LOOK_AHEAD_M = 1.0  # a frontier looked at from its own cell: its point moves this far the way the camera looks
 _VIEW_UNKNOWN, _VIEW_STOP = 1, 2  # a view ray counts the first, ends at the second (an obstacle, the grid's edge)
@@ -150,7 +151,7 @@ class ExplorationGrid:
         # see and that the coverage measure mostly leaves out (it counts space a drone radius from surfaces):
         # they neither make frontiers nor add gain, else the mission's tail is spent staring into corners.
         self._unknown = _without_specks(
-            (states == UNKNOWN) & ~ndimage.binary_dilation(self._occupied, structure=_CONNECT_26),
+            (states == UNKNOWN) & ~_inflate(self._occupied, 0.5),  # 26-neighbours: 5x cheaper than ndimage's dilation
             round(settings.min_unknown_m3 / resolution**3),
         )
         self._band = band
@@ -367,41 +368,48 @@ class ExplorationGrid:
 
         Rays are sampled once per cell length: a wall of whole cells is never stepped over (a ray crosses at
         least a cell's length of it), only the corner of a staircase of cells may leak a sample, which does not
-        change a ranking."""
+        change a ranking. Each eye is taken at the centre of its cell and each yaw to the nearest of YAW_BINS
+        headings (1 degree; the rays are VIEW_RAY_SPACING_DEG apart): the samples' cells are then fixed offsets
+        from the eye's cell, computed once per heading and grid shape (`_ray_offsets`), and a candidate costs
+        one gather instead of the floating-point walk of every sample (a third of the time).
+        """
         assert self.view is not None
-        step = self.resolution
-        r = np.arange(self.view.min_range_m + step / 2, self.view.max_range_m, step)
-        weight = (solid[:, None] * (r**2 * step)[None, :]).astype(np.float32)  # (rays, steps)
         codes, strides = self._view_codes
+        r = _ray_ranges(self.view, self.resolution)
+        weight = (solid[:, None] * (r**2 * self.resolution)[None, :]).astype(np.float32)  # (rays, steps)
+        inner = np.array(self._occupied.shape)
+        cell = np.clip(np.floor((eyes - self.origin) / self.resolution), 0, inner - 1).astype(np.int64)
+        base = (cell + self._view_pad) @ strides
+        heading = np.round(np.mod(yaws, 2 * math.pi) / (2 * math.pi) * YAW_BINS).astype(np.int64) % YAW_BINS
+        flat, last = codes.ravel(), codes.size - 1
         out = np.zeros((len(eyes), len(rays)))
         for start in range(0, len(eyes), _VIEW_CHUNK):
-            cos, sin = np.cos(yaws[start : start + _VIEW_CHUNK, None]), np.sin(yaws[start : start + _VIEW_CHUNK, None])
-            direction = np.stack(
-                [
-                    rays[:, 0] * cos - rays[:, 1] * sin,
-                    rays[:, 0] * sin + rays[:, 1] * cos,
-                    np.broadcast_to(rays[:, 2], cos.shape[:1] + rays.shape[:1]),
-                ],
-                axis=-1,
-            ).astype(np.float32)  # (C, rays, 3)
-            # cell coordinates of every sample, in the padded grid (one cell of "outside" all round)
-            eye = ((eyes[start : start + _VIEW_CHUNK] - self.origin) / self.resolution + 1.0).astype(np.float32)
-            cells = (
-                eye[:, None, None, :]
-                + (r / self.resolution).astype(np.float32)[None, None, :, None] * (direction[:, :, None, :])
+            chunk = slice(start, start + _VIEW_CHUNK)
+            offsets = np.stack(
+                [_ray_offsets(self.view, self.resolution, tuple(strides.tolist()), int(h)) for h in heading[chunk]]
             )
-            cells = np.clip(np.floor(cells), 0, np.array(codes.shape) - 1).astype(np.int64)
-            found = codes.ravel()[cells @ strides]  # (C, rays, steps)
+            # Past the first sample outside the grid (a padding cell: a stop) the index may leave the array;
+            # clipped, what it reads there is never counted.
+            found = flat[np.clip(base[chunk, None, None] + offsets, 0, last)]  # (C, rays, steps)
             seen = (found == _VIEW_UNKNOWN) & ~np.logical_or.accumulate(found == _VIEW_STOP, axis=-1)
-            out[start : start + _VIEW_CHUNK] = np.einsum("crs,rs->cr", seen.astype(np.float32), weight)
+            out[chunk] = np.einsum("crs,rs->cr", seen.astype(np.float32), weight)
         return out
 
     @cached_property
     def _view_codes(self) -> tuple[np.ndarray, np.ndarray]:
-        """What a view ray meets in each cell, padded with a stopping cell all round, and its index strides."""
+        """What a view ray meets in each cell, padded with `_view_pad` stopping cells all round, and the padded
+        grid's index strides."""
         codes = np.where(self._occupied, _VIEW_STOP, np.where(self._unknown, _VIEW_UNKNOWN, 0)).astype(np.uint8)
-        codes = np.pad(codes, 1, constant_values=_VIEW_STOP)
+        codes = np.pad(codes, self._view_pad, constant_values=_VIEW_STOP)
         return codes, np.array([codes.shape[1] * codes.shape[2], codes.shape[2], 1], dtype=np.int64)
+
+    @cached_property
+    def _view_pad(self) -> int:
+        """Stopping cells round the grid for the view rays: a ray's first sample (at the camera's min range) lands
+        within them, and as later samples move at most a cell along each axis, the first sample to leave the grid
+        lands on one of them."""
+        assert self.view is not None
+        return math.ceil(self.view.min_range_m / self.resolution) + 2
 
     def is_frontier_near(self, point: Vec3, radius: float) -> bool:
         """Some FREE cell bordering UNKNOWN lies within `radius` of `point`, reachable or not.
@@ -498,6 +506,25 @@ class ExplorationGrid:
         return self.origin + (np.asarray(idx, dtype=float) + 0.5) * self.resolution
 
 
+def _ray_ranges(view: ViewModel, resolution: float) -> np.ndarray:
+    """Distances of a view ray's samples from the eye: one per cell length, from the camera's min range."""
+    return np.arange(view.min_range_m + resolution / 2, view.max_range_m, resolution)
+
+
+@lru_cache(maxsize=YAW_BINS)
+def _ray_offsets(view: ViewModel, resolution: float, strides: tuple[int, int, int], heading: int) -> np.ndarray:
+    """(rays, steps) flat index offsets, in a grid of `strides`, from an eye's cell to the cell of each sample of
+    each view ray, the camera turned to heading `heading` of YAW_BINS and the eye at its cell's centre."""
+    rays, _ = view.rays()
+    yaw = 2 * math.pi * heading / YAW_BINS
+    cos, sin = math.cos(yaw), math.sin(yaw)
+    direction = np.stack([rays[:, 0] * cos - rays[:, 1] * sin, rays[:, 0] * sin + rays[:, 1] * cos, rays[:, 2]], 1)
+    steps = _ray_ranges(view, resolution) / resolution
+    cells = np.floor(0.5 + steps[None, :, None] * direction[:, None, :]).astype(np.int64)  # from the eye's cell
+    offsets: np.ndarray = (cells @ np.array(strides, dtype=np.int64)).astype(np.int32)  # 30 kB a heading
+    return offsets
+
+
 def _without_specks(unknown: np.ndarray, min_cells: int) -> np.ndarray:
     """`unknown` minus its 26-connected components of fewer than `min_cells` cells: specks of space the camera
     grazed but never quite covered, inside known space, which would keep a mission alive for nothing."""
@@ -547,11 +574,16 @@ def _blocked(states: np.ndarray, occupied_fine: np.ndarray | None, radius_cells:
 
 
 def _coarsen(mask: np.ndarray, f: int) -> np.ndarray:
-    """Cells of a grid f times coarser holding any True cell of `mask`."""
+    """Cells of a grid f times coarser holding any True cell of `mask` (each axis a multiple of f)."""
     out = mask
-    for axis in range(3):  # strided ORs: several times faster than .any() over a 6D reshape
-        parts = [np.take(out, np.arange(i, out.shape[axis], f), axis=axis) for i in range(f)]
-        out = np.logical_or.reduce(parts) if f > 1 else out
+    for axis in range(3):  # ORs of strided views: several times faster than .any() over a 6D reshape or np.take
+        index: list[slice] = [slice(None)] * 3
+        index[axis] = slice(0, None, f)
+        coarser = out[tuple(index)].copy()
+        for i in range(1, f):
+            index[axis] = slice(i, None, f)
+            coarser |= out[tuple(index)]
+        out = coarser
     return out
 
 

@@ -4,6 +4,7 @@ import math
 
 import numpy as np
 import pytest
+from scipy import ndimage
 
 from swarm.config import ExploreSettings, Vec3
 from swarm.explore.frontiers import ExplorationGrid, Frontier
@@ -622,6 +623,17 @@ def test_inflation_matches_a_brute_force_dilation(shape: tuple[int, int, int]) -
                 occupied[max(-dx, 0) : nx - max(dx, 0), max(-dy, 0) : ny - max(dy, 0), max(-dz, 0) : nz - max(dz, 0)]
             )
         assert np.array_equal(_inflate(occupied, radius), expected), radius
+    # radius 0.5 is the 26-neighbour dilation the grid uses to leave out crevices
+    assert np.array_equal(_inflate(occupied, 0.5), ndimage.binary_dilation(occupied, structure=np.ones((3, 3, 3))))
+
+
+@pytest.mark.parametrize("f", [1, 2, 3])
+def test_coarsening_keeps_a_cell_with_any_fine_cell_set(f: int) -> None:
+    from swarm.explore.frontiers import _coarsen
+
+    fine = np.random.default_rng(4).random((6 * f, 4 * f, 5 * f)) < 0.02
+    expected = fine.reshape(6, f, 4, f, 5, f).any(axis=(1, 3, 5))
+    assert np.array_equal(_coarsen(fine, f), expected)
 
 
 def test_a_drone_shut_in_a_pocket_of_its_map_is_told_so_and_where_the_open_space_is() -> None:

@@ -113,3 +113,34 @@ def test_a_frontier_seen_from_its_own_cell_is_looked_at_on_its_unknown_side() ->
         assert f.point[1] - f.viewpoint[1] == pytest.approx(LOOK_AHEAD_M, abs=0.3)
         assert abs(f.point[0] - f.viewpoint[0]) < 0.75 and f.point[2] == pytest.approx(f.viewpoint[2])
         assert f.gain > 1.0
+
+
+def test_the_eye_is_taken_at_its_cells_centre_and_the_camera_turned_to_the_nearest_degree() -> None:
+    states, eye = _open_space()
+    set_states(states, (12.0, 0.0, 0.0), (12.19, 20.0, 20.0), OCCUPIED)  # a wall east: the heading matters
+    grid = _grid(states)
+    off_centre = (eye[0] + 0.09, eye[1] - 0.09, eye[2] + 0.05)  # the same 0.2 m cell
+    ahead = np.array([1.0, 0.5, 0.0])
+    looks = np.array([eye + ahead, off_centre + ahead])  # the same heading from both
+    turned = np.array([eye + ahead] * 2)
+    turned[1, :2] = (
+        eye[0] + math.cos(math.atan2(0.5, 1.0) + math.radians(0.4)),
+        eye[1] + math.sin(math.atan2(0.5, 1.0) + math.radians(0.4)),
+    )
+    gains = grid.view_gain(np.array([eye, off_centre]), looks)
+    assert gains[0] == gains[1] > 0.0
+    assert grid.view_gain(np.array([eye, eye]), turned).tolist() == [gains[0]] * 2  # 0.4 degrees: the same heading
+    assert grid.view_gain(np.array([eye]), np.array([(eye[0] + 1.0, eye[1] - 0.5, eye[2])]))[0] != gains[0]
+
+
+def test_a_view_out_of_the_grid_sees_nothing_beyond_its_edge() -> None:
+    # All unknown: a ray that leaves the grid must stop there, not wrap round into the next row of cells (with a
+    # 1 m min range, the first samples are already 5 cells out).
+    states = state_grid((6.0, 6.0, 3.0), UNKNOWN)
+    set_states(states, (2.8, 0.0, 1.4), (3.0, 0.2, 1.6), FREE)
+    far_start = ViewModel(CAMERA.hfov_deg, CAMERA.vfov_deg, 0.0, 1.0, CAMERA.max_range_m)
+    grid = _grid(states, view=far_start)
+    eye = (2.9, 0.1, 1.5)  # in the grid's first row of cells along y
+    outwards, inwards = grid.view_gain(np.array([eye, eye]), np.array([(2.9, -1.0, 1.5), (2.9, 1.0, 1.5)]))
+    assert outwards == 0.0
+    assert inwards > 10.0

@@ -126,3 +126,26 @@ def test_a_patch_that_sees_new_space_is_sealed_at_the_normal_trigger() -> None:
     sealed = [p for f in frames if (p := mapper.integrate(f.depth, f.K, f.T, f.t, MAX_RANGE)) is not None]
     assert sealed and sealed[0].span.frames == 5
     assert mapper.fused.novelty(sealed[0].blocks.keys) == 0.0  # what is sealed is in the map
+
+
+def test_a_deferred_seal_checks_what_is_new_at_the_trigger_then_every_few_frames() -> None:
+    from swarm.patches.backend import VoxelBlockGridBackend
+    from swarm.patches.lattice import Lattice
+    from swarm.patches.sealer import NOVELTY_RECHECK_FRAMES, PatchSealer
+
+    checked_at: list[int] = []
+    new_from = 9  # the open patch's frames from this one on see new space
+
+    def novelty(keys: np.ndarray) -> float:
+        checked_at.append(sealer.open_frames)
+        return 1.0 if sealer.open_frames >= new_from else 0.0
+
+    backend = VoxelBlockGridBackend(Lattice.from_settings(MappingSettings()))
+    sealer = PatchSealer(backend, 1, 0, patch_frames=5, patch_distance_m=100.0, stretch=3, novelty=novelty)
+    sealed_at = [
+        f.t for f in _looking_at_one_wall(20) if sealer.add_frame(f.depth, f.K, f.T, f.t, MAX_RANGE) is not None
+    ]
+    step = NOVELTY_RECHECK_FRAMES
+    assert checked_at[:2] == [5, 5 + step]  # at the trigger, then every `step` frames, not at every frame
+    first_new_check = next(n for n in checked_at if n >= new_from)
+    assert first_new_check < new_from + step and sealed_at[0] == pytest.approx(0.1 * (first_new_check - 1))
