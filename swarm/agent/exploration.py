@@ -1,8 +1,9 @@
 """One drone's exploration: the asyncio and bus glue round `swarm.roles.protocol.ExplorationCore`.
 
 Every `explore.loop_s` (r), and at once when a drone of the cluster reaches its target, the agent computes its
-frontiers from its fused map (`MappingTask.explore_view`) and hands them to the core with the drone's situation;
-the core decides (explorer reports, leader assignments, tau, termination: see its docstring) and this module
+frontiers from its fused map (`MappingTask.explore_view`; a decision within `explore.view_reuse_s` of the last
+view decides on that one, since a leader is woken by every arrival) and hands them to the core with the drone's
+situation; the core decides (explorer reports, leader assignments, tau, termination: see its docstring) and this module
 publishes what it says and interrupts the flight when the target changes. Strategies: docs/architecture.md,
 "Exploration".
 
@@ -28,7 +29,7 @@ from swarm.agent.mapping import MappingTask
 from swarm.aio import wait_event
 from swarm.bus.bridge import AsyncBus
 from swarm.config import SwarmConfig, Vec3
-from swarm.explore.frontiers import ExplorationGrid
+from swarm.explore.frontiers import ExplorationGrid, Frontier
 from swarm.explore.planner import NoPathError, path_is_free, plan_path, plan_path_around
 from swarm.roles.membership import PeerTable
 from swarm.roles.messages import FrontierReport, TargetAssignment
@@ -84,7 +85,9 @@ class Exploration:
         self.returning = False  # a low battery sent the drone home early (fly_home): it decides no more
         self.retarget = asyncio.Event()  # the flight must drop its path
         self._decisions: asyncio.Task[None] | None = None
-        self.decision_ms: list[float] = []
+        self.decision_ms: list[float] = []  # decisions on a new view (`view_reuse_s`)
+        self._view: tuple[float, list[Frontier]] | None = None  # when the last view was taken, its frontiers
+        self.views_reused = 0  # decisions made on the last view (taken under `view_reuse_s` before)
 
     @property
     def target(self) -> Target | None:
@@ -151,7 +154,14 @@ class Exploration:
         if home is None:
             return
         started = time.perf_counter()
-        self.grid, frontiers = await self.mapping.explore_view(home[2], self.top_z, here, self.obstacles())
+        reused = self._view is not None and time.monotonic() - self._view[0] < self.settings.view_reuse_s
+        if reused and self._view is not None:
+            frontiers = self._view[1]
+            self.views_reused += 1
+        else:
+            self.grid, frontiers = await self.mapping.explore_view(home[2], self.top_z, here, self.obstacles())
+            self._view = (time.monotonic(), frontiers)
+        assert self.grid is not None  # set with the view
         self._check_path()
         members = self.peers.cluster
         situation = Situation(
@@ -169,8 +179,11 @@ class Exploration:
             effects = self.core.decide(time.monotonic(), situation)
         self._apply(effects)
         elapsed = time.perf_counter() - started
-        self.decision_ms.append(elapsed * 1000)
-        self.clock.record("decision", elapsed)
+        if reused:
+            self.clock.record("decision_on_last_view", elapsed)
+        else:
+            self.decision_ms.append(elapsed * 1000)
+            self.clock.record("decision", elapsed)
         if self.core.loops % STATUS_EVERY_LOOPS == 0:  # a trace of quiet stretches (no new target for minutes)
             self.log(
                 "explore_status",
@@ -392,6 +405,7 @@ class Exploration:
             **core,
             "decision_ms_p50": round(ms[len(ms) // 2], 1) if ms else None,
             "decision_ms_max": round(ms[-1], 1) if ms else None,
+            "decisions_on_last_view": self.views_reused,
         }
 
 

@@ -107,8 +107,9 @@ class AgentSummary(FileModel):
     frontiers_given_up: list[GivenUpFrontier]
     # other members' input left out, by kind (swarm.roles.protocol.REJECTED_KINDS, and heartbeat_jump)
     exploration_rejected: dict[str, int]
-    decision_ms_p50: float | None
+    decision_ms_p50: float | None  # decisions on a new map view
     decision_ms_max: float | None
+    decisions_on_last_view: int  # decisions within explore.view_reuse_s of the last view, made on it
     # mapping (`MappingTask.summary`; an agent without a camera: zeros and None)
     patches_sealed: int
     frames: int
@@ -140,6 +141,7 @@ SCRIPTED_EXPLORATION = {
     "exploration_rejected": {},
     "decision_ms_p50": None,
     "decision_ms_max": None,
+    "decisions_on_last_view": 0,
 }
 
 NO_MAPPING: dict[str, object] = {

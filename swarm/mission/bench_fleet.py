@@ -49,6 +49,7 @@ STAGE_ORDER = (
     "view_gain",
     "assignment",
     "decision",
+    "decision_on_last_view",
     "planning",
     "whole_map_baseline",
 )

@@ -433,3 +433,33 @@ async def test_a_drone_left_without_a_target_heads_home_until_a_new_target_comes
     else:
         assert ends == [late.viewpoint, above_home]  # not idle long enough: waited in place for the target
         assert headed_home == []
+
+
+class _CountingViews:
+    """`MappingTask.explore_view` on a fixed map, counting the views asked for."""
+
+    def __init__(self) -> None:
+        self.views = 0
+        self.grid = ExplorationGrid.from_states(
+            (0.0, 0.0, 0.0), 0.2, room_states(known_to_x=4.0), ExploreSettings(), floor_z=0.0, top_z=3.0
+        )
+
+    async def explore_view(self, floor_z: float, top_z: float, position: Any, obstacles: Any) -> tuple[Any, Any]:
+        self.views += 1
+        return self.grid, self.grid.frontiers(position)
+
+
+@pytest.mark.parametrize("reuse_s, views", [(600.0, 1), (0.0, 3)])
+async def test_decisions_soon_after_a_view_decide_on_it(reuse_s: float, views: int) -> None:
+    """A leader is woken by every member's arrival: a new view each time made it the slowest drone."""
+    exploration = _exploration([], **{"explore.view_reuse_s": reuse_s, "explore.strategy": "uncoordinated"})
+    mapping = _CountingViews()
+    exploration.mapping = mapping  # type: ignore[assignment]  # the one method a decision calls
+    exploration.position = lambda: (1.0, 3.0, 1.5)
+    for _ in range(3):
+        await exploration.decide()
+    assert mapping.views == views and exploration.core.loops == 3
+    assert exploration.grid is mapping.grid and exploration.target is not None
+    summary = exploration.summary()
+    assert summary["decisions_on_last_view"] == 3 - views and summary["decision_ms_p50"] is not None
+    assert len(exploration.decision_ms) == views  # the decision time is that of decisions on a new view
