@@ -45,3 +45,35 @@ def test_a_heartbeat_places_its_peer_by_its_velocity_at_the_frames_stamp_within_
     assert np.allclose(sighting.at(100.2), [1.3, 2.0, 1.4])
     assert np.allclose(sighting.at(99.9), [0.85, 2.0, 1.55])  # a frame taken before the heartbeat arrived
     assert np.allclose(sighting.at(130.0), [2.5, 2.0, 1.0])  # dead reckoning stops at PREDICT_MAX_S
+
+
+def _every_ray(rays: np.ndarray, T_world_cam: np.ndarray, centres: np.ndarray, radius: float) -> np.ndarray:
+    """sphere_depth without the silhouette boxes: every ray against every sphere."""
+    out = np.full(rays.shape[:2], np.inf)
+    a = np.einsum("hwk,hwk->hw", rays, rays)
+    for c in (centres - T_world_cam[:3, 3]) @ T_world_cam[:3, :3]:
+        b = rays @ c
+        disc = b * b - a * (c @ c - radius * radius)
+        root = np.sqrt(np.maximum(disc, 0.0))
+        near = np.where(disc >= 0, (b - root) / a, np.inf)
+        far = np.where(disc >= 0, (b + root) / a, np.inf)
+        out = np.minimum(out, np.where(near > 0.0, near, np.where(far > 0.0, 0.0, np.inf)))
+    return out
+
+
+def test_testing_only_each_spheres_silhouette_gives_the_depths_of_testing_every_ray() -> None:
+    rng = np.random.default_rng(7)
+    rays = pixel_rays(K, 120, 160)
+    yaw = 0.7
+    turned = np.eye(4)
+    turned[:3, :3] = [[np.cos(yaw), 0.0, np.sin(yaw)], [0.0, 1.0, 0.0], [-np.sin(yaw), 0.0, np.cos(yaw)]]
+    turned[:3, 3] = [0.3, -0.2, 0.5]
+    for pose in (T, turned):
+        # near and far, beside and behind the camera, one round the camera and one grazing its plane
+        centres = np.vstack(
+            [rng.uniform(-6.0, 6.0, (40, 3)), pose[:3, 3] + [0.1, 0.0, 0.05], pose[:3, 3] + [2, 0, 0.3]]
+        )
+        for radius in (0.2, 0.5, 1.5):
+            expected = _every_ray(rays, pose, centres, radius)
+            assert np.isfinite(expected).sum() > 1000
+            np.testing.assert_array_equal(sphere_depth(rays, pose, centres, radius), expected)

@@ -42,6 +42,16 @@ def test_px4_attitude_becomes_an_enu_flu_pose() -> None:
     assert right_wing_down[2, 1] == pytest.approx(math.sin(math.radians(10)))  # the left side goes up
 
 
+def test_the_pose_is_px4s_attitude_turned_into_enu_and_flu_at_any_attitude() -> None:
+    enu_from_ned = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+    frd_from_flu = np.diag([1.0, -1.0, -1.0])
+    for roll, pitch, yaw in np.random.default_rng(5).uniform(-math.pi, math.pi, (50, 3)) * [0.5, 0.45, 1.0]:
+        pose = body_pose(1.0, np.array([1.0, 2.0, 3.0]), roll, pitch, yaw)
+        ned_from_frd = Rotation.from_euler("ZYX", [yaw, pitch, roll]).as_matrix()
+        assert np.linalg.norm(pose.orientation) == pytest.approx(1.0)
+        np.testing.assert_allclose(_axes(pose), enu_from_ned @ ned_from_frd @ frd_from_flu, atol=1e-12)
+
+
 def _wall_at_x(d: float) -> World:
     vertices, triangles = boxes_to_mesh([((d, -50.0, -50.0), (d + 0.2, 50.0, 50.0))], exact=1)
     return World("wall", vertices, triangles, (0.0, 0.0, 0.0))
