@@ -32,6 +32,7 @@ import contextlib
 import dataclasses
 import errno
 import os
+import threading
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -60,6 +61,7 @@ SealedCallback = Callable[[PatchId, bytes], None]
 STREAM_WAIT_S = 0.2  # a stream source is polled this often for the stop event when no frame comes
 MIN_HEIGHT_M = 0.3  # below this the camera mostly sees the floor it stands on
 CAMERA_SILENT_S = 3.0  # in the air this long without a frame from the stream: logged (the map has stopped growing)
+DECISION_NICENESS = 5  # the decision thread runs this much nicer than the mapping thread (`_yield_to_frames`)
 BASELINE_SAMPLE_LOOPS = 20  # the whole-map baseline is measured every this many exploration loops
 
 
@@ -183,7 +185,7 @@ class MappingTask:
         self._worker = ThreadPoolExecutor(1, thread_name_prefix="mapping")
         # the planning grid and frontiers are built from an occupancy snapshot on their own thread, so that a
         # decision holds the mapping thread (and the camera's frames) only while the snapshot is taken
-        self._decider = ThreadPoolExecutor(1, thread_name_prefix="decision")
+        self._decider = ThreadPoolExecutor(1, thread_name_prefix="decision", initializer=_yield_to_frames)
 
     def _integrate(self, frame: DepthFrame, started: float) -> None:
         self.frames += 1
@@ -433,6 +435,17 @@ class MappingTask:
                 "bytes": self.baseline_bytes,
             },
         }
+
+
+def _yield_to_frames() -> None:
+    """Run the calling thread DECISION_NICENESS steps nicer than the process: when the cores are short, the
+    kernel gives frames (the mapping thread) the time before decisions. Lowering one's own priority needs no
+    privilege; where the kernel refuses anyway, the thread keeps the process's."""
+    try:
+        tid = threading.get_native_id()
+        os.setpriority(os.PRIO_PROCESS, tid, min(os.getpriority(os.PRIO_PROCESS, tid) + DECISION_NICENESS, 19))
+    except OSError:
+        pass
 
 
 def errno_name(exc: OSError) -> str:

@@ -3,6 +3,8 @@ few loops; the loops in between count at sizes interpolated between the measurem
 
 from __future__ import annotations
 
+import threading
+
 import pytest
 
 from swarm.agent.mapping import BASELINE_SAMPLE_LOOPS, baseline_interval, interpolated_bytes
@@ -48,3 +50,19 @@ def test_a_map_that_grows_fast_then_slowly_sampled_that_way_is_understated_and_c
         sampled += interpolated_bytes(previous, sizes[counted - 1], step)
         previous = sizes[counted - 1]
     assert sampled <= every_loop and (every_loop - sampled) / every_loop < 0.05
+
+
+def test_the_decision_thread_runs_nicer_than_the_mapping_thread() -> None:
+    """When the cores are short, frames go first: a slow decision must not cost camera frames."""
+    import os
+    from concurrent.futures import ThreadPoolExecutor
+
+    from swarm.agent.mapping import DECISION_NICENESS, _yield_to_frames
+
+    def own_niceness() -> int:
+        return os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+
+    with ThreadPoolExecutor(1) as plain, ThreadPoolExecutor(1, initializer=_yield_to_frames) as decider:
+        mapping, decision = plain.submit(own_niceness).result(), decider.submit(own_niceness).result()
+    assert decision == min(mapping + DECISION_NICENESS, 19) > mapping
+    assert own_niceness() == mapping  # the process and its other threads keep theirs
