@@ -187,7 +187,9 @@ class ExplorationGrid:
         column = np.array([[0.0, 0.0, j * resolution] for j in range(max(seen_cells, body_cells + 1))])
         body_points = [tuple(np.asarray(p, dtype=float) + c) for p in free_points for c in column]
         states = _mark_free(states, origin_, resolution, body_points, settings.clearance_m)
-        blocked = _blocked(states, occupied_fine, settings.clearance_m / resolution)
+        roomy_wanted = settings.roomy_clearance_m > settings.clearance_m
+        radii = (settings.clearance_m, settings.roomy_clearance_m) if roomy_wanted else (settings.clearance_m,)
+        blocked, *wider = _blocked(states, occupied_fine, *(r / resolution for r in radii))
         low = (floor_z + settings.min_altitude_m - origin_[2]) / resolution - 0.5  # in layer-centre units
         high = (top_z - settings.ceiling_margin_m - origin_[2]) / resolution - 0.5
         k0 = max(math.ceil(low - _EPS), 0)
@@ -196,10 +198,9 @@ class ExplorationGrid:
         safe[:, :, :k0] = False
         safe[:, :, k1:] = False
         roomy = None
-        if settings.roomy_clearance_m > settings.clearance_m:
+        if wider:
             roomy_cells = max(math.ceil((settings.body_height_m - settings.roomy_clearance_m) / resolution - _EPS), 0)
-            wide = _blocked(states, occupied_fine, settings.roomy_clearance_m / resolution)
-            roomy = _with_room_above((states == FREE) & ~wide, roomy_cells) & safe
+            roomy = _with_room_above((states == FREE) & ~wider[0], roomy_cells) & safe
         view = view if settings.gain_model == "view" else None
         return cls(origin_, float(resolution), states, safe, (k0, k1), settings, roomy, view)
 
@@ -558,19 +559,20 @@ def _mark_free(
     return states
 
 
-def _blocked(states: np.ndarray, occupied_fine: np.ndarray | None, radius_cells: float) -> np.ndarray:
-    """The cells closer than `radius_cells` to an obstacle: to an OCCUPIED cell, or, given the occupied voxels
-    of a finer grid, to one of those (and to OCCUPIED cells with no occupied voxel: obstacles marked by hand)."""
+def _blocked(states: np.ndarray, occupied_fine: np.ndarray | None, *radii_cells: float) -> list[np.ndarray]:
+    """For each radius, the cells closer than it (in cells) to an obstacle: to an OCCUPIED cell, or, given the
+    occupied voxels of a finer grid, to one of those (and to OCCUPIED cells with no occupied voxel: obstacles
+    marked by hand). The radii share the fine grid's marking and packing."""
     occupied = states == OCCUPIED
     if occupied_fine is None:
-        return _inflate(occupied, radius_cells)
+        return _inflate_all(occupied, radii_cells)
     f = occupied_fine.shape[0] // max(states.shape[0], 1)
     if f < 1 or occupied_fine.shape != tuple(n * f for n in states.shape):
         raise ValueError(f"fine occupancy {occupied_fine.shape} is not an integer refinement of {states.shape}")
     marked = occupied & ~_coarsen(occupied_fine, f)
     if marked.any():
         occupied_fine = occupied_fine | marked.repeat(f, 0).repeat(f, 1).repeat(f, 2)
-    return _coarsen(_inflate(occupied_fine, radius_cells * f), f)
+    return [_coarsen(fine, f) for fine in _inflate_all(occupied_fine, tuple(r * f for r in radii_cells))]
 
 
 def _coarsen(mask: np.ndarray, f: int) -> np.ndarray:
@@ -609,34 +611,53 @@ def _with_room_above(clear: np.ndarray, cells: int) -> np.ndarray:
 def _inflate(occupied: np.ndarray, radius_cells: float) -> np.ndarray:
     """`OccupancyGrid.inflate` without its distance transform: the cells whose cube comes closer than
     `radius_cells` to an occupied cube, i.e. occupied dilated by (ball of centre distance < radius) + 3x3x3."""
-    if radius_cells <= 0 or not occupied.any():
-        return occupied.copy()
+    return _inflate_all(occupied, (radius_cells,))[0]
+
+
+def _inflate_all(occupied: np.ndarray, radii_cells: Sequence[float]) -> list[np.ndarray]:
+    """`_inflate` for each radius, packing the columns once."""
+    if not occupied.any():
+        return [occupied.copy() for _ in radii_cells]
+    nx, ny, nz = occupied.shape
+    # A column of at most 64 cells fits one integer: runs are shifts, and the x/y ORs touch nx*ny words instead of
+    # nx*ny*nz cells (what makes the 0.1 m obstacle test affordable).
+    column = _pack_columns(occupied) if nz <= _BITS else None
+    out = []
+    for radius_cells in radii_cells:
+        if radius_cells <= 0:
+            out.append(occupied.copy())
+            continue
+        heights = _column_heights(radius_cells)
+        if column is not None:
+            top = np.uint64((1 << nz) - 1) if nz < _BITS else np.uint64(np.iinfo(np.uint64).max)
+            runs = {h: _run_bits(column, h) & top for h in set(heights.values())}
+        else:
+            runs = {
+                h: ndimage.maximum_filter1d(occupied.view(np.uint8), 2 * h + 1, axis=2, mode="constant").view(bool)
+                for h in set(heights.values())
+            }
+        grown = np.zeros_like(next(iter(runs.values())))
+        for (dx, dy), h in heights.items():
+            if abs(dx) < nx and abs(dy) < ny:
+                grown[max(dx, 0) : nx + min(dx, 0), max(dy, 0) : ny + min(dy, 0)] |= runs[h][
+                    max(-dx, 0) : nx - max(dx, 0), max(-dy, 0) : ny - max(dy, 0)
+                ]
+        out.append(_unpack_columns(grown, nz) if column is not None else grown)
+    return out
+
+
+@lru_cache(maxsize=16)
+def _column_heights(radius_cells: float) -> dict[tuple[int, int], int]:
+    """`_inflate`'s structuring element, (ball of centre distance < radius) + 3x3x3, as columns: every column
+    (dx, dy) of it is a symmetric run of dz, given by its half-height. `_inflate` dilates along z once per run
+    length, then ORs shifted copies in x and y: far cheaper than a 3D structuring element or a distance transform.
+    Made once per radius (a decision inflates twice; building it took a tenth of the planning grid)."""
     ball = _ball_offsets(radius_cells - _EPS, strict=True)
     offsets = np.unique((ball[:, None, :] + _cube_offsets(1)[None, :, :]).reshape(-1, 3), axis=0)
-    # Every column (dx, dy) of this set is a symmetric run of dz: dilate along z once per run length, then OR
-    # shifted copies in x and y. Far cheaper than a 3D structuring element or a distance transform.
     heights: dict[tuple[int, int], int] = {}
     for dx, dy, dz in offsets.tolist():
         heights[(dx, dy)] = max(heights.get((dx, dy), 0), abs(dz))
-    nx, ny, nz = occupied.shape
-    if nz <= _BITS:
-        # A column of at most 64 cells fits one integer: runs are shifts, and the x/y ORs touch nx*ny words
-        # instead of nx*ny*nz cells (what makes the 0.1 m obstacle test affordable).
-        column = _pack_columns(occupied)
-        top = np.uint64((1 << nz) - 1) if nz < _BITS else np.uint64(np.iinfo(np.uint64).max)
-        runs = {h: _run_bits(column, h) & top for h in set(heights.values())}
-    else:
-        runs = {
-            h: ndimage.maximum_filter1d(occupied.view(np.uint8), 2 * h + 1, axis=2, mode="constant").view(bool)
-            for h in set(heights.values())
-        }
-    out = np.zeros_like(next(iter(runs.values())))
-    for (dx, dy), h in heights.items():
-        if abs(dx) < nx and abs(dy) < ny:
-            out[max(dx, 0) : nx + min(dx, 0), max(dy, 0) : ny + min(dy, 0)] |= runs[h][
-                max(-dx, 0) : nx - max(dx, 0), max(-dy, 0) : ny - max(dy, 0)
-            ]
-    return _unpack_columns(out, nz) if nz <= _BITS else out
+    return heights
 
 
 def _pack_columns(mask: np.ndarray) -> np.ndarray:
