@@ -154,9 +154,10 @@ class Exploration:
         if home is None:
             return
         started = time.perf_counter()
-        reused = self._view is not None and time.monotonic() - self._view[0] < self.settings.view_reuse_s
-        if reused and self._view is not None:
-            frontiers = self._view[1]
+        last = self._view
+        reused = last is not None and time.monotonic() - last[0] < self.settings.view_reuse_s
+        if last is not None and reused:
+            frontiers = last[1]
             self.views_reused += 1
         else:
             self.grid, frontiers = await self.mapping.explore_view(home[2], self.top_z, here, self.obstacles())
