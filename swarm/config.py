@@ -581,6 +581,11 @@ class MappingSettings(_Section):
     novel_block_fraction: float = Field(
         0.2, ge=0.0, le=1.0, description="share of an open patch's blocks new to the map that makes it worth sealing"
     )
+    patch_changes_only: bool = Field(
+        True,
+        description="a sealed patch keeps only the voxels that change this drone's map: new ones, ones not yet known, "
+        "and ones whose fusion moves them across the surface (swarm.patches.sealer); false: every observed voxel",
+    )
     planning_resolution_m: PositiveFloat = Field(0.2, description="occupancy grid exported for planning")
     max_patch_bytes: int = Field(4 << 20, ge=1024, description="larger patches are rejected on receipt")
     max_patch_blocks: int | None = Field(

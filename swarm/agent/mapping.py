@@ -426,6 +426,8 @@ class MappingTask:
             else None,
             "patch_store_failures": dict(self.store_failures),
             "patches_not_sealed": dict(self.mapper.sealer.not_sealed),
+            "voxels_held_back": self.mapper.unshared.held_back,
+            "patches_held_back": self.mapper.sealer.nothing_to_share,
             "known_voxels": int(self.mapper.fused.voxel_count),
             "patches_received": self.patches_received,
             "fused_digest": self.mapper.fused.digest(),

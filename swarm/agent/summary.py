@@ -121,6 +121,8 @@ class AgentSummary(FileModel):
     patches_not_sealed: dict[
         str, int
     ]  # reason -> open patches dropped that receivers would refuse (too many blocks, ...)
+    voxels_held_back: int  # observed voxels of own patches not shared at their seal (swarm.patches.unshared)
+    patches_held_back: int  # open patches not sealed: none of their voxels changed the map
     known_voxels: int
     patches_received: int
     fused_digest: str | None
@@ -153,6 +155,8 @@ NO_MAPPING: dict[str, object] = {
     "sensor_stream": None,
     "patch_store_failures": {},
     "patches_not_sealed": {},
+    "voxels_held_back": 0,
+    "patches_held_back": 0,
     "known_voxels": 0,
     "patches_received": 0,
     "fused_digest": None,

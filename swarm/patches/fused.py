@@ -203,6 +203,34 @@ class FusedMap:
         observed[held] = self._weight[slots[held]].any(axis=1)
         return float(np.count_nonzero(~observed)) / len(slots)
 
+    def sums(self, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(W, S) as int64 (M, R^3) for (M,3) block keys: zero for blocks not held here or outside the volume."""
+        weight = np.zeros((len(keys), self.lattice.voxels_per_block), dtype=np.int64)
+        total = np.zeros_like(weight)
+        inside, slots = self._slots(keys, allocate=False)
+        rows = np.flatnonzero(inside)[slots >= 0]
+        held = slots[slots >= 0]
+        weight[rows], total[rows] = self._weight[held], self._sum[held]
+        return weight, total
+
+    def add_blocks(self, blocks: VoxelBlocks) -> None:
+        """Add blocks that are no patch (no id, so nothing to hold or fuse once): for a map used as an
+        accumulator (`swarm.patches.unshared`), never for the fused map."""
+        self._accumulate(blocks, 1)
+
+    def clear_voxels(self, keys: np.ndarray, voxels: np.ndarray) -> None:
+        """Set W and S to 0 at the (M, R^3) mask `voxels` of (M,3) block keys (blocks not held: nothing to do)."""
+        inside, slots = self._slots(keys, allocate=False)
+        rows = np.flatnonzero(inside)[slots >= 0]
+        held = slots[slots >= 0]
+        if not len(held):
+            return
+        keep = ~voxels[rows]
+        self._weight[held] *= keep
+        self._sum[held] *= keep
+        self._tick += 1
+        self._changed_at[held] = self._tick
+
     def state_at(self, points: np.ndarray) -> np.ndarray:
         """(N,) uint8 state (UNKNOWN, FREE, OCCUPIED) of the voxels nearest to (N,3) world points."""
         keys, flat = self.lattice.voxel_to_block(self.lattice.point_to_voxel(points))

@@ -17,10 +17,11 @@ from swarm.config import MappingSettings, Vec3
 from swarm.patches.backend import TsdfBackend, VoxelBlockGridBackend
 from swarm.patches.fused import Bounds, FusedMap
 from swarm.patches.lattice import Lattice
-from swarm.patches.patch import Patch, PatchId
+from swarm.patches.patch import Patch, PatchId, VoxelBlocks
 from swarm.patches.sealer import PatchSealer
 from swarm.patches.signing import Signing
 from swarm.patches.store import PatchStore
+from swarm.patches.unshared import UnsharedObservations
 from swarm.patches.wire import decode_expected, encode_patch
 
 
@@ -63,9 +64,14 @@ class Mapper:
             stretch=settings.patch_stretch,
             novelty=self.fused.novelty,
             novel_fraction=settings.novel_block_fraction,
+            share=self._share if settings.patch_changes_only else None,
         )
-        self.private = PatchStore(self.lattice)
-        self.public = PatchStore(self.lattice)
+        self.unshared = UnsharedObservations(self.lattice, bounds)
+        self.private = PatchStore(self.lattice, settings.max_patch_bytes)
+        self.public = PatchStore(self.lattice, settings.max_patch_bytes)
+
+    def _share(self, blocks: VoxelBlocks) -> VoxelBlocks:
+        return self.unshared.share(blocks, self.fused)
 
     def integrate(
         self, depth: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray, t: float, max_range: float

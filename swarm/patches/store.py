@@ -28,8 +28,11 @@ class StoredPatch:
 
 
 class PatchStore:
-    def __init__(self, lattice: Lattice) -> None:
+    def __init__(self, lattice: Lattice, max_bytes: int = 4 << 20) -> None:
+        """`max_bytes`: the largest patch the mission accepts (`mapping.max_patch_bytes`); held bytes, already
+        validated, decode again within its bounds however well they compressed."""
         self.lattice = lattice
+        self.max_bytes = max_bytes
         self._patches: dict[PatchId, StoredPatch] = {}
 
     def add(self, patch: Patch, data: bytes | None = None) -> bool:
@@ -57,7 +60,7 @@ class PatchStore:
         stored = self._patches.get(pid)
         if stored is None:
             return None
-        return decode_patch(stored.data, self.lattice, max(len(stored.data), 1))
+        return decode_patch(stored.data, self.lattice, max(len(stored.data), self.max_bytes))
 
     def ids(self) -> list[PatchId]:
         return sorted(self._patches)

@@ -8,7 +8,7 @@ import pytest
 
 from swarm.config import MappingSettings
 from swarm.patches.backend import VoxelBlockGridBackend
-from swarm.patches.fused import FusedMap
+from swarm.patches.fused import FREE, OCCUPIED, FusedMap
 from swarm.patches.lattice import Lattice
 from swarm.patches.mapper import Mapper
 from swarm.patches.patch import TSDF_SCALE, Patch
@@ -27,8 +27,10 @@ def flight():
     return frames
 
 
-def mapped(law: str) -> tuple[Mapper, list[Patch], VoxelBlockGridBackend]:
-    settings = MappingSettings(weight_law=law, patch_frames=5, patch_distance_m=50.0, patch_stretch=1)
+def mapped(law: str, changes_only: bool = False) -> tuple[Mapper, list[Patch], VoxelBlockGridBackend]:
+    settings = MappingSettings(
+        weight_law=law, patch_frames=5, patch_distance_m=50.0, patch_stretch=1, patch_changes_only=changes_only
+    )
     mapper = Mapper(settings, producer=2, epoch=7, bounds=BOUNDS)
     single = VoxelBlockGridBackend(mapper.lattice, block_capacity=8192)
     patches = []
@@ -124,3 +126,32 @@ def test_lattice_mismatch_is_refused(flown) -> None:
     other = FusedMap(Lattice(0.2, 8, 4.0), BOUNDS)
     with pytest.raises(ValueError):
         other.add(patches[0])
+
+
+@pytest.mark.parametrize("law", ["constant", "dropoff"])
+def test_changes_only_patches_give_the_states_of_sharing_every_observation(law: str) -> None:
+    """One drone's map from changes-only patches reads as the map of every observation: each voxel is either in
+    the map or held back, and held back only while sharing it would not change its state."""
+    everything, all_patches, _ = mapped(law, changes_only=False)
+    changes, patches, _ = mapped(law, changes_only=True)
+    full, lean = everything.fused, changes.fused
+    keys = full.block_keys()
+    assert np.array_equal(lean.block_keys(), keys)
+    r = full.lattice.block_resolution
+    index = np.stack(np.meshgrid(*[np.arange(r)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
+    points = full.lattice.origin_array + (keys[:, None, :] * r + index).reshape(-1, 3) * full.lattice.voxel_size
+    states, lean_states = full.state_at(points), lean.state_at(points)
+    assert np.count_nonzero(states == OCCUPIED) > 1000 and np.count_nonzero(states == FREE) > 10000
+    # Equal but on the surface itself, where sharing held-back observations as one (their mean tsdf rounded to
+    # 1/127) can leave the sum on the other side of 0: both maps put those voxels within 1/50 of a truncation.
+    differ = states != lean_states
+    assert np.count_nonzero(differ) < 0.005 * len(points)
+    keys_, flat = full.lattice.voxel_to_block(full.lattice.point_to_voxel(points[differ]))
+    rows = np.arange(len(flat))
+    for fused in (full, lean):
+        weight, total = (a[rows, flat] for a in fused.sums(keys_))
+        assert np.all(np.abs(total) <= 0.02 * TSDF_SCALE * weight)
+    assert changes.unshared.held_back > 0.5 * sum(p.voxel_count for p in patches)
+    own_bytes = sum(len(changes.data(p.id) or b"") for p in patches)
+    all_bytes = sum(len(everything.data(p.id) or b"") for p in all_patches)
+    assert own_bytes < 0.6 * all_bytes

@@ -43,7 +43,7 @@ def _frames() -> list[Frame]:
 
 @pytest.fixture(scope="module")
 def patches() -> tuple[Lattice, list[Patch]]:
-    settings = MappingSettings(patch_frames=5, patch_distance_m=50.0, patch_stretch=1)
+    settings = MappingSettings(patch_frames=5, patch_distance_m=50.0, patch_stretch=1, patch_changes_only=False)
     mapper = Mapper(settings, producer=1, epoch=1, bounds=BOUNDS)
     sealed = [p for f in _frames() if (p := mapper.integrate(f.depth, f.K, f.T, f.t, MAX_RANGE)) is not None]
     assert len(sealed) == 6 and mapper.seal() is None  # 30 frames, 5 per patch: none left open

@@ -107,8 +107,15 @@ def _looking_at_one_wall(n: int) -> list:
 
 def test_a_patch_with_little_new_goes_on_to_the_stretched_trigger_and_keeps_every_frame() -> None:
     frames = _looking_at_one_wall(40)
-    plain = Mapper(MappingSettings(patch_frames=5, patch_distance_m=100.0, patch_stretch=1), 1, 0, BOUNDS)
-    stretched = Mapper(MappingSettings(patch_frames=5, patch_distance_m=100.0, patch_stretch=3), 1, 0, BOUNDS)
+    plain, stretched = (  # each patch sealed whole: only the stretch differs
+        Mapper(
+            MappingSettings(patch_frames=5, patch_distance_m=100.0, patch_stretch=k, patch_changes_only=False),
+            1,
+            0,
+            BOUNDS,
+        )
+        for k in (1, 3)
+    )
     spans = {}
     for name, mapper in (("plain", plain), ("stretched", stretched)):
         sealed = [p for f in frames if (p := mapper.integrate(f.depth, f.K, f.T, f.t, MAX_RANGE)) is not None]
