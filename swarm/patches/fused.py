@@ -35,7 +35,7 @@ import numpy as np
 import zstandard
 
 from swarm.patches.lattice import Lattice
-from swarm.patches.patch import TSDF_SCALE, Patch, PatchId, TsdfArrays, VoxelBlocks
+from swarm.patches.patch import TSDF_SCALE, Patch, PatchId, TsdfArrays, VoxelBlocks, pack_blocks
 
 UNKNOWN, FREE, OCCUPIED = 0, 1, 2
 _EPS = 1e-9
@@ -276,7 +276,7 @@ class FusedMap:
         return h.hexdigest()
 
     def wire_size(self, level: int = 3) -> int:
-        """Bytes of this whole map compressed the way a patch is (keys int16, tsdf int8, weight uint16, zstd):
+        """Bytes of this whole map compressed the way a patch is (`pack_blocks` with uint16 weights, zstd):
         what sending the whole fused map once would cost, the baseline patch sharing is measured against."""
         return compressed_size(self.wire_raw(), level)
 
@@ -285,9 +285,7 @@ class FusedMap:
         a caller may do that on another thread, off the map's)."""
         keys, weight, total = self._observed_blocks()
         tsdf = np.where(weight > 0, np.rint(total / np.maximum(weight, 1)), 0).astype(np.int8)
-        return b"".join(
-            (keys.astype("<i2").tobytes(), tsdf.tobytes(), np.minimum(weight, 65535).astype("<u2").tobytes())
-        )
+        return pack_blocks(keys, tsdf, np.minimum(weight, 65535).astype(np.uint16))
 
     def occupancy_grid(
         self,

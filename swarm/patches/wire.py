@@ -3,8 +3,10 @@
 Bytes: the bus envelope of `swarm.bus.codec` (``{"v", "k": "patch", "d"}``, msgpack) around a `PatchMessage`:
 header fields (format version, patch id, lattice, frame span, anchor pose, bounding box, voxel and block counts,
 CRC-32), the producer's signing certificate and signature (`swarm.patches.signing`; both empty in a swarm
-without signing) and `payload`, one zstd frame (level 3) holding three little-endian arrays back to back:
-keys int16 (M,3), tsdf int8 (M,R^3), weight (M,R^3) in the lattice's weight dtype (uint8 or uint16).
+without signing) and `payload`, one zstd frame (level 3) holding the blocks as `swarm.patches.patch.pack_blocks`
+lays them out: keys int16 (M,3) little-endian, a bit per voxel saying which are observed, then only the observed
+voxels' tsdf (int8) and weight (in the lattice's weight dtype, one plane per byte, low bytes first). A patch that
+changes a few voxels of a block costs those voxels, not the block (`swarm.patches.unshared`).
 
 The CRC-32 covers the header fields and the compressed payload, so corruption is caught before decompression
 (it guards against damage). The content hash, SHA-256 of the same header fields and the payload, is what the
@@ -16,8 +18,8 @@ raises `PatchDecodeError(reason)` only:
 - "not_msgpack": not bytes, or not a bounded msgpack document (the bus codec's limits, no extension types);
 - "version": envelope version or patch format version;
 - "invalid": not a patch envelope, a field missing, unknown, out of range or not finite (pydantic), a pose that
-  is not rigid, an unordered frame span, duplicate keys, tsdf -128, tsdf on unobserved voxels, a wrong voxel count,
-  a block with no observed voxel (a sealer drops those);
+  is not rigid, an unordered frame span, duplicate keys, tsdf -128, an observed voxel of weight 0, a voxel count
+  the observed bits do not add up to, a block with no observed voxel (a sealer drops those);
 - "lattice": voxel size, block resolution, truncation, origin or weight law differ from ours;
 - "bounds": a bounding box that is inverted or larger than MAX_EXTENT_M, or blocks outside it;
 - "empty": no observed voxel (a sealer never seals such a patch: `PatchSealer.seal`);
@@ -54,10 +56,10 @@ from swarm.bus.messages import AgentId, Counter
 from swarm.config import Vec3, WeightLaw
 from swarm.patches.fused import Bounds
 from swarm.patches.lattice import Lattice
-from swarm.patches.patch import TSDF_SCALE, FrameSpan, Patch, PatchId, VoxelBlocks, is_rigid
+from swarm.patches.patch import TSDF_SCALE, FrameSpan, Patch, PatchId, VoxelBlocks, is_rigid, pack_blocks, packed_size
 from swarm.patches.signing import MAX_SIGNER_BYTES, SIGNATURE_BYTES, PatchSigner, PatchVerifier
 
-PATCH_FORMAT = 2  # 2: signer and signature
+PATCH_FORMAT = 3  # 2: signer and signature; 3: values of observed voxels only
 KIND = "patch"
 ZSTD_LEVEL = 3
 MAX_EXPANSION = 16  # decompressed payload <= this many times max_bytes
@@ -101,7 +103,7 @@ class PatchMessage(WireMessage):
     checksum: int = Field(ge=0, le=0xFFFFFFFF, description="CRC-32 of the header fields and the payload")
     signer: bytes = Field(max_length=MAX_SIGNER_BYTES, description="the producer's signing certificate, DER")
     signature: bytes = Field(max_length=SIGNATURE_BYTES, description="Ed25519 over CONTEXT + content hash")
-    payload: bytes = Field(description="zstd frame: keys int16 (M,3), tsdf int8 (M,R^3), weight (M,R^3)")
+    payload: bytes = Field(description="zstd frame: keys, observed bits, tsdf and weight of observed voxels")
 
 
 _UNHASHED = ("checksum", "signer", "signature", "payload")
@@ -120,22 +122,12 @@ def _content_hash(fields: dict[str, Any], payload: bytes) -> bytes:
     return hashlib.sha256(_header(fields) + payload).digest()
 
 
-def _raw_size(lattice: Lattice, blocks: int) -> int:
-    return blocks * (3 * 2 + lattice.voxels_per_block * (1 + lattice.weight_dtype.itemsize))
-
-
 def encode_patch(patch: Patch, level: int = ZSTD_LEVEL, signer: PatchSigner | None = None) -> bytes:
     """The wire bytes of a sealed patch, signed by `signer` (its producer) when given."""
     blocks, lattice = patch.blocks, patch.lattice
     if blocks.block_count and int(np.abs(blocks.keys).max()) > _KEY_LIMIT:
         raise ValueError("block keys beyond the int16 range cannot be encoded")
-    raw = b"".join(
-        (
-            blocks.keys.astype("<i2").tobytes(),
-            blocks.tsdf.tobytes(),
-            blocks.weight.astype(lattice.weight_dtype.newbyteorder("<"), copy=False).tobytes(),
-        )
-    )
+    raw = pack_blocks(blocks.keys, blocks.tsdf, blocks.weight)
     payload = zstandard.ZstdCompressor(level=level).compress(raw)
     fields: dict[str, Any] = {
         "patch_format": PATCH_FORMAT,
@@ -218,7 +210,9 @@ def _decode(
         raise PatchDecodeError("empty", f"patch {msg.producer}.{msg.epoch}.{msg.seq} has no observed voxel")
     if max_blocks is not None and msg.block_count > max_blocks:
         raise PatchDecodeError("too_many_blocks", f"{msg.block_count} blocks, a patch has at most {max_blocks}")
-    expected = _raw_size(lattice, msg.block_count)
+    if msg.voxel_count > msg.block_count * lattice.voxels_per_block:
+        raise PatchDecodeError("invalid", f"{msg.voxel_count} observed voxels in {msg.block_count} blocks")
+    expected = packed_size(lattice, msg.block_count, msg.voxel_count)
     if expected > MAX_EXPANSION * max_bytes:
         raise PatchDecodeError("too_large", f"{msg.block_count} blocks need {expected} bytes")
     header = msg.model_dump(include=set(_HEADER_FIELDS))
@@ -230,12 +224,8 @@ def _decode(
             raise PatchDecodeError(refused, f"patch {msg.producer}.{msg.epoch}.{msg.seq} is not its producer's")
     raw = _decompress(msg.payload, expected)
 
-    m, n = msg.block_count, lattice.voxels_per_block
-    keys = np.frombuffer(raw, dtype="<i2", count=3 * m).reshape(m, 3).astype(np.int32)
-    tsdf = np.frombuffer(raw, dtype=np.int8, count=m * n, offset=6 * m).reshape(m, n)
-    weight = np.frombuffer(raw, dtype=lattice.weight_dtype.newbyteorder("<"), count=m * n, offset=6 * m + m * n)
-    weight = weight.reshape(m, n).astype(lattice.weight_dtype, copy=False)
-    _check_arrays(msg, lattice, keys, tsdf, weight, lo, hi)
+    keys, tsdf, weight = _unpack(raw, lattice, msg.block_count, msg.voxel_count)
+    _check_arrays(lattice, keys, tsdf, lo, hi)
     if volume is not None and outside_volume(lattice, keys, volume):
         box = lattice.block_bounds(keys)
         raise PatchDecodeError("outside_volume", f"no block of {box[0]} - {box[1]} is in the mission volume")
@@ -284,15 +274,35 @@ def _decompress(payload: bytes, expected: int) -> bytearray:
     return out
 
 
-def _check_arrays(
-    msg: PatchMessage,
-    lattice: Lattice,
-    keys: np.ndarray,
-    tsdf: np.ndarray,
-    weight: np.ndarray,
-    lo: np.ndarray,
-    hi: np.ndarray,
-) -> None:
+def _unpack(raw: bytearray, lattice: Lattice, m: int, voxels: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Dense (keys int32, tsdf, weight) of `pack_blocks` bytes, whose size `packed_size(m, voxels)` was checked."""
+    n = lattice.voxels_per_block
+    mask_bytes = -(-n // 8)
+    keys = np.frombuffer(raw, dtype="<i2", count=3 * m).reshape(m, 3).astype(np.int32)
+    bits = np.frombuffer(raw, dtype=np.uint8, count=m * mask_bytes, offset=6 * m).reshape(m, mask_bytes)
+    observed = np.unpackbits(bits, axis=1, count=n).astype(bool)
+    if m and not observed.any(axis=1).all():
+        raise PatchDecodeError("invalid", "a block with no observed voxel")
+    if int(np.count_nonzero(observed)) != voxels:
+        raise PatchDecodeError("invalid", f"{np.count_nonzero(observed)} observed voxels, header says {voxels}")
+    at = m * (6 + mask_bytes)
+    values = np.frombuffer(raw, dtype=np.int8, count=voxels, offset=at)
+    if voxels and int(values.min()) < -TSDF_SCALE:
+        raise PatchDecodeError("invalid", "tsdf value -128 is outside [-127, 127]")
+    dtype = lattice.weight_dtype
+    planes = [
+        np.frombuffer(raw, dtype=np.uint8, count=voxels, offset=at + voxels * (1 + i)) for i in range(dtype.itemsize)
+    ]
+    weights = planes[0].astype(dtype) if dtype.itemsize == 1 else planes[0] | (planes[1].astype(dtype) << 8)
+    if voxels and int(weights.min()) == 0:
+        raise PatchDecodeError("invalid", "an observed voxel with weight 0")
+    tsdf = np.zeros((m, n), dtype=np.int8)
+    weight = np.zeros((m, n), dtype=dtype)
+    tsdf[observed], weight[observed] = values, weights
+    return keys, tsdf, weight
+
+
+def _check_arrays(lattice: Lattice, keys: np.ndarray, tsdf: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> None:
     if len(keys):
         klo, khi = lattice.block_bounds(keys)
         slack = 1e-6 * max(1.0, float(np.max(np.abs(np.concatenate([lo, hi])))))
@@ -301,16 +311,6 @@ def _check_arrays(
         codes = (keys[:, 0].astype(np.int64) << 32) + (keys[:, 1].astype(np.int64) << 16) + keys[:, 2]
         if len(np.unique(codes)) != len(codes):
             raise PatchDecodeError("invalid", "duplicate block keys")
-    if tsdf.size and int(tsdf.min()) < -TSDF_SCALE:
-        raise PatchDecodeError("invalid", "tsdf value -128 is outside [-127, 127]")
-    observed = weight > 0
-    if len(observed) and not observed.any(axis=1).all():
-        raise PatchDecodeError("invalid", "a block with no observed voxel")
-    if int(np.count_nonzero(observed)) != msg.voxel_count:
-        count = np.count_nonzero(observed)
-        raise PatchDecodeError("invalid", f"{count} observed voxels, header says {msg.voxel_count}")
-    if np.any(tsdf[~observed]):
-        raise PatchDecodeError("invalid", "unobserved voxels must have tsdf 0")
 
 
 def outside_volume(lattice: Lattice, keys: np.ndarray, volume: Bounds) -> bool:

@@ -50,7 +50,7 @@ from swarm.bus.phase import Phase
 from swarm.patches import wire
 from swarm.patches.digest import DigestMessage, PatchDigest
 from swarm.patches.lattice import Lattice
-from swarm.patches.patch import TSDF_SCALE, Patch, PatchId, is_rigid
+from swarm.patches.patch import TSDF_SCALE, Patch, PatchId, is_rigid, packed_size
 from swarm.patches.wire import (
     MAX_EXPANSION,
     MAX_EXTENT_M,
@@ -392,22 +392,35 @@ class RawArrays:
     tsdf: np.ndarray
     weight: np.ndarray
 
+    observed: np.ndarray  # the bits sent: weight > 0, or arbitrary (then observed voxels of weight 0 are likely)
+
     def payload(self, lattice: Lattice, extra: bytes) -> bytes:
-        weight = self.weight.astype(lattice.weight_dtype.newbyteorder("<"))
-        raw = self.keys.astype("<i2").tobytes() + self.tsdf.astype(np.int8).tobytes() + weight.tobytes()
+        """Laid out as `pack_blocks` does, but with these observed bits and whatever values they select."""
+        n = lattice.voxels_per_block
+        weights = self.weight.reshape(-1, n)[self.observed].astype(lattice.weight_dtype)
+        planes = [weights.astype(np.uint8)] if weights.dtype.itemsize == 1 else [weights & 0xFF, weights >> 8]
+        parts = [self.keys.astype("<i2"), np.packbits(self.observed, axis=1)]
+        parts += [self.tsdf.reshape(-1, n)[self.observed].astype(np.int8)] + [p.astype(np.uint8) for p in planes]
+        raw = b"".join(part.tobytes() for part in parts)
         return zstandard.ZstdCompressor(level=1).compress(raw + extra)
 
 
 @st.composite
 def raw_arrays(draw: st.DrawFn, lattice: Lattice, blocks: int) -> RawArrays:
-    """Arbitrary keys (duplicates likely), tsdf (-128 and values on unobserved voxels possible) and weights."""
+    """Arbitrary keys (duplicates likely), tsdf (-128 possible), weights (0 on observed voxels possible) and
+    observed bits (blocks with none possible)."""
     size = blocks * lattice.voxels_per_block
     keys = np.array(draw(st.lists(st.integers(-3, 3), min_size=3 * blocks, max_size=3 * blocks))).reshape(-1, 3)
     weight = np.array(draw(st.lists(st.sampled_from([0, 0, 1, 2, 255]), min_size=size, max_size=size)))
     tsdf = np.array(draw(st.lists(st.integers(-128, 127), min_size=size, max_size=size)))
     if draw(st.booleans()):
         tsdf = np.clip(tsdf, -TSDF_SCALE, TSDF_SCALE) * (weight > 0)
-    return RawArrays(keys, tsdf, weight)
+    n = lattice.voxels_per_block
+    if draw(st.booleans()):
+        observed = weight.reshape(blocks, n) > 0
+    else:
+        observed = np.array(draw(st.lists(st.booleans(), min_size=size, max_size=size)), dtype=bool).reshape(-1, n)
+    return RawArrays(keys, tsdf, weight, observed)
 
 
 @FEW
@@ -419,7 +432,7 @@ def test_payloads_with_arbitrary_arrays(patch: Patch, data: st.DataObject) -> No
     fields = msgpack.unpackb(encode_patch(patch), raw=False)["d"]
     fields["payload"] = arrays.payload(lattice, data.draw(st.sampled_from([b"", b"", b"\x00"])))
     if data.draw(st.booleans()):
-        fields["voxel_count"] = int(np.count_nonzero(arrays.weight))
+        fields["voxel_count"] = int(np.count_nonzero(arrays.observed))
     if patch.block_count and data.draw(st.booleans()):
         lo, hi = lattice.block_bounds(arrays.keys)
         fields["bbox_min"], fields["bbox_max"] = lo.tolist(), hi.tolist()
@@ -660,6 +673,12 @@ def seed_patch_fields() -> dict[str, Any]:
     return seed_fields("patch")
 
 
+def most_blocks(raw_bytes: int) -> int:
+    """The most blocks a header with the seed's voxel count may claim within `raw_bytes` of packed arrays."""
+    voxels = seed_patch_fields()["voxel_count"]
+    return (raw_bytes - packed_size(fuzz.LATTICE, 0, voxels)) // packed_size(fuzz.LATTICE, 1, 0)
+
+
 def test_patch_header_claiming_a_huge_raw_size_allocates_little() -> None:
     data = envelope(with_checksum(seed_patch_fields() | {"block_count": 10**15}), wire.KIND)
     peak = peak_bytes(lambda: patch_or_reason(data, fuzz.LATTICE, max_bytes=4 << 20))
@@ -681,7 +700,7 @@ def test_a_patch_at_the_expansion_cap_allocates_at_most_the_cap() -> None:
     """A frame without a declared size, under a header claiming the most blocks allowed: the decoder allocates
     the size those blocks need (MAX_EXPANSION * max_bytes at most), never more."""
     cap = MAX_EXPANSION * PATCH_MAX_BYTES
-    blocks = cap // wire._raw_size(fuzz.LATTICE, 1)
+    blocks = most_blocks(cap)
     stream = zstandard.ZstdCompressor().compressobj()
     frame = stream.compress(b"x" * 100) + stream.flush()
     assert zstandard.frame_content_size(frame) == -1
@@ -733,7 +752,8 @@ def test_patch_size_and_expansion_limits() -> None:
     data = SEEDS["patch"]()
     assert isinstance(patch_or_reason(data, fuzz.LATTICE, max_bytes=len(data)), Patch)
     assert patch_or_reason(data, fuzz.LATTICE, max_bytes=len(data) - 1) == "too_large"
-    most = MAX_EXPANSION * PATCH_MAX_BYTES // wire._raw_size(fuzz.LATTICE, 1)
+    most = most_blocks(MAX_EXPANSION * PATCH_MAX_BYTES)
+    assert packed_size(fuzz.LATTICE, most + 1, seed_patch_fields()["voxel_count"]) > MAX_EXPANSION * PATCH_MAX_BYTES
     for blocks, expected in ((most, "shape"), (most + 1, "too_large")):
         lie = envelope(with_checksum(seed_patch_fields() | {"block_count": blocks}), wire.KIND)
         assert patch_or_reason(lie, fuzz.LATTICE) == expected

@@ -14,7 +14,7 @@ from swarm.patches import wire
 from swarm.patches.fused import FusedMap
 from swarm.patches.lattice import Lattice
 from swarm.patches.mapper import Mapper
-from swarm.patches.patch import Patch
+from swarm.patches.patch import Patch, pack_blocks, packed_size
 from swarm.patches.wire import PatchDecodeError, decode_patch, encode_patch
 from tests.patches.scene import MAX_RANGE, ROOM_HI, ROOM_LO, rotate_in_place
 
@@ -137,7 +137,7 @@ def test_zip_bombs_are_cut_at_the_declared_size(patch: Patch) -> None:
         tracemalloc.stop()
     assert peak < 16 << 20
     b = patch.blocks
-    raw = b.keys.astype("<i2").tobytes() + b.tsdf.tobytes() + b.weight.tobytes()
+    raw = pack_blocks(b.keys, b.tsdf, b.weight)
     broken = bytearray(zstandard.ZstdCompressor(level=1, write_checksum=True).compress(raw))
     broken[-1] ^= 0xFF  # zstd's own frame checksum now fails
     assert rejected(tamper(data, payload=bytes(broken)), patch.lattice) == "decompress"
@@ -149,7 +149,9 @@ def test_bounds_and_contents_are_validated(patch: Patch) -> None:
     assert rejected(tamper(data, bbox_max=list(hi - 1.0)), patch.lattice) == "bounds"
     assert rejected(tamper(data, bbox_min=list(lo + 0.5)), patch.lattice) == "bounds"
     assert rejected(tamper(data, bbox_min=[-1e4, 0.0, 0.0]), patch.lattice) == "bounds"
-    assert rejected(tamper(data, voxel_count=patch.voxel_count + 1), patch.lattice) == "invalid"
+    assert rejected(tamper(data, voxel_count=patch.voxel_count + 1), patch.lattice) == "shape"  # values missing
+    too_many = patch.block_count * patch.lattice.voxels_per_block + 1
+    assert rejected(tamper(data, voxel_count=too_many), patch.lattice) == "invalid"
     scaled = (2.0 * patch.anchor_pose).ravel().tolist()
     assert rejected(tamper(data, anchor_pose=scaled), patch.lattice) == "invalid"
     assert rejected(tamper(data, anchor_pose=[float("nan")] * 16), patch.lattice) == "invalid"
@@ -159,25 +161,41 @@ def test_bounds_and_contents_are_validated(patch: Patch) -> None:
 
 
 def test_array_contents_are_validated(patch: Patch) -> None:
-    m, n = patch.block_count, patch.lattice.voxels_per_block
+    m, n, v = patch.block_count, patch.lattice.voxels_per_block, patch.voxel_count
+    mask_at, values_at = 6 * m, m * (6 + n // 8)  # where the observed bits, then the tsdf values, start
 
-    def with_arrays(keys, tsdf, weight) -> bytes:
-        weight_dtype = patch.lattice.weight_dtype.newbyteorder("<")
-        raw = keys.astype("<i2").tobytes() + tsdf.astype(np.int8).tobytes() + weight.astype(weight_dtype).tobytes()
-        payload = zstandard.ZstdCompressor(level=1).compress(raw)
-        return tamper(encode_patch(patch), payload=payload, voxel_count=int(np.count_nonzero(weight)))
+    def with_raw(raw: bytes | bytearray) -> bytes:
+        payload = zstandard.ZstdCompressor(level=1).compress(bytes(raw))
+        return tamper(encode_patch(patch), payload=payload)
 
     b = patch.blocks
+    assert decode_patch(with_raw(pack_blocks(b.keys, b.tsdf, b.weight)), patch.lattice, MAX_BYTES) == patch
     duplicate = b.keys.copy()
     duplicate[1] = duplicate[0]
-    assert rejected(with_arrays(duplicate, b.tsdf, b.weight), patch.lattice) == "invalid"
-    tsdf = b.tsdf.copy()
-    tsdf[b.weight == 0] = 5
-    assert rejected(with_arrays(b.keys, tsdf, b.weight), patch.lattice) == "invalid"
+    assert rejected(with_raw(pack_blocks(duplicate, b.tsdf, b.weight)), patch.lattice) == "invalid"
     tsdf = b.tsdf.copy()
     tsdf[b.weight > 0] = -128
-    assert rejected(with_arrays(b.keys, tsdf, b.weight), patch.lattice) == "invalid"
-    assert m > 1 and n == 512
+    assert rejected(with_raw(pack_blocks(b.keys, tsdf, b.weight)), patch.lattice) == "invalid"
+    raw = bytearray(pack_blocks(b.keys, b.tsdf, b.weight))
+    raw[values_at + v] = raw[values_at + 2 * v] = 0  # the first observed voxel's weight, both bytes
+    assert rejected(with_raw(raw), patch.lattice) == "invalid"
+    raw = bytearray(pack_blocks(b.keys, b.tsdf, b.weight))
+    unobserved = int(np.flatnonzero(b.weight[0] == 0)[0])
+    raw[mask_at + unobserved // 8] |= 0x80 >> (unobserved % 8)  # one more observed bit than values and header say
+    assert rejected(with_raw(raw), patch.lattice) == "invalid"
+    raw = bytearray(pack_blocks(b.keys, b.tsdf, b.weight))
+    raw[mask_at : mask_at + n // 8] = bytes(n // 8)  # a block with nothing observed
+    assert rejected(with_raw(raw), patch.lattice) == "invalid"
+    assert m > 1 and n == 512 and b.weight.dtype == np.uint16
+
+
+def test_only_observed_voxels_carry_values(patch: Patch) -> None:
+    b = patch.blocks
+    raw = pack_blocks(b.keys, b.tsdf, b.weight)
+    assert len(raw) == packed_size(patch.lattice, patch.block_count, patch.voxel_count)
+    assert len(raw) < 6 * patch.block_count + 3 * b.weight.size  # less than the dense arrays
+    decoded = decode_patch(encode_patch(patch), patch.lattice, MAX_BYTES)
+    assert decoded.blocks.same_as(b)
 
 
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
