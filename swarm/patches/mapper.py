@@ -96,6 +96,8 @@ class Mapper:
             return False
         self.public.add(patch, data)
         self.fused.add(patch)
+        if self.sealer.share is not None:
+            self.unshared.recheck(patch.blocks.keys, self.fused)
         return True
 
     def receive_wire(self, data: bytes, pid: PatchId, max_bytes: int) -> bool:

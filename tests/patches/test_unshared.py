@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from swarm.patches.fused import FREE, FusedMap
+from swarm.patches.fused import FREE, OCCUPIED, FusedMap
 from swarm.patches.lattice import Lattice
 from swarm.patches.patch import FrameSpan, Patch, PatchId, VoxelBlocks
 from swarm.patches.unshared import UnsharedObservations
@@ -82,3 +82,22 @@ def test_a_shared_weight_is_capped_at_the_wires_largest_and_keeps_its_mean() -> 
     assert unshared.share(blocks({0: (100, 60000)}), fused).block_count == 0
     out = unshared.share(blocks({0: (100, 60000)}), fused)  # 120000 units of free: more than the map's
     assert shared(out) == {0: (100, 65535)}
+
+
+def test_evidence_held_back_answers_a_peer_that_contradicts_it() -> None:
+    fused = fused_with({0: (127, 16)})  # free, known
+    unshared = UnsharedObservations(LATTICE, BOUNDS)
+    assert unshared.share(blocks({0: (127, 64)}), fused).block_count == 0  # agrees: held back
+    peer = Patch.seal(PatchId(2, 0, 0), LATTICE, FrameSpan(0, 0, 0.0, 0.0), np.eye(4), blocks({0: (-100, 32)}))
+    fused.add(peer)  # 16 * 127 - 32 * 100 < 0: the peer says occupied
+    voxel = LATTICE.origin_array + 0.1 * np.array([[4, 4, 4]])
+    assert fused.state_at(voxel).tolist() == [OCCUPIED]
+    unshared.recheck(peer.blocks.keys, fused)
+    elsewhere = np.array([[2, 1, 1]], dtype=np.int32)
+    out = unshared.share(blocks({3: (127, 16)}, elsewhere), fused)  # the next seal, looking somewhere else
+    assert out.keys.tolist() == [[2, 1, 1], [1, 1, 1]]  # its own blocks, then the contested one
+    assert int(out.weight[1, 0]) == 64 and int(out.tsdf[1, 0]) == 127 and np.count_nonzero(out.weight[1]) == 1
+    fused.add(Patch.seal(PatchId(1, 0, 0), LATTICE, FrameSpan(0, 1, 0.0, 0.1), np.eye(4), out))
+    assert fused.state_at(voxel).tolist() == [FREE]  # 16 * 127 - 3200 + 64 * 127 > 0: the evidence of both
+    unshared.recheck(peer.blocks.keys, fused)  # nothing held about it any more: nothing contested
+    assert unshared.share(blocks({3: (127, 4)}, elsewhere), fused).block_count == 0
