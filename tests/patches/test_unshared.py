@@ -36,16 +36,15 @@ def shared(out: VoxelBlocks) -> dict[int, tuple[int, int]]:
     return {int(i): (int(out.tsdf[0, i]), int(out.weight[0, i])) for i in np.flatnonzero(out.weight[0])}
 
 
-def test_only_voxels_whose_state_would_change_are_shared() -> None:
-    # 0 free, 1 occupied, 2 and 3 observed but not known (unknown), 4 to 6 never observed
-    fused = fused_with({0: (100, 16), 1: (-100, 16), 2: (50, 4), 3: (50, 4)})
+def test_only_voxels_the_map_does_not_know_or_whose_state_would_change_are_shared() -> None:
+    # 0 free, 1 occupied, 2 observed but not known (unknown), 3 to 5 never observed
+    fused = fused_with({0: (100, 16), 1: (-100, 16), 2: (50, 4)})
     unshared = UnsharedObservations(LATTICE, BOUNDS)
-    seen = {0: (90, 16), 1: (50, 8), 2: (60, 4), 3: (60, 12), 4: (-20, 2), 5: (-127, 16), 6: (90, 8)}
+    seen = {0: (90, 16), 1: (50, 8), 2: (60, 4), 3: (-20, 2), 4: (90, 8), 5: (-127, 16)}
     out = unshared.share(blocks(seen), fused)
-    # Held back: 0 stays free, 1 occupied (-1600 + 400 < 0), 2 unknown (weight 8 of 16), 6 unknown (new, but too
-    # weak to be known, and free). Shared: 3 becomes known, 4 and 5 become occupied (anything seen below 0 is).
-    assert shared(out) == {3: (60, 12), 4: (-20, 2), 5: (-127, 16)}
-    assert unshared.held_back == 4
+    # Held back: 0 stays free, 1 occupied (-1600 + 400 < 0). Shared: 2 is not known yet, 3 to 5 are new.
+    assert shared(out) == {2: (60, 4), 3: (-20, 2), 4: (90, 8), 5: (-127, 16)}
+    assert unshared.held_back == 2
     assert np.array_equal(out.keys, KEY)
 
 
