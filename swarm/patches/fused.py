@@ -213,6 +213,14 @@ class FusedMap:
         weight[rows], total[rows] = self._weight[held], self._sum[held]
         return weight, total
 
+    def observed_blocks(self, keys: np.ndarray) -> np.ndarray:
+        """(M,) bool: which of (M,3) block keys hold an observed voxel here."""
+        observed = np.zeros(len(keys), dtype=bool)
+        inside, slots = self._slots(keys, allocate=False)
+        rows = np.flatnonzero(inside)[slots >= 0]
+        observed[rows] = self._weight[slots[slots >= 0]].any(axis=1)
+        return observed
+
     def add_blocks(self, blocks: VoxelBlocks) -> None:
         """Add blocks that are no patch (no id, so nothing to hold or fuse once): for a map used as an
         accumulator (`swarm.patches.unshared`), never for the fused map."""

@@ -54,11 +54,11 @@ class UnsharedObservations:
     def recheck(self, keys: np.ndarray, fused: FusedMap) -> None:
         """After a peer's patch changed blocks `keys` of `fused`: the blocks where what is held here now disagrees
         with the map's state are looked at again at the next `share`."""
-        weight, total = self._sums.sums(keys)
-        held = weight.any(axis=1)
+        held = self._sums.observed_blocks(keys)
         if not held.any():
             return
-        keys, weight, total = keys[held], weight[held], total[held]
+        keys = keys[held]
+        weight, total = self._sums.sums(keys)
         contested = _changes(weight, total, *fused.sums(keys), fused.known_units).any(axis=1)
         if contested.any():
             self._contested.append(np.ascontiguousarray(keys[contested], dtype=np.int32))
