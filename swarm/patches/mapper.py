@@ -66,7 +66,7 @@ class Mapper:
             novel_fraction=settings.novel_block_fraction,
             share=self._share if settings.patch_changes_only else None,
         )
-        self.unshared = UnsharedObservations(self.lattice, bounds)
+        self.unshared = UnsharedObservations(self.lattice, bounds, max_blocks)
         self.private = PatchStore(self.lattice, settings.max_patch_bytes)
         self.public = PatchStore(self.lattice, settings.max_patch_bytes)
 

@@ -41,8 +41,11 @@ from swarm.patches.patch import TSDF_SCALE, VoxelBlocks
 class UnsharedObservations:
     """What one drone observed and has not shared yet, over the mission volume (module doc)."""
 
-    def __init__(self, lattice: Lattice, bounds: Bounds) -> None:
+    def __init__(self, lattice: Lattice, bounds: Bounds, max_blocks: int | None = None) -> None:
+        """`max_blocks`: the most blocks a patch may have (`swarm.patches.sealer.patch_block_limit`); contested
+        blocks beyond what a patch has room for wait for the next."""
         self.lattice = lattice
+        self.max_blocks = max_blocks
         self._sums = FusedMap(lattice, bounds)  # used as an accumulator: W and S per voxel, no patch ids
         self.held_back = 0  # observed voxels of sealed patches kept here at their seal
         self._contested: list[np.ndarray] = []  # block keys to look at again at the next share (`recheck`)
@@ -71,8 +74,10 @@ class UnsharedObservations:
         keys = blocks.keys
         if self._contested:
             contested = np.unique(np.concatenate(self._contested), axis=0)
-            self._contested = []
-            keys = np.concatenate([keys, contested[~_rows_in(contested, keys)]])  # the patch's blocks first
+            contested = contested[~_rows_in(contested, keys)]
+            room = len(contested) if self.max_blocks is None else max(self.max_blocks - len(keys), 0)
+            self._contested = [contested[room:]] if room < len(contested) else []
+            keys = np.concatenate([keys, contested[:room]])  # the patch's blocks first
         weight, total = self._sums.sums(keys)
         share = _changes(weight, total, *fused.sums(keys), fused.known_units)
         observed = blocks.weight > 0

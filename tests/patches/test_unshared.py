@@ -100,3 +100,21 @@ def test_evidence_held_back_answers_a_peer_that_contradicts_it() -> None:
     assert fused.state_at(voxel).tolist() == [FREE]  # 16 * 127 - 3200 + 64 * 127 > 0: the evidence of both
     unshared.recheck(peer.blocks.keys, fused)  # nothing held about it any more: nothing contested
     assert unshared.share(blocks({3: (127, 4)}, elsewhere), fused).block_count == 0
+
+
+def test_contested_blocks_beyond_a_patchs_room_wait_for_the_next() -> None:
+    keys = np.array([[1, 1, k] for k in range(4)], dtype=np.int32)
+    fused = FusedMap(LATTICE, BOUNDS)
+    fused.add(Patch.seal(PatchId(9, 0, 0), LATTICE, FrameSpan(0, 0, 0.0, 0.0), np.eye(4), blocks({0: (127, 16)}, keys)))
+    unshared = UnsharedObservations(LATTICE, BOUNDS, max_blocks=2)
+    assert unshared.share(blocks({0: (127, 64)}, keys), fused).block_count == 0  # all four agree: held back
+    peer = Patch.seal(PatchId(2, 0, 0), LATTICE, FrameSpan(0, 0, 0.0, 0.0), np.eye(4), blocks({0: (-127, 32)}, keys))
+    fused.add(peer)
+    unshared.recheck(peer.blocks.keys, fused)  # four blocks contested
+    elsewhere = np.array([[3, 3, 3]], dtype=np.int32)
+    first = unshared.share(blocks({0: (127, 16)}, elsewhere), fused)
+    second = unshared.share(blocks({1: (127, 16)}, elsewhere), fused)
+    third = unshared.share(blocks({2: (127, 16)}, elsewhere), fused)
+    assert [out.block_count for out in (first, second, third)] == [2, 2, 2]  # its own block and one contested
+    contested = [tuple(k) for out in (first, second, third) for k in out.keys.tolist()[1:]]
+    assert sorted(contested) == [(1, 1, 0), (1, 1, 1), (1, 1, 2)]  # the fourth waits for the next seal
