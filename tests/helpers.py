@@ -15,7 +15,8 @@ from typing import Any
 import psutil
 import zenoh
 
-from swarm.mission.ports import find_free_base
+from swarm.errors import PortInUseError
+from swarm.mission.ports import SENSOR_PORT_OFFSET, ensure_free, find_free_base
 
 
 @dataclass(frozen=True)
@@ -39,12 +40,24 @@ class SwarmPorts:
         return [item for key, value in self.settings().items() for item in ("--set", f"{key}={str(value).lower()}")]
 
 
+EPHEMERAL_PORTS_FROM = 32768  # Linux's default ip_local_port_range starts here: outgoing connections take these
+
+
 def free_swarm_ports() -> SwarmPorts:
-    start = random.randrange(20000, 50000, 100)
-    vehicle = find_free_base("127.0.0.1", 16, "udp", start)
-    gcs = find_free_base("127.0.0.1", 16, "udp", vehicle + 20)
-    bus = find_free_base("127.0.0.1", 17, "tcp", gcs + 20)
-    return SwarmPorts(vehicle, gcs, bus)
+    """Bases for a test mission's ports, below the ephemeral range: a port found free there can be taken by any
+    outgoing connection before the mission binds it. The sensor router (bus base + SENSOR_PORT_OFFSET) is checked
+    too."""
+    while True:
+        start = random.randrange(20000, EPHEMERAL_PORTS_FROM - 300 - SENSOR_PORT_OFFSET, 100)
+        stop = EPHEMERAL_PORTS_FROM - SENSOR_PORT_OFFSET - 20
+        vehicle = find_free_base("127.0.0.1", 16, "udp", start, stop)
+        gcs = find_free_base("127.0.0.1", 16, "udp", vehicle + 20, stop)
+        bus = find_free_base("127.0.0.1", 17, "tcp", gcs + 20, stop)
+        try:
+            ensure_free("127.0.0.1", bus + SENSOR_PORT_OFFSET, "tcp", "sensor streams")
+        except PortInUseError:
+            continue
+        return SwarmPorts(vehicle, gcs, bus)
 
 
 def swarm_cmd(*args: str) -> list[str]:

@@ -10,6 +10,8 @@ import socket
 
 from swarm.errors import PortInUseError
 
+SENSOR_PORT_OFFSET = 200  # a simulated swarm's sensor router listens on bus.base_port + this
+
 
 def ensure_free(host: str, port: int, kind: str, what: str) -> None:
     sock_type = socket.SOCK_DGRAM if kind == "udp" else socket.SOCK_STREAM

@@ -53,7 +53,7 @@ from swarm.errors import SwarmError
 from swarm.mission.faults import FaultInjector
 from swarm.mission.files import MissionReport
 from swarm.mission.links import LinkController
-from swarm.mission.ports import ensure_free
+from swarm.mission.ports import SENSOR_PORT_OFFSET, ensure_free
 from swarm.mission.processes import Child, start_child, stop_all, swarm_command
 from swarm.mission.progress import ProgressView
 from swarm.mission.report import (
@@ -85,7 +85,6 @@ RADIO_PROTOCOLS = ("tcp",)
 # publishing ROS 2 streams, and every agent maps from those streams (camera.source = "zenoh"), as on a real drone.
 STREAMED_SOURCES = ("sim", "zenoh")
 NO_WORLD_FOR_AGENTS = "no-world-for-agents.ply"  # camera.source = "zenoh": what agents are told the world is
-SENSOR_PORT_OFFSET = 200  # the sensor router listens on bus.base_port + this
 INTERRUPTED = "interrupted"  # the reason of a mission stopped by Ctrl-C or SIGTERM
 
 

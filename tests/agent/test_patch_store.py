@@ -53,7 +53,10 @@ class Log:
 
 
 def _task(state_dir: Path, out_dir: Path | None, log: Log, sealed: list[tuple[PatchId, bytes]]) -> MappingTask:
-    config = SwarmConfig.model_validate({"agent": {"id": 2, "state_dir": str(state_dir)}})
+    # every seal a patch (changes only would seal nothing where the same wall is seen again)
+    config = SwarmConfig.model_validate(
+        {"agent": {"id": 2, "state_dir": str(state_dir)}, "mapping": {"patch_changes_only": False}}
+    )
     return MappingTask(
         config, 100, NoSource(), BOUNDS, log, out_dir, on_sealed=lambda pid, data: sealed.append((pid, data))
     )
