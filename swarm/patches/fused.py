@@ -147,6 +147,11 @@ class FusedMap:
                 self._count += n_new
         return inside, slots
 
+    def _held(self, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(indices into `keys` of the blocks held here, their pool rows)."""
+        inside, slots = self._slots(keys, allocate=False)
+        return np.flatnonzero(inside)[slots >= 0], slots[slots >= 0]
+
     def _reserve(self, needed: int) -> None:
         cap = len(self._keys)
         if needed <= cap:
@@ -195,30 +200,25 @@ class FusedMap:
     def novelty(self, keys: np.ndarray) -> float:
         """The share of (N,3) block keys inside the map's volume that hold no observed voxel here yet (0 for none
         inside)."""
-        inside, slots = self._slots(keys, allocate=False)
+        _, slots = self._slots(keys, allocate=False)  # the rows of the keys inside, -1 where none is held
         if not len(slots):
             return 0.0
-        held = slots >= 0
-        observed = np.zeros(len(slots), dtype=bool)
-        observed[held] = self._weight[slots[held]].any(axis=1)
-        return float(np.count_nonzero(~observed)) / len(slots)
+        observed = np.count_nonzero(self._weight[slots[slots >= 0]].any(axis=1))
+        return float(len(slots) - observed) / len(slots)
 
     def sums(self, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(W, S) as int64 (M, R^3) for (M,3) block keys: zero for blocks not held here or outside the volume."""
         weight = np.zeros((len(keys), self.lattice.voxels_per_block), dtype=np.int64)
         total = np.zeros_like(weight)
-        inside, slots = self._slots(keys, allocate=False)
-        rows = np.flatnonzero(inside)[slots >= 0]
-        held = slots[slots >= 0]
-        weight[rows], total[rows] = self._weight[held], self._sum[held]
+        at, rows = self._held(keys)
+        weight[at], total[at] = self._weight[rows], self._sum[rows]
         return weight, total
 
     def observed_blocks(self, keys: np.ndarray) -> np.ndarray:
         """(M,) bool: which of (M,3) block keys hold an observed voxel here."""
         observed = np.zeros(len(keys), dtype=bool)
-        inside, slots = self._slots(keys, allocate=False)
-        rows = np.flatnonzero(inside)[slots >= 0]
-        observed[rows] = self._weight[slots[slots >= 0]].any(axis=1)
+        at, rows = self._held(keys)
+        observed[at] = self._weight[rows].any(axis=1)
         return observed
 
     def add_blocks(self, blocks: VoxelBlocks) -> None:
@@ -228,25 +228,22 @@ class FusedMap:
 
     def clear_voxels(self, keys: np.ndarray, voxels: np.ndarray) -> None:
         """Set W and S to 0 at the (M, R^3) mask `voxels` of (M,3) block keys (blocks not held: nothing to do)."""
-        inside, slots = self._slots(keys, allocate=False)
-        rows = np.flatnonzero(inside)[slots >= 0]
-        held = slots[slots >= 0]
-        if not len(held):
+        at, rows = self._held(keys)
+        if not len(rows):
             return
-        keep = ~voxels[rows]
-        self._weight[held] *= keep
-        self._sum[held] *= keep
+        keep = ~voxels[at]
+        self._weight[rows] *= keep
+        self._sum[rows] *= keep
         self._tick += 1
-        self._changed_at[held] = self._tick
+        self._changed_at[rows] = self._tick
 
     def state_at(self, points: np.ndarray) -> np.ndarray:
         """(N,) uint8 state (UNKNOWN, FREE, OCCUPIED) of the voxels nearest to (N,3) world points."""
         keys, flat = self.lattice.voxel_to_block(self.lattice.point_to_voxel(points))
-        inside, slots = self._slots(keys, allocate=False)
         weight = np.zeros(len(keys), dtype=np.int64)
         total = np.zeros(len(keys), dtype=np.int64)
-        held = np.flatnonzero(inside)[slots >= 0]
-        rows, cols = slots[slots >= 0], flat[held]
+        held, rows = self._held(keys)
+        cols = flat[held]
         weight[held] = self._weight[rows, cols]
         total[held] = self._sum[rows, cols]
         return _classify(weight, total, self.known_units)
@@ -260,7 +257,7 @@ class FusedMap:
         weight = W in the lattice's weight (W units * unit). `within`: only these block keys ((K,3))."""
         keys, weight, total = self._observed_blocks()
         if within is not None:
-            keep = _rows_in(keys, np.asarray(within, dtype=np.int32).reshape(-1, 3))
+            keep = rows_in(keys, np.asarray(within, dtype=np.int32).reshape(-1, 3))
             keys, weight, total = keys[keep], weight[keep], total[keep]
         with np.errstate(invalid="ignore", divide="ignore"):
             tsdf = np.where(weight > 0, total / (TSDF_SCALE * weight.astype(np.float64)), 0.0)
@@ -466,7 +463,7 @@ def compressed_size(raw: bytes, level: int = 3) -> int:
     return len(zstandard.ZstdCompressor(level=level).compress(raw))
 
 
-def _rows_in(keys: np.ndarray, wanted: np.ndarray) -> np.ndarray:
+def rows_in(keys: np.ndarray, wanted: np.ndarray) -> np.ndarray:
     """Boolean mask of the rows of (M,3) `keys` that are among (K,3) `wanted`."""
     if len(keys) == 0 or len(wanted) == 0:
         return np.zeros(len(keys), dtype=bool)

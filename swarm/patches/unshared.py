@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from swarm.patches.fused import Bounds, FusedMap
+from swarm.patches.fused import Bounds, FusedMap, rows_in
 from swarm.patches.lattice import Lattice
 from swarm.patches.patch import TSDF_SCALE, VoxelBlocks
 
@@ -74,7 +74,7 @@ class UnsharedObservations:
         keys = blocks.keys
         if self._contested:
             contested = np.unique(np.concatenate(self._contested), axis=0)
-            contested = contested[~_rows_in(contested, keys)]
+            contested = contested[~rows_in(contested, keys)]
             room = len(contested) if self.max_blocks is None else max(self.max_blocks - len(keys), 0)
             self._contested = [contested[room:]] if room < len(contested) else []
             keys = np.concatenate([keys, contested[:room]])  # the patch's blocks first
@@ -103,16 +103,6 @@ def _changes(
     changes = (map_weight < known_units) | (_state(map_weight, map_total, known_units) != after)
     share: np.ndarray = (weight > 0) & changes
     return share
-
-
-def _rows_in(keys: np.ndarray, among: np.ndarray) -> np.ndarray:
-    """(M,) bool: the rows of int32 (M,3) `keys` that are rows of (K,3) `among`."""
-    as_rows = np.dtype((np.void, 12))
-    found: np.ndarray = np.isin(
-        np.ascontiguousarray(keys, dtype=np.int32).view(as_rows).ravel(),
-        np.ascontiguousarray(among, dtype=np.int32).view(as_rows).ravel(),
-    )
-    return found
 
 
 def _state(weight: np.ndarray, total: np.ndarray, known_units: int) -> np.ndarray:
