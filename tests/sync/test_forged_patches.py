@@ -64,8 +64,11 @@ def quiet_swarm(tmp_path: Path) -> Iterator[NodeSwarm]:
 
 
 def start_victims(swarm: NodeSwarm, keys: Path) -> None:
+    # Every observation in every patch: a changes-only patch depends on what its producer had received when it
+    # sealed, so the attacked and the quiet swarms' maps could differ for timing alone.
+    extra = [f"sync.signing_dir={keys}", "mapping.patch_changes_only=false"]
     for k in VICTIMS:
-        swarm.start(NodeSpec(k, patches=PATCHES, period_s=0.4, delay_s=3.0, extra=[f"sync.signing_dir={keys}"]))
+        swarm.start(NodeSpec(k, patches=PATCHES, period_s=0.4, delay_s=3.0, extra=extra))
 
 
 def free_space(pid: PatchId, lattice: Lattice) -> Patch:
