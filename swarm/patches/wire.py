@@ -225,7 +225,7 @@ def _decode(
     raw = _decompress(msg.payload, expected)
 
     keys, tsdf, weight = _unpack(raw, lattice, msg.block_count, msg.voxel_count)
-    _check_arrays(lattice, keys, tsdf, lo, hi)
+    _check_arrays(lattice, keys, lo, hi)
     if volume is not None and outside_volume(lattice, keys, volume):
         box = lattice.block_bounds(keys)
         raise PatchDecodeError("outside_volume", f"no block of {box[0]} - {box[1]} is in the mission volume")
@@ -285,7 +285,7 @@ def _unpack(raw: bytearray, lattice: Lattice, m: int, voxels: int) -> tuple[np.n
         raise PatchDecodeError("invalid", "a block with no observed voxel")
     if int(np.count_nonzero(observed)) != voxels:
         raise PatchDecodeError("invalid", f"{np.count_nonzero(observed)} observed voxels, header says {voxels}")
-    at = m * (6 + mask_bytes)
+    at = packed_size(lattice, m, 0)  # where the values start
     values = np.frombuffer(raw, dtype=np.int8, count=voxels, offset=at)
     if voxels and int(values.min()) < -TSDF_SCALE:
         raise PatchDecodeError("invalid", "tsdf value -128 is outside [-127, 127]")
@@ -302,7 +302,7 @@ def _unpack(raw: bytearray, lattice: Lattice, m: int, voxels: int) -> tuple[np.n
     return keys, tsdf, weight
 
 
-def _check_arrays(lattice: Lattice, keys: np.ndarray, tsdf: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> None:
+def _check_arrays(lattice: Lattice, keys: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> None:
     if len(keys):
         klo, khi = lattice.block_bounds(keys)
         slack = 1e-6 * max(1.0, float(np.max(np.abs(np.concatenate([lo, hi])))))
