@@ -32,6 +32,7 @@ import contextlib
 import dataclasses
 import errno
 import os
+import resource
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -40,6 +41,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import psutil
 
 from swarm.agent.autopilot import TelemetryCache
 from swarm.agent.sensing import DepthFrame, StreamSource
@@ -182,6 +184,8 @@ class MappingTask:
         self.peers = peers  # the other drones' last heartbeats (called on the event loop)
         self.pixels_masked = 0
         self.camera_silences = 0  # times the stream went silent for CAMERA_SILENT_S in the air
+        self._rss_at_start = psutil.Process().memory_info().rss  # the imports, mostly (Open3D alone ~104 MB)
+        self.memory_mb: dict[str, float] = {}  # filled in at close (`_measure_memory`)
         self._worker = ThreadPoolExecutor(1, thread_name_prefix="mapping")
         # the planning grid and frontiers are built from an occupancy snapshot on their own thread, so that a
         # decision holds the mapping thread (and the camera's frames) only while the snapshot is taken
@@ -400,9 +404,24 @@ class MappingTask:
 
     async def close(self) -> None:
         """Write this agent's own fused mesh and stop the worker; nothing can be received after this."""
+        await asyncio.get_running_loop().run_in_executor(self._worker, self._measure_memory)
         await asyncio.get_running_loop().run_in_executor(self._worker, self._write_mesh)
         self._worker.shutdown(wait=True)
         self._decider.shutdown(wait=True)
+
+    def _measure_memory(self) -> None:
+        """Where the memory went, before the final mesh adds its own: the process's peak and the parts of it
+        that this task holds and can count."""
+        mapper = self.mapper
+        self.memory_mb = {
+            "rss_at_start": self._rss_at_start / 2**20,
+            "rss_peak_in_flight": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+            "fused_map": mapper.fused.resident_bytes / 2**20,
+            "held_back": mapper.unshared.resident_bytes / 2**20,
+            "patch_bytes": (mapper.private.data_bytes + mapper.public.data_bytes) / 2**20,
+            "open_patch": mapper.sealer.backend.resident_bytes / 2**20,
+        }
+        self.memory_mb = {name: round(mb, 1) for name, mb in self.memory_mb.items()}
 
     def _write_mesh(self) -> None:
         if self.out_dir is not None and self.mapper.fused.voxel_count > 0:
@@ -429,6 +448,7 @@ class MappingTask:
             "voxels_held_back": self.mapper.unshared.held_back,
             "patches_held_back": self.mapper.sealer.nothing_to_share,
             "known_voxels": int(self.mapper.fused.voxel_count),
+            "memory_mb": dict(self.memory_mb),
             "patches_received": self.patches_received,
             "fused_digest": self.mapper.fused.digest(),
             "whole_map_baseline": {

@@ -124,6 +124,9 @@ class AgentSummary(FileModel):
     voxels_held_back: int  # observed voxels of own patches not shared at their seal (swarm.patches.unshared)
     patches_held_back: int  # open patches not sealed: none of their voxels changed the map
     known_voxels: int
+    # MB before the final mesh (`MappingTask._measure_memory`): rss_at_start, rss_peak_in_flight, fused_map,
+    # held_back, patch_bytes, open_patch; empty for an agent without a camera
+    memory_mb: dict[str, float]
     patches_received: int
     fused_digest: str | None
     whole_map_baseline: WholeMapBaseline | None
@@ -158,6 +161,7 @@ NO_MAPPING: dict[str, object] = {
     "voxels_held_back": 0,
     "patches_held_back": 0,
     "known_voxels": 0,
+    "memory_mb": {},
     "patches_received": 0,
     "fused_digest": None,
     "whole_map_baseline": None,

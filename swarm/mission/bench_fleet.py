@@ -179,6 +179,7 @@ def summarise(
             "bytes_received_per_s": round(s.bytes_received / run_s, 1),
             "cpu_percent": processes.get(f"agent-{k}", {}).get("cpu_percent"),
             "peak_rss_mb": processes.get(f"agent-{k}", {}).get("peak_rss_mb"),
+            "memory_mb": dict(s.memory_mb),
             "stages": {n: {**c.model_dump(), "ms_per_s": round(c.total_ms / run_s, 1)} for n, c in s.stages.items()},
         }
     rates = [s.frame_rate_hz for s in summaries.values()]
@@ -224,6 +225,28 @@ def stage_rows(agents: dict[str, dict[str, Any]]) -> list[tuple[str, float, floa
     return rows
 
 
+MEMORY_COLUMNS = (  # (summary key, heading): the parts an agent counts, then the whole process
+    ("rss_at_start", "at start"),
+    ("fused_map", "fused map"),
+    ("held_back", "held back"),
+    ("patch_bytes", "patches"),
+    ("open_patch", "open patch"),
+    ("rss_peak_in_flight", "peak before mesh"),
+)
+
+
+def print_memory(console: Console, r: dict[str, Any]) -> None:
+    """Where each agent's memory went (MB): what it held at landing, its peak before the final mesh, its peak."""
+    table = Table(title=f"{r['drones']} drone(s): agent memory, MB (the parts at landing; RSS peaks)")
+    for column in ("drone", *(heading for _, heading in MEMORY_COLUMNS), "peak"):
+        table.add_column(column, justify="right")
+    for k, a in r["agents"].items():
+        memory = a.get("memory_mb", {})
+        cells = [f"{memory[key]:.0f}" if key in memory else "-" for key, _ in MEMORY_COLUMNS]
+        table.add_row(k, *cells, str(a["peak_rss_mb"]))
+    console.print(table)
+
+
 def print_size(console: Console, r: dict[str, Any]) -> None:
     agents = Table(title=f"{r['drones']} drone(s): {r['status']}, every agent")
     for column in ("drone", "Hz", "skipped", "CPU %", "MB", "mapping ms/frame", "decision ms p50/max", "recv kB/s"):
@@ -240,6 +263,7 @@ def print_size(console: Console, r: dict[str, Any]) -> None:
             f"{a['bytes_received_per_s'] / 1000:.1f}",
         )
     console.print(agents)
+    print_memory(console, r)
     stages = Table(title=f"{r['drones']} drone(s): stage costs (ms/s: share of one core, 1000 = all of it)")
     for column in ("stage", "per call p50 ms (median agent)", "worst call ms", "ms/s (mean agent)", "ms/s (worst)"):
         stages.add_column(column, justify="right")

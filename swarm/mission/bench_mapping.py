@@ -192,6 +192,10 @@ class _TimedBackend:
     def block_count(self) -> int:
         return int(self.inner.block_count)
 
+    @property
+    def resident_bytes(self) -> int:
+        return int(self.inner.resident_bytes)
+
     def extract(self) -> Any:
         return self.inner.extract()
 

@@ -63,6 +63,11 @@ class TsdfBackend(Protocol):
         """Every allocated block, keys sorted (a copy)."""
         ...
 
+    @property
+    def resident_bytes(self) -> int:
+        """Bytes of memory the volume holds (its capacity, which can exceed `block_count`)."""
+        ...
+
     def keys(self) -> np.ndarray:
         """(N,3) int32 keys of the blocks with an observed voxel, in no order (a copy)."""
         ...
@@ -115,6 +120,11 @@ class VoxelBlockGridBackend:
     @property
     def block_count(self) -> int:
         return int(self._vbg.hashmap().size())
+
+    @property
+    def resident_bytes(self) -> int:
+        # tsdf and weight, float32, over the whole capacity: written at creation, grown by rehashes, never shrunk
+        return int(self._vbg.hashmap().capacity()) * self.lattice.voxels_per_block * 8
 
     def _views(self) -> tuple[np.ndarray, np.ndarray]:
         # Fetch after every activate: a rehash reallocates the buffers. numpy views are zero-copy and much faster

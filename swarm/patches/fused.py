@@ -40,6 +40,11 @@ from swarm.patches.patch import TSDF_SCALE, Patch, PatchId, TsdfArrays, VoxelBlo
 UNKNOWN, FREE, OCCUPIED = 0, 1, 2
 _EPS = 1e-9
 _INT32_SAFE_WEIGHT = (2**31 - 1) // 127  # while every W stays below this, S = sum(w * q) fits int32
+# Passes over the whole map (occupancy updates, digest, whole-map baseline) take this many block rows at a time:
+# a hall map's 17,000 blocks at once made 100-250 MB of temporaries, which malloc then kept.
+ROW_CHUNK = 2048
+MESH_TILE_BLOCKS = 1024  # blocks meshed at once (`FusedMap.mesh`): about 30 MB of temporaries
+_UPPER_OFFSETS = [np.array(o, dtype=np.int32) for o in np.ndindex(2, 2, 2) if any(o)]
 CACHED_GRIDS = 4  # occupancy grids kept for incremental update (a decision asks for two: planning and fine)
 
 Bounds = tuple[Sequence[float] | np.ndarray, Sequence[float] | np.ndarray]
@@ -174,6 +179,14 @@ class FusedMap:
         return self._count
 
     @property
+    def resident_bytes(self) -> int:
+        """Bytes of memory the map holds: its block rows in use (the pool's spare rows are never written, so
+        never resident), the block-index grid and the kept occupancy grids."""
+        row = self._keys.itemsize * 3 + (self._weight.itemsize + self._sum.itemsize) * self._weight.shape[1] + 8
+        kept = sum(cache.cells.nbytes + cache.seen.nbytes for cache in self._grids.values())
+        return self._count * row + self._grid.nbytes + kept
+
+    @property
     def voxel_count(self) -> int:
         """Observed voxels (W > 0)."""
         return int(np.count_nonzero(self._weight[: self._count]))
@@ -250,34 +263,42 @@ class FusedMap:
 
     def block_keys(self) -> np.ndarray:
         """(M,3) int32 keys of the blocks with an observed voxel, sorted."""
-        return self._observed_blocks()[0]
+        return self._observed_rows()[0]
 
     def arrays(self, within: np.ndarray | None = None) -> TsdfArrays:
         """The fused TSDF as float arrays (blocks with an observed voxel, keys sorted): tsdf = S / (127 W),
         weight = W in the lattice's weight (W units * unit). `within`: only these block keys ((K,3))."""
-        keys, weight, total = self._observed_blocks()
-        if within is not None:
-            keep = rows_in(keys, np.asarray(within, dtype=np.int32).reshape(-1, 3))
-            keys, weight, total = keys[keep], weight[keep], total[keep]
+        keys, rows = self._observed_rows(within)
+        return self._float_arrays(keys, self._weight[rows], self._sum[rows])
+
+    def _float_arrays(self, keys: np.ndarray, weight: np.ndarray, total: np.ndarray) -> TsdfArrays:
         with np.errstate(invalid="ignore", divide="ignore"):
             tsdf = np.where(weight > 0, total / (TSDF_SCALE * weight.astype(np.float64)), 0.0)
         return TsdfArrays(keys, tsdf.astype(np.float32), (weight * self.lattice.weight_unit).astype(np.float32))
 
-    def _observed_blocks(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _observed_rows(self, within: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(sorted keys, pool rows) of the blocks with an observed voxel (of `within` only, if given)."""
         n = self._count
-        keep = np.flatnonzero(self._weight[:n].any(axis=1))
-        keys = self._keys[keep]
+        rows = np.flatnonzero(self._weight[:n].any(axis=1))
+        if within is not None:
+            rows = rows[rows_in(self._keys[rows], np.asarray(within, dtype=np.int32).reshape(-1, 3))]
+        keys = self._keys[rows]
         order = np.lexsort((keys[:, 2], keys[:, 1], keys[:, 0]))
-        rows = keep[order]
-        return self._keys[rows], self._weight[rows], self._sum[rows]
+        return keys[order], rows[order]
+
+    def _observed_blocks(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        keys, rows = self._observed_rows()
+        return keys, self._weight[rows], self._sum[rows]
 
     def digest(self) -> str:
         """A hash of the lattice and the fused arrays; equal maps have equal digests."""
-        keys, weight, total = self._observed_blocks()
+        keys, rows = self._observed_rows()
         h = hashlib.blake2b(digest_size=16)
         h.update(self.lattice.describe().encode())
-        for array in (keys, weight, total):
-            h.update(np.ascontiguousarray(array).astype(array.dtype.newbyteorder("<"), copy=False).tobytes())
+        h.update(_little_endian(keys))
+        for pool in (self._weight, self._sum):  # one stream per array, hashed ROW_CHUNK rows at a time
+            for chunk in _chunks(rows):
+                h.update(_little_endian(pool[chunk]))
         return h.hexdigest()
 
     def wire_size(self, level: int = 3) -> int:
@@ -288,9 +309,17 @@ class FusedMap:
     def wire_raw(self) -> bytes:
         """The whole map's arrays as a patch lays them out, before compression (`wire_size` compresses them;
         a caller may do that on another thread, off the map's)."""
-        keys, weight, total = self._observed_blocks()
-        tsdf = np.where(weight > 0, np.rint(total / np.maximum(weight, 1)), 0).astype(np.int8)
-        return pack_blocks(keys, tsdf, np.minimum(weight, 65535).astype(np.uint16))
+        keys, rows = self._observed_rows()
+        tsdf = np.empty((len(rows), self.lattice.voxels_per_block), dtype=np.int8)
+        weight = np.empty(tsdf.shape, dtype=np.uint16)
+        start = 0
+        for chunk in _chunks(rows):
+            w, total = self._weight[chunk], self._sum[chunk]
+            end = start + len(chunk)
+            tsdf[start:end] = np.where(w > 0, np.rint(total / np.maximum(w, 1)), 0)
+            weight[start:end] = np.minimum(w, 65535)
+            start = end
+        return pack_blocks(keys, tsdf, weight)
 
     def occupancy_grid(
         self,
@@ -404,6 +433,18 @@ class FusedMap:
         min_known: float,
     ) -> None:
         """Write the cell states of block `rows` into `out`, the flat [x, y, z] cells of the grid."""
+        for chunk in _chunks(rows):
+            self._write_cell_chunk(out, chunk, f, offset, shape, min_known)
+
+    def _write_cell_chunk(
+        self,
+        out: np.ndarray,
+        rows: np.ndarray,
+        f: int,
+        offset: np.ndarray,
+        shape: tuple[int, int, int],
+        min_known: float,
+    ) -> None:
         r = self.lattice.block_resolution
         c = r // f  # cells per block edge
         weight, total = self._weight[rows], self._sum[rows]
@@ -434,12 +475,56 @@ class FusedMap:
 
     def mesh(self, within: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Marching-cubes surface of the known voxels: (V,3) float64 world vertices, (F,3) int32 triangles;
-        `within`: of these blocks only (a triangle that spans two blocks needs both)."""
-        from swarm.patches.meshing import extract_mesh
+        `within`: of these blocks only (a triangle that spans two blocks needs both).
+
+        Meshed `MESH_TILE_BLOCKS` blocks at a time, so the temporaries are a tile's, not the map's (whole, a hall
+        agent's final mesh took 270 MB more than its flight). Each tile is extracted with the voxels its cubes
+        reach in the blocks above it; vertices on a seam come out of both tiles, bit-identical, and are merged."""
+        from swarm.patches.meshing import extract_mesh, merge_meshes
 
         # Open3D's threshold is strict (w > threshold): half a unit below the known threshold
-        arrays = self.arrays(within)
-        return extract_mesh(self.lattice, arrays, (self.known_units - 0.5) * self.lattice.weight_unit)
+        threshold = (self.known_units - 0.5) * self.lattice.weight_unit
+        keys, rows = self._observed_rows(within)
+        member = np.zeros(self._count, dtype=bool)
+        member[rows] = True
+        parts = []
+        for start in range(0, len(keys), MESH_TILE_BLOCKS):
+            tile_keys, tile_rows = keys[start : start + MESH_TILE_BLOCKS], rows[start : start + MESH_TILE_BLOCKS]
+            in_tile = np.zeros(self._count, dtype=bool)
+            in_tile[tile_rows] = True
+            edge_keys, edge_rows, edge_voxels = self._upper_neighbours(tile_keys, member & ~in_tile)
+            arrays = self._float_arrays(
+                np.concatenate([tile_keys, edge_keys]),
+                np.concatenate([self._weight[tile_rows], self._weight[edge_rows] * edge_voxels]),
+                np.concatenate([self._sum[tile_rows], self._sum[edge_rows] * edge_voxels]),
+            )
+            parts.append(extract_mesh(self.lattice, arrays, threshold))
+        return merge_meshes(parts)
+
+    def _upper_neighbours(self, keys: np.ndarray, eligible: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The blocks one step up (+x, +y, +z or a mix) of `keys` among the pool rows flagged `eligible`: (keys,
+        rows, (M, R^3) mask of the voxels the marching cubes of `keys` reach in them).
+
+        A cube of voxel v spans v + {0,1}^3; across the face to the block at offset o it reaches only the voxels
+        with local index 0 along the axes of o. No cube of a block so masked has all eight corners (its corner
+        +(1,1,1) inside the block has no local index 0), so the neighbours add no triangle of their own."""
+        r = self.lattice.block_resolution
+        z, y, x = np.meshgrid(np.arange(r), np.arange(r), np.arange(r), indexing="ij")  # flat order [z, y, x]
+        found: list[tuple[np.ndarray, np.ndarray]] = []  # (rows, layer) per offset; no row twice in one offset
+        for offset in _UPPER_OFFSETS:
+            _, rows = self._held(keys + offset)
+            layer = np.ones((r, r, r), dtype=bool)
+            for step, local in zip(offset, (x, y, z)):
+                if step:
+                    layer &= local == 0
+            found.append((rows[eligible[rows]], layer.reshape(-1)))
+        unique_rows, inverse = np.unique(np.concatenate([rows for rows, _ in found]), return_inverse=True)
+        voxels = np.zeros((len(unique_rows), r**3), dtype=bool)
+        start = 0
+        for rows, layer in found:
+            voxels[inverse[start : start + len(rows)]] |= layer
+            start += len(rows)
+        return self._keys[unique_rows], unique_rows, voxels
 
     def write_mesh(self, path: str | Path) -> tuple[int, int]:
         """Write the mesh as .ply; returns (vertices, triangles)."""
@@ -461,6 +546,16 @@ class _CellCache:
 def compressed_size(raw: bytes, level: int = 3) -> int:
     """The zstd-compressed size of `raw` at `level` (patches use 3)."""
     return len(zstandard.ZstdCompressor(level=level).compress(raw))
+
+
+def _chunks(rows: np.ndarray) -> Iterator[np.ndarray]:
+    """`rows` ROW_CHUNK at a time: a pass over the whole map's voxels holds one chunk's temporaries."""
+    for start in range(0, len(rows), ROW_CHUNK):
+        yield rows[start : start + ROW_CHUNK]
+
+
+def _little_endian(array: np.ndarray) -> bytes:
+    return np.ascontiguousarray(array).astype(array.dtype.newbyteorder("<"), copy=False).tobytes()
 
 
 def rows_in(keys: np.ndarray, wanted: np.ndarray) -> np.ndarray:

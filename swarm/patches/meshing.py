@@ -60,3 +60,24 @@ def write_ply(path: str | Path, vertices: np.ndarray, triangles: np.ndarray) -> 
     mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(vertices), o3d.utility.Vector3iVector(triangles))
     if not o3d.io.write_triangle_mesh(Path(path), mesh, write_ascii=False):
         raise OSError(f"cannot write mesh to {path}")
+
+
+def merge_meshes(parts: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """One mesh of several (vertices, triangles) parts, vertices at identical positions merged into one (sorted by
+    position). Empties `parts` once concatenated; works on int32 indices: `np.unique(axis=0)` took twice the memory."""
+    parts[:] = [(v, t) for v, t in parts if len(v)]
+    if not parts:
+        return np.zeros((0, 3), dtype=np.float64), np.zeros((0, 3), dtype=np.int32)
+    offsets = np.cumsum([0] + [len(v) for v, _ in parts[:-1]])
+    vertices = np.concatenate([v for v, _ in parts])
+    triangles = np.concatenate([t.astype(np.int32) + np.int32(offset) for (_, t), offset in zip(parts, offsets)])
+    parts.clear()
+    order = np.lexsort((vertices[:, 2], vertices[:, 1], vertices[:, 0]))
+    vertices = vertices[order]
+    first = np.ones(len(vertices), dtype=bool)
+    first[1:] = np.any(vertices[1:] != vertices[:-1], axis=1)
+    index = np.empty(len(vertices), dtype=np.int32)
+    index[order] = np.cumsum(first, dtype=np.int32) - 1
+    del order
+    np.take(index, triangles, out=triangles)
+    return vertices[first], triangles

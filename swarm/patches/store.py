@@ -62,6 +62,11 @@ class PatchStore:
             return None
         return decode_patch(stored.data, self.lattice, max(len(stored.data), self.max_bytes))
 
+    @property
+    def data_bytes(self) -> int:
+        """The wire bytes held, all patches together."""
+        return sum(len(stored.data) for stored in self._patches.values())
+
     def ids(self) -> list[PatchId]:
         return sorted(self._patches)
 

@@ -54,6 +54,10 @@ class UnsharedObservations:
     def block_count(self) -> int:
         return self._sums.block_count
 
+    @property
+    def resident_bytes(self) -> int:
+        return self._sums.resident_bytes + sum(keys.nbytes for keys in self._contested)
+
     def recheck(self, keys: np.ndarray, fused: FusedMap) -> None:
         """After a peer's patch changed blocks `keys` of `fused`: the blocks where what is held here now disagrees
         with the map's state are looked at again at the next `share`."""

@@ -82,6 +82,11 @@ def test_bench_fleet_flies_an_exploring_swarm_and_prints_every_agents_stage_cost
         for name in ("integrate", "fuse_patch", "occupancy", "frontiers", "assignment", "decision", "planning"):
             assert stages[name]["calls"] > 0 and stages[name]["max_ms"] >= stages[name]["p50_ms"] > 0, name
         assert stages["integrate"]["calls"] >= agent["frames"] > 0
+        memory = agent["memory_mb"]  # where it went: the parts held at landing within the peak before the mesh
+        assert 50 < memory["rss_at_start"] < memory["rss_peak_in_flight"], memory
+        assert memory["fused_map"] > 0 and memory["patch_bytes"] > 0 and memory["open_patch"] > 0, memory
+        parts = memory["fused_map"] + memory["held_back"] + memory["patch_bytes"] + memory["open_patch"]
+        assert parts < memory["rss_peak_in_flight"] - memory["rss_at_start"], memory
     assert size["profile"] == str(out / "fleet-2" / "profile-agent-1.svg")
     assert "<svg" in Path(size["profile"]).read_text()[:2000]
-    assert "integrate" in result.stdout and "ms/s" in result.stdout
+    assert "integrate" in result.stdout and "ms/s" in result.stdout and "agent memory, MB" in result.stdout

@@ -100,6 +100,8 @@ def test_open_patch_is_included_temporarily_and_removed_exactly() -> None:
     for f in frames:
         mapper.integrate(f.depth, f.K, f.T, f.t, MAX_RANGE)
     assert len(mapper.private) == 1 and mapper.sealer.open_frames == 2
+    (sealed,) = mapper.private.ids()
+    assert mapper.private.data_bytes == len(mapper.private.data(sealed) or b"") > 0 and mapper.public.data_bytes == 0
     before, voxels = mapper.fused.digest(), mapper.fused.voxel_count
     with mapper.current_map() as view:
         assert view.voxel_count > voxels

@@ -1,6 +1,9 @@
 """Integration and the fused map on the analytic box room: free-space carving, classification, mesh accuracy,
 the coarse occupancy grid."""
 
+import hashlib
+from collections import Counter
+
 import numpy as np
 import pytest
 
@@ -74,6 +77,35 @@ def test_mesh_vertices_lie_within_a_voxel_of_the_walls(room_map: FusedMap, tmp_p
     n_v, n_t = room_map.write_mesh(tmp_path / "room.ply")
     assert (n_v, n_t) == (len(vertices), len(triangles))
     assert (tmp_path / "room.ply").read_bytes().startswith(b"ply")
+
+
+def _triangle_set(vertices: np.ndarray, triangles: np.ndarray) -> Counter[tuple[float, ...]]:
+    """Each non-degenerate triangle as its corners' positions, rotated to start at the smallest corner, counted."""
+    out: Counter[tuple[float, ...]] = Counter()
+    for corners in vertices[triangles]:
+        rows = [tuple(c) for c in corners]
+        if len(set(rows)) < 3:
+            continue
+        i = rows.index(min(rows))
+        out[sum(rows[i:] + rows[:i], ())] += 1
+    return out
+
+
+@pytest.mark.parametrize("tile_blocks", [1, 7, 48])
+def test_the_mesh_made_in_tiles_is_the_mesh_made_whole(room_map: FusedMap, monkeypatch, tile_blocks: int) -> None:
+    monkeypatch.setattr("swarm.patches.fused.MESH_TILE_BLOCKS", 10**9)
+    whole = room_map.mesh()
+    monkeypatch.setattr("swarm.patches.fused.MESH_TILE_BLOCKS", tile_blocks)
+    tiled = room_map.mesh()
+    assert len(room_map.block_keys()) >= 10 * tile_blocks  # many seams
+    assert len(tiled[0]) == len(np.unique(tiled[0], axis=0))  # seam vertices merged
+    assert np.array_equal(np.unique(whole[0], axis=0), tiled[0])
+    assert _triangle_set(*whole) == _triangle_set(*tiled)
+    some = room_map.block_keys()[::3]
+    monkeypatch.setattr("swarm.patches.fused.MESH_TILE_BLOCKS", 10**9)
+    whole_within = room_map.mesh(within=some)
+    monkeypatch.setattr("swarm.patches.fused.MESH_TILE_BLOCKS", tile_blocks)
+    assert _triangle_set(*whole_within) == _triangle_set(*room_map.mesh(within=some))
 
 
 def test_occupancy_grid_marks_walls_occupied_and_the_room_free(room_map: FusedMap) -> None:
@@ -175,3 +207,37 @@ def test_an_obstacle_counts_as_soon_as_it_is_seen_and_free_space_once_it_is_know
     assert fused.state_at(points).tolist() == [OCCUPIED, UNKNOWN, OCCUPIED, FREE, UNKNOWN]
     _, voxels = fused.occupancy_grid(0.1, (-0.05, -0.05, -0.05), (0.45, 0.05, 0.05))
     assert voxels[:, 0, 0].tolist() == [OCCUPIED, UNKNOWN, OCCUPIED, FREE, UNKNOWN]
+
+
+def test_resident_bytes_count_the_block_rows_in_use_and_the_kept_grids() -> None:
+    lattice = Lattice(0.1, 8, 4.0)
+    room_map = map_of(rotate_in_place()[:4], lattice)  # its own: no occupancy grid kept yet
+    empty = FusedMap(lattice, BOUNDS)
+    assert empty.resident_bytes == empty._grid.nbytes  # nothing held but the block index
+    row = 3 * 4 + 2 * 4 * lattice.voxels_per_block + 8
+    assert room_map.resident_bytes >= room_map.block_count * row
+    before = room_map.resident_bytes
+    room_map.occupancy_grid(0.2, ROOM_LO - 1.0, ROOM_HI + 1.0)  # a kept grid
+    assert room_map.resident_bytes > before
+    backend = VoxelBlockGridBackend(lattice)
+    assert backend.resident_bytes >= 1024 * lattice.voxels_per_block * 8  # the capacity, written at creation
+
+
+def test_passes_over_the_map_in_row_chunks_give_what_one_pass_gives(room_map: FusedMap, monkeypatch) -> None:
+    monkeypatch.setattr("swarm.patches.fused.ROW_CHUNK", 10**9)
+    digest, raw = room_map.digest(), room_map.wire_raw()
+    fresh = map_of(rotate_in_place(), room_map.lattice)  # no kept grid: computed whole below, then in chunks
+    whole = [fresh.occupancy_grid(res, ROOM_LO - 1.0, ROOM_HI + 1.0)[1] for res in (0.1, 0.2)]
+    monkeypatch.setattr("swarm.patches.fused.ROW_CHUNK", 7)
+    assert len(room_map.block_keys()) > 10 * 7
+    assert room_map.digest() == digest and room_map.wire_raw() == raw
+    chunked = map_of(rotate_in_place(), room_map.lattice)
+    for res, expected in zip((0.1, 0.2), whole):
+        assert np.array_equal(chunked.occupancy_grid(res, ROOM_LO - 1.0, ROOM_HI + 1.0)[1], expected)
+    # the digest hashes the pool's rows of observed blocks in key order: one stream per array, as one pass did
+    keys, weight, total = room_map._observed_blocks()
+    h = hashlib.blake2b(digest_size=16)
+    h.update(room_map.lattice.describe().encode())
+    for array in (keys, weight, total):
+        h.update(np.ascontiguousarray(array).astype(array.dtype.newbyteorder("<")).tobytes())
+    assert h.hexdigest() == digest
