@@ -419,7 +419,8 @@ class FusedMap:
             cache.seen = np.concatenate([cache.seen, np.full(n - len(cache.seen), -1, dtype=np.int64)])
         rows = np.flatnonzero(self._changed_at[:n] != cache.seen[:n])
         if len(rows):
-            self._write_cells(cache.cells, rows, f, offset, shape, min_known)
+            for chunk in _chunks(rows):
+                self._write_cells(cache.cells, chunk, f, offset, shape, min_known)
             cache.seen[:n] = self._changed_at[:n]
         return cache.cells.reshape(shape).copy()
 
@@ -433,18 +434,6 @@ class FusedMap:
         min_known: float,
     ) -> None:
         """Write the cell states of block `rows` into `out`, the flat [x, y, z] cells of the grid."""
-        for chunk in _chunks(rows):
-            self._write_cell_chunk(out, chunk, f, offset, shape, min_known)
-
-    def _write_cell_chunk(
-        self,
-        out: np.ndarray,
-        rows: np.ndarray,
-        f: int,
-        offset: np.ndarray,
-        shape: tuple[int, int, int],
-        min_known: float,
-    ) -> None:
         r = self.lattice.block_resolution
         c = r // f  # cells per block edge
         weight, total = self._weight[rows], self._sum[rows]
