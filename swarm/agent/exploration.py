@@ -242,7 +242,14 @@ class Exploration:
                 continue
             idle_since = None
             self.retarget.clear()
-            path = await self._plan(target.viewpoint, around=self._parked_in_the_way(flight))
+            parked = self._parked_in_the_way(flight)
+            path = None
+            if parked is not None and math.dist(parked, target.viewpoint) < PASS_CLEARANCE_M:
+                # the peer this drone held for waits at the viewpoint itself (a refuge it stepped aside to): going
+                # round it cannot get there, and both would hold for each other until one gave the target up
+                path = await self._plan_to_another_viewpoint(target, keep_off=parked)
+            if path is None:
+                path = await self._plan(target.viewpoint, around=parked)
             if path is None:
                 path = await self._plan_to_another_viewpoint(target)
             if path is None:
@@ -325,16 +332,17 @@ class Exploration:
         with self.clock.measure("planning"):  # a plan that fails (NoPathError) costs as much and counts
             return planner(*args, **kwargs)
 
-    async def _plan_to_another_viewpoint(self, target: Target) -> list[Vec3] | None:
+    async def _plan_to_another_viewpoint(self, target: Target, keep_off: Vec3 | None = None) -> list[Vec3] | None:
         """A path to another place this drone's map lets it look at the target's point from, or None. A
         viewpoint from another drone's report can be blocked in this drone's map (patches on their way, or the
-        reporter's own position counted as free in its map); the target is still the same one."""
+        reporter's own position counted as free in its map); the target is still the same one. `keep_off`: a
+        peer parked at the viewpoint; the other place keeps PASS_CLEARANCE_M from it, and so does the path."""
         assert self.grid is not None
-        seen_from = self.grid.viewpoint_for(target.point, self.position())
+        seen_from = self.grid.viewpoint_for(target.point, self.position(), keep_off, PASS_CLEARANCE_M)
         if seen_from is None or math.dist(seen_from, target.viewpoint) < 1e-6:
             return None
         self.log("viewpoint_moved", target=_r(target.viewpoint), to=_r(seen_from))
-        return await self._plan(seen_from)
+        return await self._plan(seen_from, around=keep_off)
 
     async def _out_of_pocket(self, flight: Flight, stop: asyncio.Event) -> bool:
         """When the drone's map shuts it in where it is (a pocket: every plan fails after a few cells), fly to

@@ -324,14 +324,21 @@ class ExplorationGrid:
                 out[row] = (found.mean(axis=0) + lo - cell) * self.resolution
         return out
 
-    def viewpoint_for(self, point: Vec3, position: Vec3) -> Vec3 | None:
+    def viewpoint_for(
+        self, point: Vec3, position: Vec3, keep_off: Vec3 | None = None, keep_off_m: float = 0.0
+    ) -> Vec3 | None:
         """Where to look at `point` from: the nearest safe cell reachable from `position`, within reach_m of it,
-        with a line of sight to it; None if there is none (or the point is outside the grid)."""
+        with a line of sight to it, and whose centre is `keep_off_m` or more from `keep_off` (a drone parked
+        there); None if there is none (or the point is outside the grid)."""
         idx = np.floor((np.asarray(point, dtype=float) - self.origin) / self.resolution).astype(np.int64)
         if not np.all((idx >= 0) & (idx < np.array(self._free.shape))):
             return None
         reach = self.reachable(position)
-        seen_from = self._seeing_viewpoint(idx, reach, _ball_offsets(self.settings.reach_m / self.resolution))
+        offsets = _ball_offsets(self.settings.reach_m / self.resolution)
+        if keep_off is not None and keep_off_m > 0:
+            centres = self._centre(idx + offsets)
+            offsets = offsets[np.linalg.norm(centres - np.asarray(keep_off, dtype=float), axis=1) >= keep_off_m]
+        seen_from = self._seeing_viewpoint(idx, reach, offsets)
         return None if seen_from is None else _vec3(seen_from)
 
     def gain_at(self, points: np.ndarray) -> np.ndarray:

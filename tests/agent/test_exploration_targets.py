@@ -9,6 +9,7 @@ target it set out for is still the current one.
 from __future__ import annotations
 
 import asyncio
+import math
 import time
 from types import SimpleNamespace
 from typing import Any
@@ -271,6 +272,41 @@ def test_a_target_whose_viewpoint_is_blocked_here_is_looked_at_from_a_place_this
     assert events[-2]["event"] == "viewpoint_moved" and events[-2]["to"] == [round(v, 2) for v in seen_from]
 
 
+async def test_a_peer_parked_at_the_viewpoint_sends_the_drone_to_look_from_elsewhere() -> None:
+    """Two drones that picked viewpoints 0.3 m apart (uncoordinated, box, 2 drones): the higher id stepped aside to
+    a refuge beside the lower id's viewpoint and waited for it to pass; the lower id held for it, gave the segment
+    up, planned round it to the same viewpoint and held again, every 8 s until the mission's time ran out."""
+
+    states = room_states(known_to_x=8.0)
+    grid = ExplorationGrid.from_states((0.0, 0.0, 0.0), 0.2, states, ExploreSettings(body_height_m=0.0), 0.0, 3.0)
+    events: list[dict[str, Any]] = []
+    exploration = _exploration(events)
+    exploration.grid = grid
+    exploration.position = lambda: (1.0, 3.0, 1.5)
+    target = Target((3.1, 3.1, 1.5), (3.7, 3.1, 1.5), "self")
+    parked = (3.1, 3.3, 1.5)  # the refuge, 0.2 m off the viewpoint
+    assert grid.planning_grid.is_free(target.viewpoint) and grid.planning_grid.is_free(parked)
+    exploration.target = target
+
+    class Parked(_FakeFlight):
+        async def fly_path(self, path: list[Any], stop: asyncio.Event, interrupt: asyncio.Event | None = None) -> bool:
+            self.paths.append(path)
+            exploration._finish("done")  # one path is all this test looks at
+            return False
+
+    flight = Parked(exploration)
+    flight.blocked_by = (Neighbour(2, parked, (0.0, 0.0, 0.0), target.viewpoint), time.monotonic())  # type: ignore[assignment]
+    await asyncio.wait_for(_fly_without_decisions(exploration, flight, asyncio.Event()), timeout=10.0)
+    await exploration.close()
+    [path] = flight.paths
+    seen_from = path[-1]
+    assert math.dist(seen_from, parked) >= PASS_CLEARANCE_M - 1e-9  # not where the peer waits
+    assert grid.planning_grid.is_free(seen_from)
+    assert math.dist(seen_from, target.point) <= grid.settings.reach_m + 1e-9
+    assert path_clearance([exploration.position(), *path], parked) >= PASS_CLEARANCE_M - 1e-9  # and round it
+    assert [e["event"] for e in events].count("viewpoint_moved") == 1
+
+
 async def test_a_drone_whose_target_was_dropped_waits_for_the_next_instead_of_spinning() -> None:
     """A target dropped as explored sets `retarget`; left set, the wait for the next target ended at once, the
     flight loop spun without yielding and the agent hung (a 3-drone office mission)."""
@@ -318,7 +354,7 @@ async def test_a_drone_in_a_pocket_gets_out_before_it_calls_its_target_unreachab
         def escape(self, position: Any) -> Any:
             return out
 
-        def viewpoint_for(self, point: Any, position: Any) -> None:
+        def viewpoint_for(self, point: Any, position: Any, keep_off: Any = None, keep_off_m: float = 0.0) -> None:
             return None
 
         def gain_at(self, points: Any) -> np.ndarray:
