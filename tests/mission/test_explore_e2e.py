@@ -26,6 +26,8 @@ from tests.helpers import SwarmPorts, log_events, processes_mentioning
 
 pytestmark = [pytest.mark.timeout(300), pytest.mark.mission]
 
+RECORDING_LAG_S = 1.0  # how late the observer may handle a heartbeat on a loaded machine (two missions on 2 cores)
+
 
 def _config(out: Path, ports: SwarmPorts, **overrides: Any):
     return load_config(overrides={"mission.world": "box", "mission.out": str(out), **ports.settings(), **overrides})
@@ -70,14 +72,14 @@ def test_killing_the_leader_hands_over_within_3_s_and_the_others_finish(
     killed = {"t": kill["wall_t"]}
     explored_at_kill = [f for t, f in report["explored_timeline"] if t <= kill["t"]]
     assert explored_at_kill and explored_at_kill[-1] < 0.9, "the leader was not killed mid-mission"
+    handed_over = {}  # k -> seconds from the kill to following 2
     for k in (2, 3):
         took_over = [
             e for e in log_events(out / "logs" / f"agent-{k}.log") if e["event"] == "leader" and e["t"] > killed["t"]
         ]
         assert took_over and took_over[0]["leader"] == 2, took_over
-        assert took_over[0]["t"] - killed["t"] < 3.0, (
-            f"agent {k} followed 2 after {took_over[0]['t'] - killed['t']:.2f} s"
-        )
+        handed_over[k] = took_over[0]["t"] - killed["t"]
+        assert handed_over[k] < 3.0, f"agent {k} followed 2 after {handed_over[k]:.2f} s"
     survivors = {a["id"]: a for a in report["agents"] if a["id"] != 1}
     for k, agent in survivors.items():
         summary = json.loads((out / "agents" / f"agent-{k}.json").read_text())
@@ -94,12 +96,14 @@ def test_killing_the_leader_hands_over_within_3_s_and_the_others_finish(
     leaders_after = {entry["leader"] for entry in report["leaders"] if entry["t"] > 0 and 1 not in entry["members"]}
     assert 2 in leaders_after, report["leaders"]
     assert not processes_mentioning(str(out)), "swarm run left processes behind"
-    _check_recording(out, report, kill["t"], tmp_path / "bag")
+    _check_recording(out, report, kill["t"], handed_over, tmp_path / "bag")
     _check_own_views(out, report)
     _check_live_stream(out, saved)
 
 
-def _check_recording(out: Path, report: dict[str, Any], kill_t: float, bag: Path) -> None:
+def _check_recording(
+    out: Path, report: dict[str, Any], kill_t: float, handed_over: dict[int, float], bag: Path
+) -> None:
     """The run's recording, read back through Rerun's reader, shows this mission: the map, each drone's pose
     while it flew, the leader each followed (2 just after the kill), the clusters, frontiers, targets, the explored
     fraction to the end and the fault; and it exports to an MCAP bag with one odometry message per pose."""
@@ -126,7 +130,10 @@ def _check_recording(out: Path, report: dict[str, Any], kill_t: float, bag: Path
     assert spans["/drones/1/pose"].last_s < kill_t + 2.0  # a killed drone sends no heartbeat
     for k in (2, 3):  # in the 2 s after the hand-over (later, a drone that lands leaves the other on its own)
         rows = entity_rows([path], f"/series/leader/{k}", "Scalars:scalars")
-        followed = [v for t, [v] in rows if kill_t + 3.0 < t < kill_t + 5.0]
+        # the observer stamps a heartbeat when it handles it: one sent just before the hand-over can be stamped
+        # after it on a loaded machine, so the 2 s start RECORDING_LAG_S after the drone's own hand-over
+        after = kill_t + handed_over[k] + RECORDING_LAG_S
+        followed = [v for t, [v] in rows if after < t < after + 2.0]
         assert followed and set(followed) == {2.0}, (k, sorted(set(followed)))
     assert spans["/swarm/clusters"].rows >= 2
     assert any(e.startswith("/frontiers/") for e in spans) and any(e.endswith("/target") for e in spans), spans
