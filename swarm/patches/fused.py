@@ -286,10 +286,6 @@ class FusedMap:
         order = np.lexsort((keys[:, 2], keys[:, 1], keys[:, 0]))
         return keys[order], rows[order]
 
-    def _observed_blocks(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        keys, rows = self._observed_rows()
-        return keys, self._weight[rows], self._sum[rows]
-
     def digest(self) -> str:
         """A hash of the lattice and the fused arrays; equal maps have equal digests."""
         keys, rows = self._observed_rows()

@@ -235,7 +235,8 @@ def test_passes_over_the_map_in_row_chunks_give_what_one_pass_gives(room_map: Fu
     for res, expected in zip((0.1, 0.2), whole):
         assert np.array_equal(chunked.occupancy_grid(res, ROOM_LO - 1.0, ROOM_HI + 1.0)[1], expected)
     # the digest hashes the pool's rows of observed blocks in key order: one stream per array, as one pass did
-    keys, weight, total = room_map._observed_blocks()
+    keys, rows = room_map._observed_rows()
+    weight, total = room_map._weight[rows], room_map._sum[rows]
     h = hashlib.blake2b(digest_size=16)
     h.update(room_map.lattice.describe().encode())
     for array in (keys, weight, total):
