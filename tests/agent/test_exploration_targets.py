@@ -251,17 +251,23 @@ async def test_waiting_for_a_target_ends_as_soon_as_one_comes() -> None:
     assert asyncio.get_running_loop().time() - started < 5.0  # not the 30 s look
 
 
+def _in_the_room(states: np.ndarray) -> tuple[Exploration, ExplorationGrid, list[dict[str, Any]]]:
+    """An exploration at (1, 3, 1.5) in the synthetic room's grid of `states`, and the events it logs."""
+    grid = ExplorationGrid.from_states((0.0, 0.0, 0.0), 0.2, states, ExploreSettings(body_height_m=0.0), 0.0, 3.0)
+    events: list[dict[str, Any]] = []
+    exploration = _exploration(events)
+    exploration.grid = grid
+    exploration.position = lambda: (1.0, 3.0, 1.5)
+    return exploration, grid, events
+
+
 def test_a_target_whose_viewpoint_is_blocked_here_is_looked_at_from_a_place_this_map_allows() -> None:
     """A viewpoint from another drone's report can be blocked in this drone's map; the target's point can often
     still be seen from a safe cell nearby."""
 
     states = room_states(known_to_x=8.0)
     set_states(states, (3.0, 2.6, 1.2), (3.4, 3.0, 1.8), OCCUPIED)  # a block where the reporter saw free space
-    grid = ExplorationGrid.from_states((0.0, 0.0, 0.0), 0.2, states, ExploreSettings(body_height_m=0.0), 0.0, 3.0)
-    events: list[dict[str, Any]] = []
-    exploration = _exploration(events)
-    exploration.grid = grid
-    exploration.position = lambda: (1.0, 3.0, 1.5)
+    exploration, grid, events = _in_the_room(states)
     target = Target((3.1, 2.9, 1.5), (3.9, 2.9, 1.5), "leader")
     assert asyncio.run(exploration._plan(target.viewpoint)) is None
     path = asyncio.run(exploration._plan_to_another_viewpoint(target))
@@ -277,12 +283,7 @@ async def test_a_peer_parked_at_the_viewpoint_sends_the_drone_to_look_from_elsew
     a refuge beside the lower id's viewpoint and waited for it to pass; the lower id held for it, gave the segment
     up, planned round it to the same viewpoint and held again, every 8 s until the mission's time ran out."""
 
-    states = room_states(known_to_x=8.0)
-    grid = ExplorationGrid.from_states((0.0, 0.0, 0.0), 0.2, states, ExploreSettings(body_height_m=0.0), 0.0, 3.0)
-    events: list[dict[str, Any]] = []
-    exploration = _exploration(events)
-    exploration.grid = grid
-    exploration.position = lambda: (1.0, 3.0, 1.5)
+    exploration, grid, events = _in_the_room(room_states(known_to_x=8.0))
     target = Target((3.1, 3.1, 1.5), (3.7, 3.1, 1.5), "self")
     parked = (3.1, 3.3, 1.5)  # the refuge, 0.2 m off the viewpoint
     assert grid.planning_grid.is_free(target.viewpoint) and grid.planning_grid.is_free(parked)
