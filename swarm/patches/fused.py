@@ -469,12 +469,12 @@ class FusedMap:
 
         # Open3D's threshold is strict (w > threshold): half a unit below the known threshold
         threshold = (self.known_units - 0.5) * self.lattice.weight_unit
-        keys, rows = self._observed_rows(within)
+        _, rows = self._observed_rows(within)
         member = np.zeros(self._count, dtype=bool)
         member[rows] = True
         parts = []
-        for start in range(0, len(keys), MESH_TILE_BLOCKS):
-            tile_keys, tile_rows = keys[start : start + MESH_TILE_BLOCKS], rows[start : start + MESH_TILE_BLOCKS]
+        for tile_rows in _chunks(rows, MESH_TILE_BLOCKS):
+            tile_keys = self._keys[tile_rows]
             in_tile = np.zeros(self._count, dtype=bool)
             in_tile[tile_rows] = True
             edge_keys, edge_rows, edge_voxels = self._upper_neighbours(tile_keys, member & ~in_tile)
@@ -533,10 +533,12 @@ def compressed_size(raw: bytes, level: int = 3) -> int:
     return len(zstandard.ZstdCompressor(level=level).compress(raw))
 
 
-def _chunks(rows: np.ndarray) -> Iterator[np.ndarray]:
-    """`rows` ROW_CHUNK at a time: a pass over the whole map's voxels holds one chunk's temporaries."""
-    for start in range(0, len(rows), ROW_CHUNK):
-        yield rows[start : start + ROW_CHUNK]
+def _chunks(rows: np.ndarray, size: int | None = None) -> Iterator[np.ndarray]:
+    """`rows` `size` (default ROW_CHUNK) at a time: a pass over the whole map's voxels holds one chunk's
+    temporaries."""
+    size = ROW_CHUNK if size is None else size
+    for start in range(0, len(rows), size):
+        yield rows[start : start + size]
 
 
 def _little_endian(array: np.ndarray) -> bytes:
