@@ -236,7 +236,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     world = sub.add_parser("world", help="load or generate a world: size, storeys, start, triangles; write its mesh")
     world.set_defaults(handler=_world)
-    world.add_argument("spec", help="built-in world, gen:SEED[:size=WxD,storeys=N,rooms=N,furniture=0|1] or mesh")
+    world.add_argument(
+        "spec", help="built-in world, gen:SEED[:size=WxD,storeys=N,rooms=N,furniture=0|1,doors=MIN-MAX] or mesh"
+    )
     world.add_argument("--out", type=Path, help="write the mesh to this .ply/.obj/.stl file")
 
     agent = sub.add_parser("agent", help="run one drone's agent (next to a real or simulated autopilot)")

@@ -9,7 +9,8 @@ hole with a flight of solid steps under it).
 Invariants, which make every room of every storey reachable from the start by a drone of radius 0.2 m with
 0.25 m of clearance (the tests check it with a flood fill on the mesh):
 - Every split puts a door in its wall(s), so the leaves of the partition form a connected graph (each half is
-  connected, and the door joins them). Doors are 0.9-1.4 m wide and 2.0-2.1 m high.
+  connected, and the door joins them). Doors are 0.9-1.4 m wide (the `doors` option picks another range within
+  0.9-2.0 m) and 2.0-2.1 m high.
 - A door's approach (`_APPROACH` m deep on both sides, `_DOOR_SIDE` m beyond each jamb) and every slab hole
   widened by `_HOLE_MARGIN` m are keep-out zones: no later wall, furniture or pillar enters them. So a door
   always opens onto its room's free middle, and walls stand clear of every hole.
@@ -39,9 +40,10 @@ MIN_SIZE, MAX_SIZE = (15.0, 10.0), (60.0, 40.0)
 DEFAULT_MAX_SIZE = (40.0, 30.0)  # with no size option the seed draws one up to this
 MAX_STOREYS = 3
 MIN_ROOMS, MAX_ROOMS = 1, 200
-SPEC_HELP = "gen:SEED[:size=WxD,storeys=N,rooms=N,furniture=0|1]"
+SPEC_HELP = "gen:SEED[:size=WxD,storeys=N,rooms=N,furniture=0|1,doors=MIN-MAX]"
 
-DOOR_WIDTHS = (0.9, 1.4)
+DOOR_WIDTHS = (0.9, 1.4)  # drawn from this range unless the spec's doors option narrows or moves it
+DOOR_WIDTH_LIMITS = (0.9, 2.0)  # what the doors option accepts: narrower breaks the reachability invariant
 DOOR_HEIGHTS = (2.0, 2.1)
 STOREY_HEIGHTS = (2.8, 3.5)
 _MIN_ROOM = 3.0  # smallest side of a room (corridors excepted)
@@ -66,6 +68,7 @@ class BuildingOptions:
     storeys: int | None = None
     rooms: int | None = None
     furniture: bool = True
+    door_widths: tuple[float, float] | None = None
 
     @property
     def name(self) -> str:
@@ -79,6 +82,8 @@ class BuildingOptions:
             parts.append(f"r{self.rooms}")
         if not self.furniture:
             parts.append("bare")
+        if self.door_widths is not None:
+            parts.append(f"d{self.door_widths[0]:g}-{self.door_widths[1]:g}")
         return "-".join(parts)
 
 
@@ -87,7 +92,8 @@ def is_spec(spec: str) -> bool:
 
 
 def parse_spec(spec: str) -> BuildingOptions:
-    """`gen:SEED` or `gen:SEED:key=value,...` (size=WxD, storeys=N, rooms=N, furniture=0|1); WorldError else."""
+    """`gen:SEED` or `gen:SEED:key=value,...` (size=WxD, storeys=N, rooms=N, furniture=0|1, doors=MIN-MAX or
+    doors=W, in metres); WorldError else."""
     body = spec[len(PREFIX) :] if is_spec(spec) else spec
     seed_text, _, option_text = body.partition(":")
     if not re.fullmatch(r"\d+", seed_text):
@@ -96,10 +102,11 @@ def parse_spec(spec: str) -> BuildingOptions:
     for item in filter(None, option_text.split(",")):
         key, eq, value = item.partition("=")
         key, value = key.strip(), value.strip()
-        if not eq or key not in ("size", "storeys", "rooms", "furniture"):
+        if not eq or key not in ("size", "storeys", "rooms", "furniture", "doors"):
             raise WorldError(f"world '{spec}': unknown option '{item}' (use {SPEC_HELP})")
+        key = "door_widths" if key == "doors" else key
         if key in values:
-            raise WorldError(f"world '{spec}': option '{key}' given twice")
+            raise WorldError(f"world '{spec}': option '{item.partition('=')[0].strip()}' given twice")
         values[key] = _option(spec, key, value)
     return BuildingOptions(**values)  # type: ignore[arg-type]
 
@@ -116,6 +123,8 @@ def _option(spec: str, key: str, value: str) -> object:
                 f"{MAX_SIZE[0]:g}x{MAX_SIZE[1]:g} m (width x depth)"
             )
         return (w, d)
+    if key == "door_widths":
+        return _door_widths(spec, value)
     if key == "furniture":
         if value not in ("0", "1"):
             raise WorldError(f"world '{spec}': furniture must be 0 or 1 (got '{value}')")
@@ -126,9 +135,31 @@ def _option(spec: str, key: str, value: str) -> object:
     return int(value)
 
 
+def _door_widths(spec: str, value: str) -> tuple[float, float]:
+    match = re.fullmatch(r"(\d+(?:\.\d+)?)(?:-(\d+(?:\.\d+)?))?", value)
+    if not match:
+        raise WorldError(f"world '{spec}': doors '{value}' is not MIN-MAX or W in metres, e.g. doors=1.1-1.4")
+    low = float(match[1])
+    high = float(match[2]) if match[2] is not None else low
+    lo_limit, hi_limit = DOOR_WIDTH_LIMITS
+    if not lo_limit <= low <= high <= hi_limit:
+        raise WorldError(
+            f"world '{spec}': doors {value} must be widths from {lo_limit:g} to {hi_limit:g} m, the smaller first"
+        )
+    return (low, high)
+
+
 def layout_from_spec(spec: str) -> BuildingLayout:
     options = parse_spec(spec)
-    return generate(options.seed, options.size, options.storeys, options.rooms, options.furniture, name=options.name)
+    return generate(
+        options.seed,
+        options.size,
+        options.storeys,
+        options.rooms,
+        options.furniture,
+        name=options.name,
+        door_widths=options.door_widths or DOOR_WIDTHS,
+    )
 
 
 # --- plans -------------------------------------------------------------------------------------------------------
@@ -186,14 +217,15 @@ class _Hole:
 
 
 class _Planner:
-    def __init__(self, rng: np.random.Generator, target_area: float) -> None:
+    def __init__(self, rng: np.random.Generator, target_area: float, door_widths: tuple[float, float]) -> None:
         self.rng = rng
         self.target_area = target_area
+        self.door_widths = door_widths
 
     def door(self, wall: _Wall, lo: float, hi: float) -> Doorway | None:
         """A door of random width with its centre drawn in [lo, hi] less its half width; None if none fits."""
-        width = math.floor(min(float(self.rng.uniform(*DOOR_WIDTHS)), hi - lo) * 100) / 100
-        if width < DOOR_WIDTHS[0]:
+        width = math.floor(min(float(self.rng.uniform(*self.door_widths)), hi - lo) * 100) / 100
+        if width < self.door_widths[0]:
             return None
         slack = math.floor((hi - lo - width) * 100) / 100
         centre = round(lo + width / 2 + slack * float(self.rng.random()), 3)
@@ -297,7 +329,7 @@ class _Planner:
             for b0, b1 in blocked:
                 free = [p for a, b in free for p in ((a, min(b, b0)), (max(a, b1), b)) if p[1] - p[0] > 1e-6]
             for a, b in free:
-                if b - a >= DOOR_WIDTHS[0] and self.rng.random() < (0.7 if wall.corridor else 0.2):
+                if b - a >= self.door_widths[0] and self.rng.random() < (0.7 if wall.corridor else 0.2):
                     door = self.door(wall, a, b)
                     if door is not None:
                         wall.doors.append(door)
@@ -318,9 +350,10 @@ def generate(
     rooms: int | None = None,
     furniture: bool = True,
     name: str | None = None,
+    door_widths: tuple[float, float] = DOOR_WIDTHS,
 ) -> BuildingLayout:
     """A random building (module docstring); `size` (W x D m), `storeys` and `rooms` (per storey) drawn from the
-    seed when None."""
+    seed when None; door widths drawn from `door_widths` (m)."""
     rng = np.random.default_rng(seed)
     if size is None:
         size = (_draw(rng, MIN_SIZE[0], DEFAULT_MAX_SIZE[0]), _draw(rng, MIN_SIZE[1], DEFAULT_MAX_SIZE[1]))
@@ -336,7 +369,7 @@ def generate(
     lay = BuildingLayout(name or f"gen-{seed}", (width, depth, height), default_start=(0.0, 0.0, 0.0), storeys=storeys)
 
     holes = _holes(rng, inner, storeys)
-    planner = _Planner(rng, target_area)
+    planner = _Planner(rng, target_area, door_widths)
     plans: list[_Storey] = []
     for k in range(storeys):
         storey = _Storey(k)

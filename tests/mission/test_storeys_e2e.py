@@ -1,6 +1,11 @@
 """3D exploration (issue 21): 3 drones in a generated two-storey building explore both storeys to 95 % with no
 collision, flying between them through the void or stairwell the generator joins them with, and take targets on
-the upper storey. A real `swarm run` (simulator, agents, observer)."""
+the upper storey. A real `swarm run` (simulator, agents, observer).
+
+The building's doors are 1.1-1.4 m wide: with the generator's default 0.9-1.4 m, this seed's upper north rooms lie
+behind one 1.0 m door that the map often narrows below what a 0.2 m planning cell with 0.25 m clearance needs (the
+known limit in docs/architecture.md, "Known limit: doors of 0.9-1.0 m", measured by `swarm bench explore`), and
+this test would fail on that rather than on 3D exploration."""
 
 from __future__ import annotations
 
@@ -16,7 +21,7 @@ from tests.helpers import SwarmPorts, log_events, processes_mentioning
 
 pytestmark = [pytest.mark.timeout(420), pytest.mark.mission]
 
-WORLD = "gen:3:size=16x12,storeys=2"
+WORLD = "gen:3:size=16x12,storeys=2,doors=1.1-1.4"
 
 
 def test_three_drones_explore_both_storeys_of_a_generated_building(tmp_path: Path, swarm_ports: SwarmPorts) -> None:

@@ -83,7 +83,20 @@ def test_doors_are_09_to_14_m_wide_and_open_for_a_drone_with_clearance(seed: int
         assert world.is_inside_solid(beyond).all()
 
 
-@pytest.mark.parametrize("spec", ["gen:1", "gen:2", "gen:4:size=24x16,storeys=2", "gen:9:size=18x12,storeys=3"])
+@pytest.mark.parametrize(("doors", "low", "high"), [("1.1-1.4", 1.1, 1.4), ("1.2", 1.2, 1.2), ("0.9-2", 0.9, 2.0)])
+def test_the_doors_option_draws_every_door_width_from_its_range(doors: str, low: float, high: float) -> None:
+    lay = buildings.layout_from_spec(f"gen:3:size=16x12,storeys=2,doors={doors}")
+    extent = np.array(lay.doors)[:, 1] - np.array(lay.doors)[:, 0]
+    width = extent[:, :2].max(axis=1)
+    assert len(width) >= len(lay.rooms) - lay.storeys
+    assert np.all(width >= low - 1e-9) and np.all(width <= high + 1e-9)
+    assert lay.name == f"gen-3-16x12-2s-d{low:g}-{high:g}"
+    assert not _boxes_overlap(lay)
+
+
+@pytest.mark.parametrize(
+    "spec", ["gen:1", "gen:2", "gen:4:size=24x16,storeys=2", "gen:9:size=18x12,storeys=3", "gen:3:size=16x12,doors=0.9"]
+)
 def test_every_room_of_every_storey_is_reachable_by_flight_from_the_start(spec: str) -> None:
     lay = buildings.layout_from_spec(spec)
     world = world_from_layout(lay)
@@ -128,6 +141,11 @@ def test_generation_is_well_under_a_second_for_40_by_30_m() -> None:
         ("gen:1:storeys=0", "from 1 to 3"),
         ("gen:1:furniture=yes", "0 or 1"),
         ("gen:1:size=20x15,size=20x15", "given twice"),
+        ("gen:1:doors=wide", "not MIN-MAX"),
+        ("gen:1:doors=0.6-1.2", "from 0.9 to 2"),
+        ("gen:1:doors=1.4-1.1", "the smaller first"),
+        ("gen:1:doors=2.5", "from 0.9 to 2"),
+        ("gen:1:doors=1.2,doors=1.3", "'doors' given twice"),
     ],
 )
 def test_bad_specs_raise_one_line_world_errors(spec: str, words: str) -> None:
