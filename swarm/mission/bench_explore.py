@@ -51,15 +51,23 @@ STRATEGIES = ("coordinated", "uncoordinated")
 SUCCESS_FRACTION = 0.95
 ORACLE_VERSION = 1  # bump when the oracle's method changes: cached plans are then computed again
 _GEN_RANGE = re.compile(r"^gen:(?P<range>[^:]*\.\.[^:]*)(?P<options>:.*)?$")
+_OPTION = re.compile(r"[a-z_]+=[^:/]*")  # an option of the gen: spec before it, not a world of its own
 
 
 def expand_worlds(text: str) -> list[str]:
     """The world specs of a comma-separated list, `gen:A..B[:options]` expanded to gen:A[:options] ... gen:B;
-    WorldError (one line) for a malformed range."""
-    specs: list[str] = []
+    WorldError (one line) for a malformed range. An item `key=value` after a `gen:` spec is one more of its
+    options (`gen:1..4:size=20x15,doors=1.1-1.4` and `gen:1..4,doors=1.2` are one range each)."""
+    parts: list[str] = []
     for part in (p.strip() for p in text.split(",")):
         if not part:
             raise WorldError(f"empty world in the list '{text}'")
+        if _OPTION.fullmatch(part) and parts and parts[-1].startswith("gen:"):
+            parts[-1] += f"{',' if ':' in parts[-1][4:] else ':'}{part}"
+        else:
+            parts.append(part)
+    specs: list[str] = []
+    for part in parts:
         match = _GEN_RANGE.match(part)
         if match is None:
             specs.append(part)

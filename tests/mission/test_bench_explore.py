@@ -171,6 +171,13 @@ def test_a_seed_range_expands_to_each_seed_and_keeps_its_options() -> None:
         "gen:4",
     ]
     assert expand_worlds("gen:5..5") == ["gen:5"]
+    assert expand_worlds("gen:1..2:size=20x15,doors=1.1-1.4,office,gen:3:storeys=2,rooms=4") == [
+        "gen:1:size=20x15,doors=1.1-1.4",
+        "gen:2:size=20x15,doors=1.1-1.4",
+        "office",
+        "gen:3:storeys=2,rooms=4",
+    ]
+    assert expand_worlds("gen:1..2,doors=1.2") == ["gen:1:doors=1.2", "gen:2:doors=1.2"]
 
 
 @pytest.mark.parametrize(
