@@ -104,10 +104,10 @@ def parse_spec(spec: str) -> BuildingOptions:
         key, value = key.strip(), value.strip()
         if not eq or key not in ("size", "storeys", "rooms", "furniture", "doors"):
             raise WorldError(f"world '{spec}': unknown option '{item}' (use {SPEC_HELP})")
-        key = "door_widths" if key == "doors" else key
-        if key in values:
-            raise WorldError(f"world '{spec}': option '{item.partition('=')[0].strip()}' given twice")
-        values[key] = _option(spec, key, value)
+        field_name = "door_widths" if key == "doors" else key
+        if field_name in values:
+            raise WorldError(f"world '{spec}': option '{key}' given twice")
+        values[field_name] = _option(spec, field_name, value)
     return BuildingOptions(**values)  # type: ignore[arg-type]
 
 
