@@ -6,7 +6,8 @@ that plan through known free space only. The input is the coarse state grid of t
 `origin + [i, i+1) x [j, j+1) x [k, k+1) * res`.
 
 - safe cell: a cell where the drone's reported position may be. It and the
-  ceil((body_height_m - clearance_m) / res) cells above it (the airframe stands above its position) are known
+  ceil((body_height_m - res/2) / res) cells above it (the airframe stands above its position; its top, body_height_m
+  above the cell's centre, keeps clearance_m like the rest of it) are known
   FREE with no point closer than `clearance_m` to an obstacle (the conservative rasterisation of
   `OccupancyGrid.inflate`), none of the ceil((body_height_m + clearance_m) / res) cells above it is UNKNOWN
   (above the grid counts as unknown: a ceiling nobody saw, the drone's top would touch), and its centre is
@@ -178,9 +179,10 @@ class ExplorationGrid:
         states = np.asarray(states, dtype=np.uint8)
         if states.ndim != 3 or not resolution > 0:
             raise ValueError(f"need a 3D state grid and a positive resolution, got {states.shape}, {resolution}")
-        # The cells above a position that must be clear too: the clearance already reaches clearance_m above
-        # the top of the last one, so together they cover the airframe up to body_height_m above the cell's top.
-        body_cells = max(math.ceil((settings.body_height_m - settings.clearance_m) / resolution - _EPS), 0)
+        # The cells above a position that must be clear too, so that the airframe's top, body_height_m above the
+        # cell's centre, keeps clearance_m like the rest of it (clearance_m - res/2 anywhere in the cell): the
+        # map may end a voxel short at a lintel's edge (a TSDF erodes convex edges), and that margin absorbs it.
+        body_cells = _body_cells(settings.body_height_m, resolution)
         # Unknown space is not inflated (see the module docstring), but the airframe and its clearance above it
         # must have been seen: cameras look ahead, and a ceiling nobody looked at is unknown, not absent.
         seen_cells = math.ceil((settings.body_height_m + settings.clearance_m) / resolution - _EPS)
@@ -604,6 +606,11 @@ def _under_unknown(states: np.ndarray, cells: int) -> np.ndarray:
     for j in range(1, cells + 1):
         out |= unknown[:, :, j : j + nz]
     return out
+
+
+def _body_cells(body_height_m: float, resolution: float) -> int:
+    """Cells above a position's cell whose clearance covers the point body_height_m above its centre."""
+    return max(math.ceil((body_height_m - resolution / 2) / resolution - _EPS), 0)
 
 
 def _with_room_above(clear: np.ndarray, cells: int) -> np.ndarray:

@@ -256,26 +256,29 @@ def test_the_flight_band_excludes_viewpoints_below_the_minimum_altitude() -> Non
 
 def test_a_drone_needs_room_for_its_airframe_above_its_position() -> None:
     # The room's ceiling is cells k >= 14 (z >= 2.8 m); inflated by 0.25 m it blocks k = 12, 13 (z 2.4..2.8 m),
-    # so a point may be at k = 11 (2.2..2.4 m). A 0.45 m airframe needs the cell above its position clear too
-    # (the clearance covers 0.25 m above that one): the highest safe position is k = 10 (2.0..2.2 m), whose
-    # airframe reaches 2.65 m at most, 0.15 m under the ceiling. A 0.65 m airframe needs two cells: k = 9.
+    # so a point may be at k = 11 (2.2..2.4 m). A 0.45 m airframe's top, 0.45 m above its cell's centre, must
+    # keep the 0.25 m clearance too: two cells above the position clear (their clearance reaches 0.25 m above
+    # the second's top). The highest safe position is k = 9 (centre 1.9 m): the top at 2.35 m, 0.45 m under the
+    # ceiling (0.35 m from the cell's top). A 0.65 m airframe needs three cells: k = 8.
     states = room_states(known_to_x=8.0)
     point = SETTINGS.model_copy(update={"ceiling_margin_m": 0.01})
     airframe = point.model_copy(update={"body_height_m": 0.45})
     tall = point.model_copy(update={"body_height_m": 0.65})
     assert ExploreSettings().body_height_m == 0.45
     heights = [0.9 + 0.2 * k for k in range(8)]  # cell centres 0.9 .. 2.3 m
-    for settings, safe_layers in ((point, 8), (airframe, 7), (tall, 6)):
+    for settings, safe_layers in ((point, 8), (airframe, 6), (tall, 5)):
         grid = _grid(states, settings)
         assert [grid.planning_grid.is_free((2.0, 3.0, z)) for z in heights] == [True] * safe_layers + [False] * (
             8 - safe_layers
         ), settings.body_height_m
-    # A lintel (a slab from 2.0 to 2.2 m) over part of the room: a point may pass right under it, a drone not.
+    # A lintel (a slab from 2.0 to 2.2 m) over part of the room: a point may pass right under it (centre 1.5 m),
+    # a drone not; at 1.3 m its top would keep exactly the clearance, which the conservative cells refuse.
     set_states(states, (3.0, 0.0, 2.0), (4.99, 5.99, 2.19), OCCUPIED)
     point_grid, airframe_grid = _grid(states, point), _grid(states, airframe)
     assert point_grid.planning_grid.is_free((4.0, 3.0, 1.5))
     assert not airframe_grid.planning_grid.is_free((4.0, 3.0, 1.5))
-    assert airframe_grid.planning_grid.is_free((4.0, 3.0, 1.3))
+    assert not airframe_grid.planning_grid.is_free((4.0, 3.0, 1.3))
+    assert airframe_grid.planning_grid.is_free((4.0, 3.0, 1.1))
     # the drone's own position stays usable although the cells above it were never seen
     states[10, 15, 4:9] = UNKNOWN
     assert airframe_grid.planning_grid.is_free((2.1, 3.1, 0.9))
@@ -286,11 +289,11 @@ def test_a_drone_needs_room_for_its_airframe_above_its_position() -> None:
 def test_a_drone_flies_only_where_the_space_above_its_airframe_has_been_seen() -> None:
     # The room of the test above with its top unseen from z = 2.4 m (the ceiling and the layers under it): a
     # drone's position needs body_height_m + clearance_m = 0.7 m, 4 cells, of seen space above its cell, so
-    # the highest safe layer is k = 7 (1.4..1.6 m) where, with the ceiling seen, it was k = 10.
+    # the highest safe layer is k = 7 (1.4..1.6 m) where, with the ceiling seen, it was k = 9.
     states = room_states(known_to_x=8.0)
     airframe = SETTINGS.model_copy(update={"ceiling_margin_m": 0.01, "body_height_m": 0.45})
     heights = [0.9 + 0.2 * k for k in range(8)]  # cell centres 0.9 .. 2.3 m
-    assert [_grid(states, airframe).planning_grid.is_free((2.0, 3.0, z)) for z in heights] == [True] * 7 + [False]
+    assert [_grid(states, airframe).planning_grid.is_free((2.0, 3.0, z)) for z in heights] == [True] * 6 + [False] * 2
     states[:, :, 12:] = UNKNOWN
     unseen = _grid(states, airframe)
     assert [unseen.planning_grid.is_free((2.0, 3.0, z)) for z in heights] == [True] * 4 + [False] * 4
