@@ -17,6 +17,7 @@ from swarm.agent.flight import (
     moves_clear_of,
     off_the_others_ways,
     refuge_candidates,
+    refuge_in_the_way,
     resume_from,
 )
 from swarm.sim.worlds import load_world
@@ -53,6 +54,21 @@ def test_the_refuge_is_the_nearest_step_well_off_the_other_drones_way() -> None:
     # A peer hovering with nowhere to go: the first candidate (vertical), whatever the distances.
     hovering = Neighbour(1, (1.0, 2.0, 1.5), (0.0, 0.0, 0.0))
     assert np.allclose(choose_refuge(refuge_candidates(here, hovering), hovering), here + [0.0, 0.0, s])
+
+
+def test_a_refuge_is_in_the_way_once_the_peer_turns_onto_a_segment_through_it() -> None:
+    # Two drones coming home, their take-off points 1.3 m apart (gen:1, coordinated): drone 2 stepped aside for
+    # drone 1 to a refuge 0.28 m from drone 1's home while drone 1 flew its second-last segment; drone 1 then
+    # turned for home, and both waited (8 s) until they timed out.
+    refuge = np.array([10.26, 9.54, 1.3])
+    second_last = Neighbour(1, (11.6, 9.0, 1.2), (-0.5, 0.5, -0.4), heading_to=(11.3, 9.3, 0.9))
+    assert not refuge_in_the_way(refuge, second_last)
+    home_leg = second_last._replace(position=(11.3, 9.3, 0.9), heading_to=(10.0, 9.43, 1.5))
+    assert refuge_in_the_way(refuge, home_leg)
+    assert not refuge_in_the_way(refuge + [0.0, REFUGE_CLEAR_M + 0.1, 0.0], home_leg)
+    # a hovering peer going nowhere has no way to be in
+    parked = Neighbour(1, (10.5, 9.5, 1.3), (0.0, 0.0, 0.0))
+    assert not refuge_in_the_way(refuge, parked)
 
 
 def test_distance_to_segment_is_the_distance_to_its_nearest_point() -> None:
