@@ -457,27 +457,27 @@ class Flight:
         longer than MAX_YIELD_S or we were interrupted."""
         self.yields += 1
         peer = self._neighbour(peer_id)
-        self._take_refuge(peer_id, peer)
+        refuge = self._take_refuge(peer_id, peer)
         chosen_for = None if peer is None else peer.heading_to
         end = time.monotonic() + MAX_YIELD_S
         while time.monotonic() < end:
             if interrupt is not None and interrupt.is_set():
                 return False
-            await self.ap.set_setpoint(self._carrot, self.ap.telemetry.yaw_deg)
+            await self.ap.set_setpoint(refuge, self.ap.telemetry.yaw_deg)
             peer = self._neighbour(peer_id)
             here = np.array(self.ap.telemetry.position)
             if peer is None or np.linalg.norm(np.asarray(peer.position) - here) > self.separation_m + PASS_HYSTERESIS_M:
                 return True
             # The refuge was chosen off the peer's segment of the moment; when the peer turns onto its next one
             # (its last, often: home) through our refuge, both would wait there until they time out.
-            if peer.heading_to != chosen_for and refuge_in_the_way(np.asarray(self._carrot, dtype=float), peer):
-                self._take_refuge(peer_id, peer)
+            if peer.heading_to != chosen_for and refuge_in_the_way(np.asarray(refuge, dtype=float), peer):
+                refuge = self._take_refuge(peer_id, peer)
                 chosen_for = peer.heading_to
             await self._tick(stop, end + 1.0, "a peer to pass")
         return False
 
-    def _take_refuge(self, peer_id: int, peer: Neighbour | None) -> None:
-        """Set the carrot on a refuge out of `peer`'s way (where we are, without one)."""
+    def _take_refuge(self, peer_id: int, peer: Neighbour | None) -> Vec3:
+        """Set the carrot on a refuge out of `peer`'s way (where we are, without one), and return it."""
         here = np.array(self.ap.telemetry.position)
         refuge = here
         if peer is not None:
@@ -490,6 +490,7 @@ class Flight:
         self.log("give_way", to=peer_id, refuge=[round(float(v), 2) for v in refuge])
         self._carrot = vec3(refuge)
         self.heading_to = self._carrot
+        return self._carrot
 
     async def _wait_for_room_below(self) -> None:
         """Before descending: hold (at most MAX_YIELD_S) while another drone flies under us; one that sits on the
