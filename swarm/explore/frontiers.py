@@ -64,6 +64,7 @@ from scipy import ndimage
 
 from swarm.config import CameraSettings, ExploreSettings, Vec3
 from swarm.explore.grid import OccupancyGrid
+from swarm.explore.travel import TravelGraph
 from swarm.patches.fused import FREE, OCCUPIED, UNKNOWN
 from swarm.stages import NO_CLOCK, StageClock
 
@@ -420,6 +421,21 @@ class ExplorationGrid:
         lands on one of them."""
         assert self.view is not None
         return math.ceil(self.view.min_range_m / self.resolution) + 2
+
+    def travel_distances(self, starts: np.ndarray, goals: np.ndarray) -> np.ndarray:
+        """(S, G) metres a drone flies from each start to each goal through this map's safe cells (`TravelGraph`):
+        at least the straight line, and the straight line where this map knows no way. A start is taken at the
+        safe cell nearest it, as `reachable` does (a drone beside a wall sits in a cell its clearance blocks)."""
+        starts = np.asarray(starts, dtype=float).reshape(-1, 3)
+        nearest = [self.planning_grid.nearest_free(p, START_SEARCH_RADIUS_M) for p in starts]
+        from_cells = np.array([p if n is None else n for p, n in zip(starts, nearest)]).reshape(-1, 3)
+        nodes = self._travel.node_of(from_cells)
+        nodes[[n is None for n in nearest]] = -1
+        return self._travel.distances(starts, goals, start_nodes=nodes)
+
+    @cached_property
+    def _travel(self) -> TravelGraph:
+        return TravelGraph(~self.planning_grid.occupied, self.origin, self.resolution)
 
     def is_frontier_near(self, point: Vec3, radius: float) -> bool:
         """Some FREE cell bordering UNKNOWN lies within `radius` of `point`, reachable or not.

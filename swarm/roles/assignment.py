@@ -9,9 +9,10 @@ every target it hands out so the next member goes elsewhere. An empty G after pr
 condition (2.7);
 what to do then is the caller's business.
 
-Deviations from the thesis, all from working in 3D with viewpoints: distances are Euclidean in 3D, to the
-viewpoint a drone flies to; scheduling is isotropic in 3D and applies to every remaining candidate (r_min = 0,
-r_max = inf); the scan-line overlap test uses a (y, z) band instead of a y row.
+Deviations from the thesis, all from working in 3D with viewpoints: distances are to the viewpoint a drone
+flies to, the way it flies there through the caller's map (Euclidean in 3D without one); scheduling is isotropic
+in 3D and applies to every remaining candidate (r_min = 0, r_max = inf); the scan-line overlap test uses a (y, z)
+band instead of a y row.
 """
 
 from __future__ import annotations
@@ -222,6 +223,7 @@ def assign_targets(
     unreachable: Mapping[int, Sequence[Vec3] | np.ndarray] | None = None,
     unreachable_radius: float = 1.0,
     min_gain: float = 0.0,
+    distances: Callable[[np.ndarray, np.ndarray], np.ndarray] = _pairwise,
 ) -> dict[int, Candidate | None]:
     """Alg. 3.5 with the best pair first: while a member is without a target, the (member, candidate) pair of
     highest utility over every member still waiting and every unassigned candidate is assigned (the leader
@@ -231,7 +233,9 @@ def assign_targets(
     left; with gains that differ fifty-fold (the view gain) that member was sent across the building and back
     from round to round.
 
-    Utility: Euclidean 3D distances from positions to viewpoints, d_others over the other members of
+    Utility: `distances` (members' positions (M, 3), viewpoints (N, 3)) -> (M, N) metres, by default the
+    Euclidean ones (the agent passes the way through its map: `ExplorationGrid.travel_distances`), from
+    positions to viewpoints, d_others over the other members of
     `positions` at their current positions; times current_bonus when the candidate's viewpoint is within
     keep_radius of the member's current target, divided by it when the candidate is another member's current
     target (so drones keep their targets instead of swapping them between rounds), and times own_bonus when the
@@ -249,7 +253,7 @@ def assign_targets(
         return result
     views, points = _array([c.viewpoint for c in pool]), _array([c.point for c in pool])
     owners = np.array([c.owner for c in pool])
-    dist = _pairwise(_array([positions[m] for m in members]), views)  # (members, candidates)
+    dist = np.asarray(distances(_array([positions[m] for m in members]), views), dtype=float)  # (members, cands)
     factor = np.ones_like(dist)  # the bonuses: they do not change within the round
     allowed = np.ones(dist.shape, dtype=bool)
     for row, member in enumerate(members):

@@ -111,6 +111,8 @@ class MapQueries(Protocol):
 
     def is_frontier_near(self, point: Vec3, radius: float) -> bool: ...
 
+    def travel_distances(self, starts: np.ndarray, goals: np.ndarray) -> np.ndarray: ...
+
 
 @dataclass(frozen=True)
 class ReportLimits:
@@ -327,6 +329,7 @@ class ExplorationCore:
             current=self._current(),
             current_bonus=self.settings.current_target_bonus,
             keep_radius=KEEP_RADIUS_M,
+            distances=situation.map.travel_distances,
         ).get(self.id)
         if choice is not None:
             self.empty_since = None
@@ -427,6 +430,7 @@ class ExplorationCore:
             unreachable_radius=radius,
             unreachable=blocked,
             min_gain=self._trip_gain(),
+            distances=situation.map.travel_distances,
         )
         assigned = {k: c for k, c in choice.items() if c is not None}
         self.assigned_current = {k: c.viewpoint for k, c in assigned.items()}

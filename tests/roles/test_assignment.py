@@ -124,6 +124,21 @@ def test_single_drone_gets_the_nearest_of_equal_gain_candidates() -> None:
         assert assign_targets(order, {4: (0.0, 0.0, 1.0)}, lam=0.2, sigma=3.0) == {4: near}
 
 
+def test_distances_are_the_ones_given_the_way_round_a_floor_not_the_line_through_it() -> None:
+    # Drone 2 is right above the target, a storey up; drone 1 is 6 m off on the same storey. Through the floor
+    # drone 2 is nearer (the default, straight lines); the way down the stairwell is 20 m, and drone 1 goes.
+    target = cand(6.0, 0.0, z=1.0)
+    positions = {1: (0.0, 0.0, 1.0), 2: (6.0, 0.0, 4.0)}
+    assert assign_targets([target], positions, lam=0.2, sigma=3.0) == {1: None, 2: target}
+
+    def travel(starts: np.ndarray, goals: np.ndarray) -> np.ndarray:
+        straight = np.linalg.norm(starts[:, None, :] - goals[None, :, :], axis=2)
+        upstairs = starts[:, 2] > 2.5
+        return np.where(upstairs[:, None], 20.0, straight)
+
+    assert assign_targets([target], positions, lam=0.2, sigma=3.0, distances=travel) == {1: target, 2: None}
+
+
 def test_a_drone_avoids_targets_next_to_another_member() -> None:
     beside_2, far_side = cand(3.9, 0.0), cand(-4.5, 0.0)
     alone = assign_targets([beside_2, far_side], {1: (0.0, 0.0, 1.0)}, lam=0.2, sigma=3.0)

@@ -48,6 +48,9 @@ class Map:
     def is_frontier_near(self, point: Vec3, radius: float) -> bool:
         return not any(np.linalg.norm(np.subtract(point, e)) <= radius for e in self.explored)
 
+    def travel_distances(self, starts: np.ndarray, goals: np.ndarray) -> np.ndarray:
+        return np.linalg.norm(np.reshape(starts, (-1, 1, 3)) - np.reshape(goals, (1, -1, 3)), axis=2)
+
 
 def _core(drone: int = 1, **settings: Any) -> ExplorationCore:
     return ExplorationCore(ExploreSettings(**settings), drone, epoch=1, now=0.0)

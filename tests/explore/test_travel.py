@@ -1,0 +1,77 @@
+"""Travel distances through the safe cells (`swarm.explore.travel`, `ExplorationGrid.travel_distances`)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from swarm.config import ExploreSettings
+from swarm.explore.frontiers import ExplorationGrid
+from swarm.explore.travel import TravelGraph
+from swarm.patches.fused import FREE, OCCUPIED
+from tests.explore.synthetic import set_states, state_grid
+
+RES = 0.2
+
+
+def _two_rooms() -> np.ndarray:
+    """A 10 x 6 x 2.4 m box split by a wall at x = 5.0-5.2 m with a 1.2 m door at its north end (y 4.6-5.8)."""
+    states = state_grid((10.0, 6.0, 2.4), FREE)
+    set_states(states, (5.0, 0.0, 0.0), (5.19, 4.59, 2.39), OCCUPIED)
+    return states
+
+
+def test_the_way_round_a_wall_is_longer_than_the_line_through_it() -> None:
+    safe = np.ones((50, 30, 12), dtype=bool)
+    # a wall at x = 5.0-5.2 m and its clearance (x 4.6-5.6 m not safe), open at its north end (y >= 5.2 m)
+    safe[23:28, :26, :] = False
+    graph = TravelGraph(safe, np.zeros(3), RES)
+    west, east = np.array([[4.0, 1.0, 1.0]]), np.array([[6.4, 1.0, 1.0], [4.0, 5.0, 1.0]])
+    d = graph.distances(west, east)
+    # to the east: up the wall to the gap and back down, about 2 x 4.3 m, not 2.4 m
+    assert d[0, 0] > 8.0
+    assert d[0, 0] < 10.5
+    # along the same side: about the straight line (26-connected steps overestimate by well under 10 %)
+    assert d[0, 1] == pytest.approx(4.0, rel=0.1)
+    assert d[0, 1] >= 4.0
+
+
+def test_a_start_or_goal_the_graph_does_not_hold_gets_the_straight_line() -> None:
+    safe = np.ones((20, 20, 10), dtype=bool)
+    safe[10:, :, :] = False  # nothing safe east of x = 2 m
+    graph = TravelGraph(safe, np.zeros(3), RES)
+    starts = np.array([[1.0, 1.0, 1.0], [3.0, 1.0, 1.0], [-5.0, 0.0, 0.0]])  # in, not safe, off the grid
+    goals = np.array([[1.0, 3.0, 1.0], [3.0, 3.0, 1.0]])
+    d = graph.distances(starts, goals)
+    straight = np.linalg.norm(starts[:, None] - goals[None], axis=2)
+    assert d[0, 0] == pytest.approx(2.0, rel=0.1)
+    assert np.allclose(d[0, 1], straight[0, 1])  # the goal is in no safe cell
+    assert np.allclose(d[1:], straight[1:])
+    # two components: no way between them, the straight line
+    safe[:, 8:12, :] = False
+    split = TravelGraph(safe[:10], np.zeros(3), RES)
+    assert split.distances(starts[:1], np.array([[1.0, 3.0, 1.0]]))[0, 0] == pytest.approx(2.0)
+
+
+def test_the_merge_does_not_open_a_wall_between_safe_cells() -> None:
+    # The map's states, a one-cell wall: the safe cells stop 0.4 m short of it on each side, so no coarse cell,
+    # nor two neighbouring ones, hold safe cells of both sides, and the way is round by the door.
+    states = _two_rooms()
+    grid = ExplorationGrid.from_states(
+        (0.0, 0.0, 0.0), RES, states, ExploreSettings(body_height_m=0.0, min_altitude_m=0.5), 0.0, 2.4
+    )
+    d = grid.travel_distances(np.array([[4.5, 1.0, 1.1]]), np.array([[5.7, 1.0, 1.1]]))
+    assert d[0, 0] > 2 * 3.6  # round by the door, whose near edge is 3.6 m north
+    assert math.isfinite(d[0, 0])
+
+
+def test_a_drone_beside_a_wall_starts_from_the_nearest_safe_cell() -> None:
+    states = _two_rooms()
+    grid = ExplorationGrid.from_states(
+        (0.0, 0.0, 0.0), RES, states, ExploreSettings(body_height_m=0.0, min_altitude_m=0.5), 0.0, 2.4
+    )
+    beside = np.array([[4.9, 1.0, 1.1]])  # 0.1 m from the wall: its cell is blocked by the clearance
+    assert not grid.planning_grid.is_free(tuple(beside[0]))
+    d = grid.travel_distances(beside, np.array([[5.7, 1.0, 1.1], [4.0, 1.0, 1.1]]))
+    assert d[0, 0] > 2 * 3.6
+    assert d[0, 1] == pytest.approx(0.9, abs=0.5)
