@@ -1,8 +1,7 @@
 """Travel distances through the safe cells: how far a drone flies to a viewpoint, not how far away it is.
 
 The leader ranks (member, candidate) pairs by distance (`swarm.roles.assignment`). Through a wall or a floor a
-straight line says that the room next door or the storey above is 2 m away when the way round is 20 m, and a
-drone upstairs was sent to a target a drone below had in sight.
+straight line says that the room next door or the storey above is 2 m away when the way round is 20 m.
 
 Dijkstra (scipy's csgraph, from every start at once) runs on the safe cells merged 2x2x2: a coarse cell is
 passable when any of its cells is safe; coarse cells are 26-connected, each edge as long as the distance between
