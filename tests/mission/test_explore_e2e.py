@@ -70,8 +70,11 @@ def test_killing_the_leader_hands_over_within_3_s_and_the_others_finish(
     [kill] = report["faults"][0]["actions"]
     assert kill["result"] == "killed (exit -9)", kill
     killed = {"t": kill["wall_t"]}
-    explored_at_kill = [f for t, f in report["explored_timeline"] if t <= kill["t"]]
-    assert explored_at_kill and explored_at_kill[-1] < 0.9, "the leader was not killed mid-mission"
+    # Mid-mission: no drone had declared the exploration done when the leader died. (The observer's explored
+    # timeline cannot say: on a loaded machine its first sample can come well after the kill.)
+    events = [e for k in (1, 2, 3) for e in log_events(out / "logs" / f"agent-{k}.log")]
+    done_at = [e["t"] for e in events if e["event"] == "exploration_done"]
+    assert done_at and min(done_at) > killed["t"], "the leader was not killed mid-mission"
     handed_over = {}  # k -> seconds from the kill to following 2
     for k in (2, 3):
         took_over = [
