@@ -64,7 +64,7 @@ from scipy import ndimage
 
 from swarm.config import CameraSettings, ExploreSettings, Vec3
 from swarm.explore.grid import OccupancyGrid
-from swarm.explore.travel import TravelGraph
+from swarm.explore.travel import SEARCH_LIMIT_M, TravelGraph
 from swarm.patches.fused import FREE, OCCUPIED, UNKNOWN
 from swarm.stages import NO_CLOCK, StageClock
 
@@ -431,7 +431,7 @@ class ExplorationGrid:
         from_cells = np.array([p if n is None else n for p, n in zip(starts, nearest)]).reshape(-1, 3)
         nodes = self._travel.node_of(from_cells)
         nodes[[n is None for n in nearest]] = -1
-        return self._travel.distances(starts, goals, start_nodes=nodes)
+        return self._travel.distances(starts, goals, start_nodes=nodes, limit_m=SEARCH_LIMIT_M)
 
     @cached_property
     def _travel(self) -> TravelGraph:

@@ -75,3 +75,19 @@ def test_a_drone_beside_a_wall_starts_from_the_nearest_safe_cell() -> None:
     d = grid.travel_distances(beside, np.array([[5.7, 1.0, 1.1], [4.0, 1.0, 1.1]]))
     assert d[0, 0] > 2 * 3.6
     assert d[0, 1] == pytest.approx(0.9, abs=0.5)
+
+
+def test_beyond_the_search_limit_a_goal_gets_the_straight_line_but_no_less_than_the_limit() -> None:
+    safe = np.ones((50, 30, 12), dtype=bool)
+    safe[23:28, :26, :] = False  # the wall of the first test: 2.4 m east by the line, about 9 m by the gap
+    graph = TravelGraph(safe, np.zeros(3), RES)
+    west, goals = np.array([[4.0, 1.0, 1.0]]), np.array([[6.4, 1.0, 1.0], [4.0, 3.0, 1.0]])
+    near, unlimited = graph.distances(west, goals, limit_m=5.0), graph.distances(west, goals)
+    assert unlimited[0, 0] > 8.0
+    assert near[0, 0] == pytest.approx(5.0)  # not reached within 5 m: at least the limit
+    assert near[0, 1] == pytest.approx(unlimited[0, 1])  # reached: the same way
+    # another component stays the straight line, limit or not
+    split = safe.copy()
+    split[:, 12:16, :] = False
+    apart = TravelGraph(split, np.zeros(3), RES).distances(west, np.array([[4.0, 4.0, 1.0]]), limit_m=1.0)
+    assert apart[0, 0] == pytest.approx(3.0)
