@@ -653,8 +653,7 @@ class Flight:
 
     async def _pause(self, stop: asyncio.Event) -> None:
         """One setpoint period of a loop that its own clock ends (a look, a yield, a wait): a late wake-up (this
-        process starved for seconds on a loaded machine) ends that loop early, not the flight. (With a deadline
-        of the loop's end plus 1 s, two drones of a 5-drone hall mission ended their flights in a look.)"""
+        process starved for seconds on a loaded machine) ends that loop, not the flight, so no deadline here."""
         self._check(stop)
         await asyncio.sleep(SETPOINT_PERIOD_S)
         self._check(stop)
