@@ -72,7 +72,7 @@ from swarm.netem.scenario import Scenario, load_scenario
 from swarm.sim.routes import ScriptedRoute, scripted_routes
 from swarm.sim.worlds import World, load_world, mission_time_limit_s, mission_volume, spawn_points
 
-SIM_READY_TIMEOUT_S = 30.0
+READY_TIMEOUT_S = 60.0  # for the simulator and the observer to come up (a loaded machine is slow to start them)
 LANDING_GRACE_S = 60.0
 POLL_PERIOD_S = 0.25
 # The radio carries one TCP link per pair of drones. A second, UDP link per pair (`max_links=2`, so heartbeats
@@ -316,15 +316,22 @@ def _start_simulator(plan: RunPlan, state: RunState) -> None:
         plan.out / "logs" / "sim.log",
         nice=plan.config.mission.sim_nice,
     )
-    deadline = time.monotonic() + SIM_READY_TIMEOUT_S
-    while True:
+
+    def ready() -> bool:
         status = read_sim_status(plan.out)
-        if status is not None and status.ready:
-            return
-        if state.sim.poll() is not None:
-            raise SwarmError(f"simulator exited early: {state.sim.last_log_line() or 'no output'}")
+        return status is not None and status.ready
+
+    _wait_until_ready(state.sim, "simulator", ready)
+
+
+def _wait_until_ready(child: Child, what: str, ready: Callable[[], bool]) -> None:
+    """Block until `ready()`; a clear error if the child exits first or is not ready in time."""
+    deadline = time.monotonic() + READY_TIMEOUT_S
+    while not ready():
+        if child.poll() is not None:
+            raise SwarmError(f"{what} exited early: {child.last_log_line() or 'no output'}")
         if time.monotonic() > deadline:
-            raise SwarmError(f"simulator not ready within {SIM_READY_TIMEOUT_S:.0f} s (see {state.sim.log_path})")
+            raise SwarmError(f"{what} not ready within {READY_TIMEOUT_S:.0f} s (see {child.log_path})")
         time.sleep(0.1)
 
 
@@ -426,6 +433,9 @@ def _start_swarm(plan: RunPlan, state: RunState) -> None:
         plan.out / "logs" / "observer.log",
     )
     _start_cameras(plan, state, state.net.layout.control_host_address if state.net is not None else config.sim.host)
+    # The observer writes its first status once subscribed. Agents start after that, so the report's timeline and
+    # trajectories cover the whole mission even when a loaded machine takes many seconds to start the observer.
+    _wait_until_ready(state.observer, "observer", lambda: read_observer_status(plan.out) is not None)
     routes = {route.drone_id: route for route in plan.routes}
     for k in range(1, config.mission.drones + 1):
         if net is not None:

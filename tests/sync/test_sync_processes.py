@@ -11,6 +11,8 @@ from tests.sync.nodes import NodeSpec, NodeSwarm, holds_all
 
 pytestmark = pytest.mark.bus
 
+CHUNK_BYTES = 512  # the smallest allowed: these patches are 1-3 kB, so each travels in several chunks
+
 
 @pytest.fixture
 def swarm(tmp_path: Path) -> Iterator[NodeSwarm]:
@@ -28,7 +30,7 @@ def _sealed_everything(swarm: NodeSwarm, per_node: dict[int, int]) -> set[str]:
 
 def test_three_nodes_end_with_every_patch_and_identical_fused_maps(swarm: NodeSwarm) -> None:
     for k in (1, 2, 3):
-        swarm.start(NodeSpec(k, patches=4, period_s=0.3, delay_s=1.5))
+        swarm.start(NodeSpec(k, patches=4, period_s=0.3, delay_s=1.5, extra=[f"sync.chunk_bytes={CHUNK_BYTES}"]))
     expected = _sealed_everything(swarm, {1: 4, 2: 4, 3: 4})
     assert len(expected) == 12
     swarm.wait_for(holds_all(expected), 30, "every node holds all 12 patches")
@@ -45,7 +47,9 @@ def test_three_nodes_end_with_every_patch_and_identical_fused_maps(swarm: NodeSw
         sync = status["sync"]
         assert sync["rejected"] == {}
         assert sync["received_by_push"] + sync["received_by_pull"] == 8, (k, sync)
-        assert status["traffic"]["patch_chunk"]["recv_msgs"] > 8  # patches came in several chunks
+        others = [p["bytes"] for j, st in statuses.items() if j != k for p in st["sealed"]]
+        assert min(others) > CHUNK_BYTES  # so every patch travelled in several chunks, and every chunk arrived:
+        assert status["traffic"]["patch_chunk"]["recv_msgs"] >= sum(-(-n // CHUNK_BYTES) for n in others), k
 
 
 def test_pushes_lost_on_purpose_are_recovered_by_pulls(swarm: NodeSwarm) -> None:
