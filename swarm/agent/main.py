@@ -136,6 +136,7 @@ class Agent:
             separation_m=self.config.explore.separation_m if exploring else 0.0,
             neighbours=self._neighbours,
             is_clear=self._is_clear,
+            is_roomy=self._is_roomy,
         )
         keys = self.keys = bus.keys
         mapping_stop = asyncio.Event()
@@ -356,6 +357,10 @@ class Agent:
     def _is_clear(self, a: tuple[float, float, float], b: tuple[float, float, float]) -> bool:
         grid = self.exploration.grid if self.exploration is not None else None
         return grid is not None and grid.planning_grid.segment_is_free(a, b)
+
+    def _is_roomy(self, a: tuple[float, float, float], b: tuple[float, float, float]) -> bool:
+        grid = self.exploration.grid if self.exploration is not None else None
+        return grid is not None and grid.roomy_grid.segment_is_free(a, b)
 
     # -- presence ----------------------------------------------------------------------------------------
 

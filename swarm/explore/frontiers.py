@@ -159,6 +159,12 @@ class ExplorationGrid:
         self._band = band
         self.planning_grid = OccupancyGrid(origin, resolution, ~safe, roomy=roomy)
 
+    @cached_property
+    def roomy_grid(self) -> OccupancyGrid:
+        """The roomy cells as free, all others blocked (the planning grid itself when roomy cells are off)."""
+        roomy = self.planning_grid.roomy
+        return self.planning_grid if roomy is None else OccupancyGrid(self.origin, self.resolution, ~roomy)
+
     @classmethod
     def from_states(
         cls,

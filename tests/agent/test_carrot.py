@@ -6,7 +6,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from swarm.agent.flight import carried_lead, carrot_may_advance
+from swarm.agent.flight import (
+    LOOKAHEAD_M,
+    LOOKAHEAD_NEAR_M,
+    LOOKAHEAD_OPEN_M,
+    carried_lead,
+    carrot_may_advance,
+    lookahead_before,
+)
 
 
 def test_a_new_carrot_keeps_the_old_ones_lead_in_the_new_direction() -> None:
@@ -16,7 +23,8 @@ def test_a_new_carrot_keeps_the_old_ones_lead_in_the_new_direction() -> None:
     assert carried_lead(here, (0.8, 0.0, 1.5), (5.0, 5.0, 1.5)) == pytest.approx(0.8 / np.sqrt(2))  # 45 degrees
     assert carried_lead(here, (0.8, 0.0, 1.5), (-5.0, 0.0, 1.5)) == 0.0  # a U-turn starts at the drone
     assert carried_lead(here, (0.8, 0.0, 1.5), (0.3, 0.0, 1.5)) == pytest.approx(0.3)  # within the segment
-    assert carried_lead(here, (2.0, 0.0, 1.5), (5.0, 0.0, 1.5)) == pytest.approx(1.0)  # within the look-ahead
+    assert carried_lead(here, (2.0, 0.0, 1.5), (5.0, 0.0, 1.5)) == pytest.approx(LOOKAHEAD_OPEN_M)  # the look-ahead
+    assert carried_lead(here, (2.0, 0.0, 1.5), (1.2, 0.0, 1.5)) == pytest.approx(LOOKAHEAD_M)  # nearer its end
 
 
 def test_the_carrot_waits_for_a_drone_that_is_off_its_segment_after_a_corner() -> None:
@@ -40,3 +48,22 @@ def test_the_carrot_runs_on_for_a_drone_short_of_a_waypoint_on_the_straight_way_
     assert carrot_may_advance(short_of_it, np.array([1.5, 0.0, 0.0]), start, start, target)
     short_of_a_right_angle = np.array([2.0, -0.25, 1.5])  # coming along y to turn along x
     assert not carrot_may_advance(short_of_a_right_angle, np.array([0.0, 1.5, 0.0]), start, start, target)
+
+
+def test_the_carrot_cuts_a_corner_only_where_the_map_shows_the_cut_in_open_space() -> None:
+    start, target = np.array([2.0, 0.0, 1.5]), np.array([2.0, 2.0, 1.5])  # east, then north at (2, 0)
+    short_of_the_corner = np.array([1.6, 0.0, 1.5])  # 0.4 m before it, flying east at speed
+    east = np.array([1.2, 0.0, 0.0])
+    assert not carrot_may_advance(short_of_the_corner, east, start, start, target)
+    assert carrot_may_advance(short_of_the_corner, east, start, start, target, cut_is_clear=True)
+    # ... and never more than the look-ahead ahead of the drone
+    far_short = np.array([0.5, 0.0, 1.5])
+    assert not carrot_may_advance(far_short, east, start, start, target, cut_is_clear=True, lookahead=1.5)
+
+
+def test_the_look_ahead_is_long_in_the_open_and_short_near_a_segments_end() -> None:
+    assert lookahead_before(10.0) == pytest.approx(LOOKAHEAD_OPEN_M)
+    assert lookahead_before(LOOKAHEAD_NEAR_M) == pytest.approx(LOOKAHEAD_M)
+    assert lookahead_before(0.0) == pytest.approx(LOOKAHEAD_M)
+    ramp = [lookahead_before(d) for d in np.linspace(0.0, 5.0, 51)]
+    assert all(b >= a for a, b in zip(ramp, ramp[1:]))  # never longer nearer the end
