@@ -202,8 +202,12 @@ class Exploration:
             return
         here = self.position()
         ahead = self._path_ahead()  # not the waypoints already passed: a line back to them can cross a wall
+        # The drone flies to the carrot, then along the path from there: round a corner it may be well inside
+        # the path, and the straight line from it to the next waypoint is not a way it flies.
+        carrot = self.flight.setpoint if self.flight is not None and ahead else None
+        way = [carrot, *ahead] if carrot is not None else ahead
         # from a cell that is not safe, the path's first leg leads to a safe one: only the rest can be blocked
-        legs = [here, *ahead] if self.grid.planning_grid.is_free(here) else ahead
+        legs = [here, *way] if self.grid.planning_grid.is_free(here) else way
         if ahead and not path_is_free(self.grid.planning_grid, legs):
             self.log("path_blocked", target=_r(self.target.viewpoint))
             self.retarget.set()

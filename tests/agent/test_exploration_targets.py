@@ -133,7 +133,7 @@ def test_a_path_is_checked_from_the_drone_on_not_back_to_the_waypoints_it_passed
     )
     exploration.target = Target((0.5, 1.9, 1.5), (0.3, 2.2, 1.5), "leader")
     exploration.position = lambda: (1.2, 1.9, 1.5)  # on the last leg, west, back past the wall's end
-    flight = SimpleNamespace(path_ahead=[(0.5, 1.9, 1.5)])  # passed: (0.5, 0.5), (1.9, 0.5), (1.9, 1.9)
+    flight = SimpleNamespace(path_ahead=[(0.5, 1.9, 1.5)], setpoint=None)  # passed: (0.5, 0.5), (1.9, 0.5), ...
     exploration.flight = flight  # type: ignore[assignment]
     whole = [(0.5, 0.5, 1.5), (1.9, 0.5, 1.5), (1.9, 1.9, 1.5), (0.5, 1.9, 1.5)]
     assert path_is_free(grid, whole) and not path_is_free(grid, [(1.2, 1.9, 1.5), *whole])
@@ -145,6 +145,28 @@ def test_a_path_is_checked_from_the_drone_on_not_back_to_the_waypoints_it_passed
     exploration._check_path()
     assert [e["event"] for e in events] == ["path_blocked"]
     assert exploration.retarget.is_set()
+
+
+def test_a_drone_cutting_a_corner_is_checked_along_its_carrot_not_straight_to_the_next_waypoint() -> None:
+    walls = np.zeros((12, 12, 1), dtype=bool)  # 2.4 x 2.4 m at 0.2 m, one layer at 1.4-1.6 m
+    walls[:9, 5, 0] = True  # a wall from x 0 to 1.8 m at y 1.0-1.2 m: the path goes round its end at x 1.9
+    grid = OccupancyGrid(np.array([0.0, 0.0, 1.4]), 0.2, walls)
+    events: list[dict[str, Any]] = []
+    exploration = _exploration(events)
+    exploration.grid = SimpleNamespace(  # type: ignore[assignment]  # only these two are read
+        planning_grid=grid, is_frontier_near=lambda point, radius: True
+    )
+    exploration.target = Target((0.5, 1.9, 1.5), (0.3, 2.2, 1.5), "leader")
+    here, carrot, ahead = (1.6, 0.6, 1.5), (1.9, 0.9, 1.5), [(1.9, 1.9, 1.5), (0.5, 1.9, 1.5)]
+    exploration.position = lambda: here  # inside the corner at (1.9, 0.5), its carrot already on the next leg
+    exploration.flight = SimpleNamespace(path_ahead=ahead, setpoint=carrot)  # type: ignore[assignment]
+    assert not grid.segment_is_free(here, ahead[0])  # straight to the next waypoint: through the wall's end
+    exploration._check_path()
+    assert [e["event"] for e in events] == [] and not exploration.retarget.is_set()
+
+    walls[9, 9, 0] = True  # now something on the way ahead, at (1.9, 1.9)
+    exploration._check_path()
+    assert [e["event"] for e in events] == ["path_blocked"]
 
 
 class _FakeFlight:
