@@ -122,16 +122,24 @@ def path_clearance(path: list[Any], point: Any) -> float:
     return float(np.linalg.norm(points - np.asarray(point), axis=1).min())
 
 
-def test_a_path_is_checked_from_the_drone_on_not_back_to_the_waypoints_it_passed() -> None:
-    walls = np.zeros((12, 12, 1), dtype=bool)  # 2.4 x 2.4 m at 0.2 m, one layer at 1.4-1.6 m
-    walls[:8, 5, 0] = True  # a wall from x 0 to 1.6 m at y 1.0-1.2 m: the path goes round its end
+def _round_a_wall_end(wall_to_x: float, events: list[dict[str, Any]]) -> tuple[Exploration, np.ndarray]:
+    """An exploration on a 2.4 x 2.4 m grid at 0.2 m (one layer at 1.4-1.6 m) with a wall from x 0 to
+    `wall_to_x` at y 1.0-1.2 m, flying to a target at (0.5, 1.9) round the wall's end; and the grid's walls."""
+    walls = np.zeros((12, 12, 1), dtype=bool)
+    walls[: round(wall_to_x / 0.2), 5, 0] = True
     grid = OccupancyGrid(np.array([0.0, 0.0, 1.4]), 0.2, walls)
-    events: list[dict[str, Any]] = []
     exploration = _exploration(events)
     exploration.grid = SimpleNamespace(  # type: ignore[assignment]  # only these two are read
         planning_grid=grid, is_frontier_near=lambda point, radius: True
     )
     exploration.target = Target((0.5, 1.9, 1.5), (0.3, 2.2, 1.5), "leader")
+    return exploration, walls
+
+
+def test_a_path_is_checked_from_the_drone_on_not_back_to_the_waypoints_it_passed() -> None:
+    events: list[dict[str, Any]] = []
+    exploration, walls = _round_a_wall_end(1.6, events)
+    grid = exploration.grid.planning_grid  # type: ignore[union-attr]
     exploration.position = lambda: (1.2, 1.9, 1.5)  # on the last leg, west, back past the wall's end
     flight = SimpleNamespace(path_ahead=[(0.5, 1.9, 1.5)], setpoint=None)  # passed: (0.5, 0.5), (1.9, 0.5), ...
     exploration.flight = flight  # type: ignore[assignment]
@@ -148,15 +156,9 @@ def test_a_path_is_checked_from_the_drone_on_not_back_to_the_waypoints_it_passed
 
 
 def test_a_drone_cutting_a_corner_is_checked_along_its_carrot_not_straight_to_the_next_waypoint() -> None:
-    walls = np.zeros((12, 12, 1), dtype=bool)  # 2.4 x 2.4 m at 0.2 m, one layer at 1.4-1.6 m
-    walls[:9, 5, 0] = True  # a wall from x 0 to 1.8 m at y 1.0-1.2 m: the path goes round its end at x 1.9
-    grid = OccupancyGrid(np.array([0.0, 0.0, 1.4]), 0.2, walls)
     events: list[dict[str, Any]] = []
-    exploration = _exploration(events)
-    exploration.grid = SimpleNamespace(  # type: ignore[assignment]  # only these two are read
-        planning_grid=grid, is_frontier_near=lambda point, radius: True
-    )
-    exploration.target = Target((0.5, 1.9, 1.5), (0.3, 2.2, 1.5), "leader")
+    exploration, walls = _round_a_wall_end(1.8, events)  # the path goes round its end at x 1.9
+    grid = exploration.grid.planning_grid  # type: ignore[union-attr]
     here, carrot, ahead = (1.6, 0.6, 1.5), (1.9, 0.9, 1.5), [(1.9, 1.9, 1.5), (0.5, 1.9, 1.5)]
     exploration.position = lambda: here  # inside the corner at (1.9, 0.5), its carrot already on the next leg
     exploration.flight = SimpleNamespace(path_ahead=ahead, setpoint=carrot)  # type: ignore[assignment]
