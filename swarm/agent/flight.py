@@ -64,7 +64,7 @@ from swarm.config import AgentSettings, Vec3, vec3
 # LOOKAHEAD_NEAR_M of the segment's end (linearly over the LOOKAHEAD_TAPER_M before). PX4's position loop turns a
 # lead into a speed (MPC_XY_P 0.95 /s): 1.5 m lets the drone cruise at 1.4 m/s, and it comes into each corner
 # nearly as it did with 1 m throughout. Measured on a 6 m straight in the simulator: a stop 0.083 m past the
-# waypoint, against 0.076 m with 1 m throughout and 0.115 m with 1.5 m throughout (the drone's speed lags the
+# waypoint, against 0.076 m with 1 m throughout and 0.115 m with 1.6 m throughout (the drone's speed lags the
 # lead's, so the taper starts well before the end).
 LOOKAHEAD_M = 1.0
 LOOKAHEAD_OPEN_M = 1.5
