@@ -366,6 +366,7 @@ class Flight:
         yaw = math.degrees(math.atan2(segment[1], segment[0])) if length > 0.05 else self.ap.telemetry.yaw_deg
         speed = self.settings.cruise_speed_m_s
         deadline = time.monotonic() + 20.0 + 3.0 * (length + float(np.linalg.norm(start - here))) / speed
+        flying_to = f"waypoint {tuple(round(c, 2) for c in goal)}"  # what a missed deadline names
         travelled = min(max(lead, 0.0), length)
         separation = Separation()  # the manoeuvre (swarm.agent.separation): what to do about a drone nearby
         while True:
@@ -419,7 +420,7 @@ class Flight:
                         # corner or on the segment, where the straight way may not be checked
                         self._carrot = vec3(position)
                         await self.ap.set_setpoint(self._carrot, yaw)
-                        await self._tick(stop, deadline, f"waypoint {tuple(round(c, 2) for c in goal)}")
+                        await self._tick(stop, deadline, flying_to)
                         continue
             carrot = start + segment * (travelled / length) if length > 0 else target
             following = separation.manoeuvre == Manoeuvre.FOLLOW
@@ -436,7 +437,7 @@ class Flight:
             if travelled >= length and (through or np.linalg.norm(target - position) < tolerance):
                 self.heading_to = None
                 return True
-            await self._tick(stop, deadline, f"waypoint {tuple(round(c, 2) for c in goal)}")
+            await self._tick(stop, deadline, flying_to)
 
     def _may_cut_to(self, position: np.ndarray, carrot: np.ndarray) -> bool:
         """The map shows the straight way from the drone to `carrot` in open space (`is_roomy`: the planner's
