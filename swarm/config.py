@@ -247,6 +247,14 @@ class AgentSettings(_Section):
     waypoints: list[Vec3] = Field(default_factory=list, description="scripted route, world frame")
     hover_s: float = Field(0.0, ge=0.0, description="hold at the end of the route before landing")
     start_delay_s: float = Field(0.0, ge=0.0, description="wait on the ground this long once healthy before arming")
+    crew_wait_s: float = Field(
+        30.0,
+        ge=0.0,
+        description="when drones keep apart (explore.separation_m), wait on the ground at most this long once "
+        "healthy to hear every other drone of the mission (mission.drones) before arming: a drone cannot keep clear "
+        "of peers it has not heard; it then takes off with those it has (the log's crew event says which); 0: "
+        "do not wait",
+    )
     out_dir: Path | None = Field(None, description="where the agent writes its summary and logs")
     state_dir: Path | None = Field(
         None,

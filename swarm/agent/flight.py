@@ -21,6 +21,11 @@ the pure step function of `swarm.agent.separation` (follow, hold, yield, rejoin,
 drone about to land first waits for any drone under it to move off, and lands beside one that sits on the ground
 there.
 
+Crew: a drone that keeps apart from others (`separation_m`) waits on the ground, once healthy, until it has heard
+every other drone it is told of (`crew_size`, mission.drones) or for `agent.crew_wait_s` at most: until it hears
+a peer it cannot keep clear of it (on a lossy link with TLS, peers were first heard 20 s after start, and two
+drones that took off before then collided). A restarted agent whose drone is in the air does not wait.
+
 Phases (`swarm.bus.phase.Phase`, what the heartbeat says) change as `swarm.agent.lifecycle.ALLOWED` says.
 
 Battery: once the autopilot's battery telemetry falls below `agent.battery_home_fraction` during the mission
@@ -47,7 +52,7 @@ from __future__ import annotations
 import asyncio
 import math
 import time
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Collection
 from typing import NamedTuple
 
 import numpy as np
@@ -142,6 +147,8 @@ class Flight:
         neighbours: Neighbours | None = None,
         is_clear: Callable[[Vec3, Vec3], bool] | None = None,
         is_roomy: Callable[[Vec3, Vec3], bool] | None = None,
+        crew_size: int = 1,
+        peers_heard: Callable[[], Collection[int]] | None = None,
     ) -> None:
         self.ap = autopilot
         self.settings = settings
@@ -156,6 +163,8 @@ class Flight:
         self.is_clear = is_clear or (lambda a, b: True)
         # ... and keeps the wider clearance of open space (`_may_cut_to`); without it no corner is cut
         self.is_roomy = is_roomy
+        self.crew_size = crew_size  # drones in the mission, this one included (the crew it waits to hear)
+        self.peers_heard: Callable[[], Collection[int]] = peers_heard or (lambda: ())
         self.yields = 0
         # the drone with the right of way that gave a segment up for a peer that would not move: which, and when
         self.blocked_by: tuple[Neighbour, float] | None = None
@@ -204,6 +213,7 @@ class Flight:
             await self.ap.wait_healthy(s.health_timeout_s)
             await self._px4_params()
             self._set_phase(Phase.READY)
+            await self._wait_for_crew(stop)
             if s.start_delay_s > 0:
                 await self._wait(s.start_delay_s, stop)
             self._check(stop)
@@ -249,6 +259,25 @@ class Flight:
         deadline = time.monotonic() + 15.0 + altitude / 0.3
         while not self.ap.height_above_home >= 0.9 * altitude:  # written so that an unknown (NaN) height waits
             await self._tick(stop, deadline, "take-off altitude")
+
+    async def _wait_for_crew(self, stop: asyncio.Event) -> None:
+        """On the ground, when keeping apart: wait up to agent.crew_wait_s to hear every other drone (the module
+        docstring), and log whom it heard."""
+        expected = self.crew_size - 1
+        if self.separation_m <= 0 or expected <= 0 or self.settings.crew_wait_s <= 0 or await self._already_flying():
+            return
+        started = time.monotonic()
+        deadline = started + self.settings.crew_wait_s
+        while len(self.peers_heard()) < expected and time.monotonic() < deadline:
+            await self._pause(stop)
+        heard = sorted(self.peers_heard())
+        self.log(
+            "crew",
+            heard=heard,
+            expected=expected,
+            complete=len(heard) >= expected,
+            waited_s=round(time.monotonic() - started, 2),
+        )
 
     async def _refuse_a_low_battery(self) -> None:
         """On the ground, a battery already below agent.battery_home_fraction: refuse to take off (FlightError).

@@ -137,6 +137,8 @@ class Agent:
             neighbours=self._neighbours,
             is_clear=self._is_clear,
             is_roomy=self._is_roomy,
+            crew_size=self.config.mission.drones,
+            peers_heard=self.peers.last_heartbeat.keys,
         )
         keys = self.keys = bus.keys
         mapping_stop = asyncio.Event()
