@@ -78,10 +78,7 @@ def test_a_drone_that_never_hears_a_peer_takes_off_after_the_wait_and_says_whom_
     assert crew["waited_s"] >= 0.4
 
 
-@pytest.mark.parametrize(
-    "why",
-    ["alone", "no separation", "wait off", "already in the air"],
-)
+@pytest.mark.parametrize("why", ["alone", "no separation", "wait off", "already in the air"])
 def test_no_wait_when_there_is_nobody_to_keep_clear_of_or_the_drone_flies_already(why: str) -> None:
     crew = Crew([2, 3], every_s=None)
     if why == "alone":
