@@ -6,8 +6,11 @@ world-frame waypoints. The drone is led along each straight segment by a setpoin
 the cruise speed and never runs more than `LOOKAHEAD_OPEN_M` ahead of the drone (`LOOKAHEAD_M` near the
 segment's end). At a corner the carrot runs on into the next segment at once where the map shows the straight
 way from the drone to it in open space (`is_roomy`, the planner's wider clearance), so the drone rounds the
-corner inside it without stopping. Elsewhere (doorways, wall ends, and without a map) the carrot waits while the
-drone is more than `CROSS_TRACK_M` off the new segment, so there the drone flies the segments themselves.
+corner inside it without stopping. Elsewhere (doorways, wall ends) the carrot waits while the drone is more than
+`CROSS_TRACK_M` off the new segment until the drone, slowed down, is within `CORNER_CUT_M` of the corner; from
+there it runs on where the map shows the straight way to it clear (`is_clear`, the planner's clearance), so
+the drone turns near the corner instead of crawling into it. Without a map the drone flies the segments
+themselves.
 
 Separation: `neighbours()` gives the other airborne drones' positions, velocities and `heading_to` (the end of
 the segment each is flying), from their heartbeats, positions extrapolated to now. The lower id has the right
@@ -90,6 +93,10 @@ PRIORITY_PAUSE_FRACTION = 1.0  # the drone with the right of way holds for one c
 PASS_CLEARANCE_M = 0.6  # ... that is in its way: this close to the rest of its segment (a drone that stepped
 # STEP_ASIDE_M off the segment is not, and holding for it would deadlock both)
 CROSS_TRACK_M = 0.1  # the carrot waits while the drone is farther than this off its segment (carrot_may_advance)
+# ... unless the drone is this close to the corner and the map shows the way to the carrot clear (`_may_cut_to`):
+# led by a carrot at the corner the drone slows as it nears it (speed ~ distance), so the last CROSS_TRACK_M took
+# it seconds at a crawl
+CORNER_CUT_M = 0.5
 SLOW_M_S = 0.2  # a peer slower than this, going nowhere, has no track to step off: the yielder climbs or descends
 REFUGE_CLEAR_M = PASS_CLEARANCE_M + 0.2  # a refuge this far off the other's segment lets it pass
 REJOIN_TOLERANCE_M = 0.1  # a drone flying its step aside back is at the segment again this close to it
@@ -161,6 +168,7 @@ class Flight:
         self.neighbours: Neighbours = neighbours or (lambda: [])
         # the straight flight from a to b keeps clear of everything the map shows (the planner's test)
         self.is_clear = is_clear or (lambda a, b: True)
+        self.has_map = is_clear is not None
         # ... and keeps the wider clearance of open space (`_may_cut_to`); without it no corner is cut
         self.is_roomy = is_roomy
         self.crew_size = crew_size  # drones in the mission, this one included (the crew it waits to hear)
@@ -458,7 +466,7 @@ class Flight:
                 ahead = min(length, travelled + speed * SETPOINT_PERIOD_S)
                 proposed = start + segment * (ahead / length)
                 lookahead = lookahead_before(float(np.linalg.norm(target - position)))
-                cut_is_clear = self._may_cut_to(position, proposed)
+                cut_is_clear = self._may_cut_to(position, proposed, start)
                 if carrot_may_advance(position, velocity, carrot, start, target, cut_is_clear, lookahead):
                     travelled, carrot = ahead, proposed
             self._carrot = vec3(carrot)
@@ -468,12 +476,19 @@ class Flight:
                 return True
             await self._tick(stop, deadline, flying_to)
 
-    def _may_cut_to(self, position: np.ndarray, carrot: np.ndarray) -> bool:
+    def _may_cut_to(self, position: np.ndarray, carrot: np.ndarray, corner: np.ndarray) -> bool:
         """The map shows the straight way from the drone to `carrot` in open space (`is_roomy`: the planner's
-        wider clearance). A carrot led round a corner only while this holds draws the drone through the fan of
-        those ways (between the path and the chord, as it turns towards the carrot), every one of them checked.
-        Narrow places (doorways, wall ends) are never roomy: there the drone turns on the path itself."""
-        return self.is_roomy is not None and self.is_roomy(vec3(position), vec3(carrot))
+        wider clearance), or the drone is within CORNER_CUT_M of the `corner` it turns at and the way is clear
+        (`is_clear`, the planner's clearance). A carrot led round a corner only while this holds draws the drone
+        through the fan of those ways (between the path and the chord, as it turns towards the carrot), every one
+        of them checked. Narrow places (doorways, wall ends) are never roomy: there the drone turns on the path
+        or, slowed down by then, within CORNER_CUT_M of its corner."""
+        if not self.has_map:
+            return False
+        if self.is_roomy is not None and self.is_roomy(vec3(position), vec3(carrot)):
+            return True
+        near = float(np.linalg.norm(position - corner)) <= CORNER_CUT_M
+        return near and self.is_clear(vec3(position), vec3(carrot))
 
     async def _fly_back_to(self, left_at: Vec3, stop: asyncio.Event, interrupt: asyncio.Event | None) -> bool:
         """Fly the step aside back, straight to where the segment was left, before going on along it. Going on at

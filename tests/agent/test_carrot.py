@@ -7,13 +7,17 @@ import numpy as np
 import pytest
 
 from swarm.agent.flight import (
+    CORNER_CUT_M,
     LOOKAHEAD_M,
     LOOKAHEAD_NEAR_M,
     LOOKAHEAD_OPEN_M,
+    Flight,
     carried_lead,
     carrot_may_advance,
     lookahead_before,
 )
+from swarm.config import Vec3, load_config
+from tests.agent.fake_autopilot import FakeAutopilot
 
 
 def test_a_new_carrot_keeps_the_old_ones_lead_in_the_new_direction() -> None:
@@ -59,6 +63,29 @@ def test_the_carrot_cuts_a_corner_only_where_the_map_shows_the_cut_in_open_space
     # ... and never more than the look-ahead ahead of the drone
     far_short = np.array([0.5, 0.0, 1.5])
     assert not carrot_may_advance(far_short, east, start, start, target, cut_is_clear=True, lookahead=1.5)
+
+
+def _flight(is_clear: object, is_roomy: object = None) -> Flight:
+    return Flight(FakeAutopilot(), load_config().agent, lambda *a, **kw: None, is_clear=is_clear, is_roomy=is_roomy)  # type: ignore[arg-type]
+
+
+def test_near_its_corner_a_drone_may_cut_it_where_the_map_shows_the_way_clear() -> None:
+    corner, carrot = np.array([2.0, 0.0, 1.5]), np.array([2.0, 0.6, 1.5])  # east, then north at (2, 0)
+    near = corner - [CORNER_CUT_M - 0.05, 0.0, 0.0]
+    farther = corner - [CORNER_CUT_M + 0.05, 0.0, 0.0]
+    asked: list[tuple[Vec3, Vec3]] = []
+
+    def clear(a: Vec3, b: Vec3) -> bool:
+        asked.append((a, b))
+        return True
+
+    flight = _flight(clear)
+    assert flight._may_cut_to(near, carrot, corner)
+    assert asked == [(tuple(near), tuple(carrot))]  # the straight way from the drone to the carrot's next place
+    assert not flight._may_cut_to(farther, carrot, corner)  # farther off: only where the map shows it roomy
+    assert _flight(clear, is_roomy=lambda a, b: True)._may_cut_to(farther, carrot, corner)
+    assert not _flight(lambda a, b: False)._may_cut_to(near, carrot, corner)  # the way is not clear
+    assert not _flight(None)._may_cut_to(near, carrot, corner)  # no map: never
 
 
 def test_the_look_ahead_is_long_in_the_open_and_short_near_a_segments_end() -> None:

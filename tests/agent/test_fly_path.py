@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from swarm.agent.autopilot import Autopilot
-from swarm.agent.flight import Flight, distance_to_segment
+from swarm.agent.flight import CORNER_CUT_M, Flight, distance_to_segment
 from swarm.config import gcs_port
 from swarm.sim.worlds import load_world
 from tests.agent.mesh_clearance import clear_in
@@ -121,17 +121,19 @@ def test_a_new_path_straight_on_does_not_brake_the_drone() -> None:
 CORNERED = [(2.5, 1.5, ALTITUDE), (3.5, 2.2, ALTITUDE), (3.5, 4.5, ALTITUDE)]  # turns of 35 and 55 degrees
 
 
-async def _cornered(is_roomy: bool) -> tuple[float, np.ndarray, np.ndarray, dict]:
-    """Fly CORNERED from above HOME (the box's open strip, west of the wall stub's end at (4.0-4.15, 3.0)),
-    with corner cuts checked against the world mesh (`is_roomy`, 0.45 m from every surface) or without a map;
+async def _cornered(room: str) -> tuple[float, np.ndarray, np.ndarray, dict]:
+    """Fly CORNERED from above HOME (the box's open strip, west of the wall stub's end at (4.0-4.15, 3.0)) with
+    a map that shows the corners in open space (`room` "open": 0.45 m from every surface), with one that shows
+    no open space ("tight": no roomy cells, straight ways checked 0.5 m clear) or without a map ("none");
     returns the time taken, the positions flown (every 50 ms), the path flown and the simulator's status."""
     world = load_world("box")
     config = sim_config(free_port_block(), **{"mission.drones": 1, "sim.spawns": [HOME]})
     with running_sim(config, world) as server:
         autopilot = Autopilot(f"udpin://127.0.0.1:{gcs_port(config.sim, 1)}", config.mission.origin)
         settings = config.agent.model_copy(update={"id": 1, "altitude_m": ALTITUDE, "hover_s": 0.0})
-        roomy = clear_in(world, margin=0.45) if is_roomy else None
-        flight = Flight(autopilot, settings, lambda *a, **kw: None, is_clear=clear_in(world), is_roomy=roomy)
+        roomy = clear_in(world, margin=0.45) if room == "open" else None
+        is_clear = clear_in(world) if room != "none" else None
+        flight = Flight(autopilot, settings, lambda *a, **kw: None, is_clear=is_clear, is_roomy=roomy)
         flown: list[np.ndarray] = []
         took: list[float] = []
 
@@ -164,11 +166,14 @@ def _off_the_path(points: np.ndarray, path: np.ndarray) -> float:
 
 
 @pytest.mark.sim
-def test_a_drone_rounds_open_corners_inside_them_and_without_a_map_flies_the_path_itself() -> None:
-    cut_time, cut, path, cut_status = asyncio.run(_cornered(is_roomy=True))
-    kept_time, kept, _, kept_status = asyncio.run(_cornered(is_roomy=False))
-    assert cut_status["collisions"] == kept_status["collisions"] == 0
-    # measured: 0.048 m and 0.172 m off the path, 7.95 s and 5.63 s
-    assert _off_the_path(kept, path) < 0.1  # it came to each corner before turning
-    assert _off_the_path(cut, path) > 0.12  # it turned inside them
-    assert cut_time < 0.85 * kept_time, (cut_time, kept_time)
+def test_a_drone_rounds_open_corners_inside_them_tight_ones_near_them_and_without_a_map_flies_the_path() -> None:
+    open_time, open_flown, path, open_status = asyncio.run(_cornered("open"))
+    tight_time, tight_flown, _, tight_status = asyncio.run(_cornered("tight"))
+    kept_time, kept_flown, _, kept_status = asyncio.run(_cornered("none"))
+    assert open_status["collisions"] == tight_status["collisions"] == kept_status["collisions"] == 0
+    # measured: 5.63 s, 6.53 s and 7.95 s; 0.179 m, 0.068 m and 0.048 m off the path at most
+    assert _off_the_path(kept_flown, path) < 0.1  # it came to each corner before turning
+    assert _off_the_path(open_flown, path) > 0.12  # it turned inside them
+    assert _off_the_path(tight_flown, path) < CORNER_CUT_M  # it turned within CORNER_CUT_M of each corner
+    assert open_time < 0.85 * kept_time, (open_time, kept_time)
+    assert tight_time < 0.9 * kept_time, (tight_time, kept_time)
