@@ -478,8 +478,9 @@ class Flight:
 
     def _may_cut_to(self, position: np.ndarray, carrot: np.ndarray, corner: np.ndarray) -> bool:
         """The map shows the straight way from the drone to `carrot` in open space (`is_roomy`: the planner's
-        wider clearance), or the drone is within CORNER_CUT_M of the `corner` it turns at and the way is clear
-        (`is_clear`, the planner's clearance). A carrot led round a corner only while this holds draws the drone
+        wider clearance), or the drone is within CORNER_CUT_M of the `corner` it turns at (the segment's start:
+        on a path's first segment, where the drone was when it got the path) and the way is clear (`is_clear`,
+        the planner's clearance). A carrot led round a corner only while this holds draws the drone
         through the fan of those ways (between the path and the chord, as it turns towards the carrot), every one
         of them checked. Narrow places (doorways, wall ends) are never roomy: there the drone turns on the path
         or, slowed down by then, within CORNER_CUT_M of its corner."""
