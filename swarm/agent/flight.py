@@ -221,11 +221,13 @@ class Flight:
             await self.ap.wait_healthy(s.health_timeout_s)
             await self._px4_params()
             self._set_phase(Phase.READY)
-            await self._wait_for_crew(stop)
+            resuming = await self._already_flying()
+            if not resuming:
+                await self._wait_for_crew(stop)
             if s.start_delay_s > 0:
                 await self._wait(s.start_delay_s, stop)
             self._check(stop)
-            await self._take_off(stop)
+            await self._take_off(stop, resuming)
             self._set_phase(Phase.FLYING)
             try:
                 await mission(self, stop)
@@ -253,10 +255,11 @@ class Flight:
 
     # -- stages ------------------------------------------------------------------------------------------
 
-    async def _take_off(self, stop: asyncio.Event) -> None:
+    async def _take_off(self, stop: asyncio.Event, resuming: bool) -> None:
+        """Arm and climb to the altitude, or, `resuming` (`_already_flying`), take the drone over where it is."""
         self._set_phase(Phase.TAKEOFF)
         self._last_check = time.monotonic()
-        if await self._already_flying():
+        if resuming:
             self.airborne = True  # a restarted agent takes over its drone where it hovers (offboard-loss hold)
             self.log("resumed_in_air", position=[round(v, 2) for v in self.ap.telemetry.position])
             return
@@ -272,7 +275,7 @@ class Flight:
         """On the ground, when keeping apart: wait up to agent.crew_wait_s to hear every other drone (the module
         docstring), and log whom it heard."""
         expected = self.crew_size - 1
-        if self.separation_m <= 0 or expected <= 0 or self.settings.crew_wait_s <= 0 or await self._already_flying():
+        if self.separation_m <= 0 or expected <= 0 or self.settings.crew_wait_s <= 0:
             return
         started = time.monotonic()
         deadline = started + self.settings.crew_wait_s
