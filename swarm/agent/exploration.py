@@ -397,17 +397,23 @@ class Exploration:
         await self._return(flight, stop, home)
 
     async def _return(self, flight: Flight, stop: asyncio.Event, home: Vec3) -> None:
+        """Back above home on a path planned on the map; where the map shows none (home's cell looks blocked
+        beside a wall, say, or no map yet), back the way the drone came: every leg of that was flown."""
         above = (home[0], home[1], home[2] + self.config.agent.altitude_m)
-        reason = "kept giving way"
         for attempt in range(1, RETURN_ATTEMPTS + 1):
             path = await self._plan(above) if self.grid is not None else None
             if path is None:
-                reason = "no path home"
                 break
             if await flight.fly_path(path, stop):
                 return
             self.log("return_replan", attempt=attempt)  # gave way too long: plan again from here
-        self.log("land_in_place", reason=reason)
+        else:
+            self.log("land_in_place", reason="kept giving way")
+            return
+        way_back = flight.way_back()
+        self.log("retrace_home", reason="no path home", waypoints=len(way_back))
+        if not await flight.fly_path(way_back, stop):
+            self.log("land_in_place", reason="no path home, and kept giving way on the way back")
 
     def summary(self) -> dict[str, Any]:
         ms = sorted(self.decision_ms)

@@ -524,3 +524,72 @@ async def test_decisions_soon_after_a_view_decide_on_it(reuse_s: float, views: i
     summary = exploration.summary()
     assert summary["decisions_on_last_view"] == 3 - views and summary["decision_ms_p50"] is not None
     assert len(exploration.decision_ms) == views  # the decision time is that of decisions on a new view
+
+
+class _HomewardFlight:
+    """A flight that records the paths it is given to fly; each is flown unless `refuse` says how many to refuse."""
+
+    def __init__(self, flown_back: list[tuple[float, float, float]], refuse: int = 0) -> None:
+        self.flown_back = flown_back
+        self.refuse = refuse
+        self.paths: list[list[tuple[float, float, float]]] = []
+
+    def way_back(self) -> list[tuple[float, float, float]]:
+        return list(self.flown_back)
+
+    async def fly_path(self, path: list[tuple[float, float, float]], stop: asyncio.Event, **_: Any) -> bool:
+        self.paths.append(path)
+        if self.refuse:
+            self.refuse -= 1
+            return False
+        return True
+
+
+async def test_with_no_path_home_on_the_map_the_drone_flies_back_the_way_it_came(monkeypatch) -> None:
+    """Home's cell can look blocked on the map (a wall stub half a metre away, inflated): the drone must still get
+    home, by the legs it flew, not land where it is."""
+    events: list[dict[str, Any]] = []
+    exploration = _exploration(events)
+    exploration.grid = SimpleNamespace()  # type: ignore[assignment]  # a map, on which `_plan` finds nothing
+
+    async def no_path(goal: Any, **_: Any) -> None:
+        return None
+
+    monkeypatch.setattr(exploration, "_plan", no_path)
+    way_back = [(3.0, 1.0, 1.5), (1.0, 1.0, 1.5), (0.0, 0.0, 1.5)]
+    flight = _HomewardFlight(way_back)
+    await exploration._return(flight, asyncio.Event(), (0.0, 0.0, 0.0))  # type: ignore[arg-type]
+    assert flight.paths == [way_back]
+    assert [e for e in events if e["event"] == "retrace_home"] == [
+        {"event": "retrace_home", "reason": "no path home", "waypoints": 3}
+    ]
+    assert not [e for e in events if e["event"] == "land_in_place"]
+
+    events.clear()
+    blocked_both_ways = _HomewardFlight(way_back, refuse=1)
+    await exploration._return(blocked_both_ways, asyncio.Event(), (0.0, 0.0, 0.0))  # type: ignore[arg-type]
+    [landed] = [e for e in events if e["event"] == "land_in_place"]
+    assert landed["reason"].startswith("no path home")
+
+
+async def test_a_drone_with_a_path_home_flies_it_and_lands_in_place_only_after_giving_way_every_time(
+    monkeypatch,
+) -> None:
+    events: list[dict[str, Any]] = []
+    exploration = _exploration(events)
+    exploration.grid = SimpleNamespace()  # type: ignore[assignment]
+    planned = [(2.0, 0.0, 1.5), (0.0, 0.0, 1.5)]
+
+    async def plan(goal: Any, **_: Any) -> list[Any]:
+        return list(planned)
+
+    monkeypatch.setattr(exploration, "_plan", plan)
+    flight = _HomewardFlight([(9.0, 9.0, 1.5)])
+    await exploration._return(flight, asyncio.Event(), (0.0, 0.0, 0.0))  # type: ignore[arg-type]
+    assert flight.paths == [planned]  # the map's path, not the way back
+    assert not [e for e in events if e["event"] in ("retrace_home", "land_in_place")]
+
+    gives_way = _HomewardFlight([(9.0, 9.0, 1.5)], refuse=99)
+    await exploration._return(gives_way, asyncio.Event(), (0.0, 0.0, 0.0))  # type: ignore[arg-type]
+    assert gives_way.paths == [planned] * 3  # RETURN_ATTEMPTS plans, never the way back
+    assert [e["reason"] for e in events if e["event"] == "land_in_place"] == ["kept giving way"]
