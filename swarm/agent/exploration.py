@@ -240,7 +240,7 @@ class Exploration:
                 # cone above it, is one): waiting there would wait for ever.
                 if self.grid is not None and await self._out_of_pocket(flight, stop):
                     continue
-                idle = time.monotonic() - idle_since >= self.settings.idle_home_s
+                idle = time.monotonic() - idle_since >= self.settings.idle_home_s or self._left_out_since(idle_since)
                 if not (idle and await self._head_home(flight, stop)):
                     await flight.face(self._look_around(flight), WAIT_FOR_TARGET_S, stop, interrupt=self.retarget)
                 continue
@@ -272,6 +272,11 @@ class Exploration:
         home = self.home()
         if self.settings.return_home and home is not None:
             await self._return(flight, stop, home)
+
+    def _left_out_since(self, idle_since: float) -> bool:
+        """A decision since the drone became idle found nothing for it: it is not waiting for its next target."""
+        left_out = self.core.left_out_at
+        return left_out is not None and left_out >= idle_since
 
     def _look_around(self, flight: Flight) -> Vec3:
         """A point IDLE_TURN_DEG to the left of where we look: waiting for a target, the drone turns and maps."""

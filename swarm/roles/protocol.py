@@ -45,6 +45,9 @@ Invariants:
   must not hold the cluster for ever). Only
   then does the leader publish `done`, and again every decision, so that a lost message or a late member still
   hears it.
+- `left_out_at` is when a decision for this drone (its leader's assignment, or its own as leader or on its own)
+  last found no target for it: not a wait between two targets but nothing to do, so an idle drone heads home at
+  once instead of after `idle_home_s` (`swarm.agent.exploration`).
 """
 
 from __future__ import annotations
@@ -235,6 +238,7 @@ class ExplorationCore:
         self.round = 0
         self.report_seq = 0
         self.empty_since: float | None = None  # as leader: when the cluster's candidates first ran out
+        self.left_out_at: float | None = None  # when a decision for this drone last found nothing for it
         self._woke_at: dict[int, float] = {}  # as leader: member -> when its arrival last woke a decision
         self.loops = 0
         self.targets_assigned = 0
@@ -275,6 +279,8 @@ class ExplorationCore:
             self.finish(effects, f"leader {assignment.leader} declared the cluster done")
             return effects
         mine = assignment.target_of(self.id)
+        if mine is None and self.id in assignment.members:
+            self.left_out_at = now
         if mine is not None and not (
             self.limits.inside(np.asarray([mine[0]])).all() and self.limits.inside(np.asarray([mine[1]]), LOOK_AHEAD_M)
         ):
@@ -335,6 +341,7 @@ class ExplorationCore:
             self.empty_since = None
             self.set_target(effects, Target(choice.viewpoint, choice.point, "self", choice.gain))
             return
+        self.left_out_at = now
         self._record_given_up(now, [c for c in self.own if c not in reachable], "unreachable by this drone")
         if self.strategy == "uncoordinated" or situation.leader == self.id:
             self._maybe_done(now, effects, situation, "no frontier left in this drone's map", members=[self.id])
@@ -408,6 +415,7 @@ class ExplorationCore:
         )
         self.round += 1
         if not assignable:
+            self.left_out_at = now
             self._maybe_done(
                 now,
                 effects,
@@ -455,6 +463,8 @@ class ExplorationCore:
         mine = assigned.get(self.id)
         if mine is not None:
             self.set_target(effects, Target(mine.viewpoint, mine.point, "leader", mine.gain))
+        else:
+            self.left_out_at = now
 
     def _check(self, report: FrontierReport, track: np.ndarray | None) -> _Checked:
         """The report's candidates and looks that pass the leader's checks (the module docstring), counted once

@@ -26,6 +26,7 @@ from swarm.explore.grid import OccupancyGrid
 from swarm.explore.planner import path_is_free
 from swarm.patches.fused import OCCUPIED
 from swarm.roles.membership import PeerTable
+from swarm.roles.messages import TargetAssignment, as_points
 from swarm.roles.protocol import Effects
 from tests.explore.synthetic import room_states, set_states
 
@@ -494,6 +495,49 @@ async def test_a_drone_left_without_a_target_heads_home_until_a_new_target_comes
     else:
         assert ends == [late.viewpoint, above_home]  # not idle long enough: waited in place for the target
         assert headed_home == []
+
+
+@pytest.mark.parametrize("left_out", [True, False])
+async def test_a_drone_its_leader_found_nothing_for_heads_home_at_once(left_out: bool) -> None:
+    """Idle between two targets, a drone waits (`idle_home_s`, here far longer than the test); once a round of
+    its leader's made since it became idle found nothing for it, it heads home at once."""
+    events: list[dict[str, Any]] = []
+    exploration = _exploration(events, **{"explore.idle_home_s": 600.0})
+    exploration.position = lambda: (3.0, 3.0, 1.5)
+    exploration.grid = SimpleNamespace(  # type: ignore[assignment]  # only these are read
+        planning_grid=OccupancyGrid(np.zeros(3), 0.2, np.zeros((25, 25, 15), bool)), in_pocket=lambda here: False
+    )
+    above_home = (0.0, 0.0, exploration.config.agent.altitude_m)
+    late = Target((4.0, 1.0, 1.5), (4.5, 1.0, 1.5), "leader")
+    nothing = TargetAssignment(leader=1, epoch=1, round=7, members=[1, 2], drones=[1], **_one_target())
+
+    class Waiting(_FakeFlight):
+        async def fly_path(self, path: list[Any], stop: asyncio.Event, interrupt: asyncio.Event | None = None) -> bool:
+            self.paths.append(path)
+            exploration._finish("done")
+            return True
+
+        async def face(
+            self, point: Any, seconds: float, stop: asyncio.Event, interrupt: asyncio.Event | None = None
+        ) -> None:
+            if left_out:
+                exploration._apply(exploration.core.on_assignment(time.monotonic(), 1, nothing, leader=1))
+            else:
+                _give(exploration, late)  # the next target, after a wait
+            await asyncio.sleep(0)
+
+    flight = Waiting(exploration)
+    exploration.target = None
+    exploration.decide_forever = lambda: asyncio.sleep(3600)  # type: ignore[method-assign,assignment,return-value]
+    await asyncio.wait_for(exploration.fly(flight, asyncio.Event()), timeout=10.0)  # type: ignore[arg-type]
+    await exploration.close()
+    first = flight.paths[0][-1]
+    assert first == (above_home if left_out else late.viewpoint)
+    assert len([e for e in events if e["event"] == "heading_home"]) == (1 if left_out else 0)
+
+
+def _one_target() -> dict[str, Any]:
+    return {"viewpoints": as_points([(9.0, 9.0, 1.5)]), "points": as_points([(9.5, 9.0, 1.5)])}
 
 
 class _CountingViews:

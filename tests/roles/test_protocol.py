@@ -373,3 +373,40 @@ def test_a_target_whose_frontier_is_gone_is_dropped_and_a_new_one_asked_for() ->
 def test_reports_with_looks_of_the_wrong_length_do_not_validate() -> None:
     with pytest.raises(ValueError, match="looked_at"):
         _report(2, 1, visited=as_points([TAKE_OFF, TAKE_OFF]), looked_at=as_points([EAST.point]))
+
+
+def _round(drones: list[int], members: list[int], round_: int = 1) -> TargetAssignment:
+    return TargetAssignment(
+        leader=1,
+        epoch=1,
+        round=round_,
+        members=members,
+        drones=drones,
+        viewpoints=as_points([WEST.viewpoint] * len(drones)),
+        points=as_points([WEST.point] * len(drones)),
+    )
+
+
+def test_a_round_with_nothing_for_a_member_says_so_and_one_with_a_target_or_for_others_does_not() -> None:
+    """An idle drone waits for its next target; one its leader found nothing for heads home at once
+    (`left_out_at`): waiting `idle_home_s` for it put 6-7 s on the return of the drone that landed last."""
+    core = _core(drone=2)
+    core.on_assignment(1.0, 1, _round([2], [1, 2]), leader=1)
+    assert core.left_out_at is None
+    core.on_assignment(2.0, 1, _round([1], [1, 3]), leader=1)  # a round for another cluster's members
+    assert core.left_out_at is None
+    core.on_assignment(3.0, 1, _round([1], [1, 2], round_=2), leader=1)
+    assert core.left_out_at == 3.0
+
+
+def test_a_leader_that_finds_nothing_for_itself_or_for_anyone_says_so() -> None:
+    leader = _core(drone=1)
+    leader.decide(1.0, _situation([EAST]))
+    assert leader.target is not None and leader.left_out_at is None
+    # the only candidate goes to a member beside it; nothing is left for the leader, far away
+    other = _core(drone=1)
+    near_east = {2: (1.0, 1.0, 1.5)}
+    other.decide(2.0, _situation([EAST], cluster=[1, 2], positions=near_east, here=(-9.0, 1.0, 1.5)))
+    assert other.target is None and other.left_out_at == 2.0
+    other.decide(3.0, _situation([], cluster=[1, 2], positions=near_east))  # no candidate at all
+    assert other.left_out_at == 3.0
