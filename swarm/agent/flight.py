@@ -571,7 +571,7 @@ class Flight:
             others = [n for n in everyone if n.id != peer_id]
             candidates = moves_clear_of(here, off_the_others_ways(refuge_candidates(here, peer), others), everyone)
             safe = [c for c in candidates if self.is_clear(start, vec3(c))]
-            refuge = choose_refuge(safe, peer) if safe else here
+            refuge = choose_refuge(safe, peer, here) if safe else here
         self.log("give_way", to=peer_id, refuge=[round(float(v), 2) for v in refuge])
         self._carrot = vec3(refuge)
         self.heading_to = self._carrot
@@ -929,13 +929,23 @@ def waiting_aside(peer: Neighbour) -> bool:
     return float(np.linalg.norm(np.subtract(peer.position, peer.heading_to))) < WAITING_AT_M
 
 
-def choose_refuge(candidates: list[np.ndarray], peer: Neighbour) -> np.ndarray:
-    """The first candidate at least REFUGE_CLEAR_M off the peer's way (the nearest steps come first), else the
-    one farthest off it. A hovering peer going nowhere has no way: the first candidate (up or down) it is."""
+def choose_refuge(candidates: list[np.ndarray], peer: Neighbour, here: np.ndarray) -> np.ndarray:
+    """The first candidate at least REFUGE_CLEAR_M off the peer's way (the nearest steps come first), else, of
+    those no closer to the peer than `here`, the one farthest off its way, else `here`. A hovering peer going
+    nowhere has no way: the first candidate (up or down) it is.
+
+    Why never closer: in a cramped spot none is clear of the peer's way, and the one farthest off its segment of
+    the moment lay on its next one, 0.6 m towards it (gen:1, two drones leaving their take-off pocket head-on
+    touched there). Waiting where it is, the drone is an obstacle the peer holds for or passes."""
     if parked(peer):
         return candidates[0]
     clear = [c for c in candidates if distance_to_track(c, peer) >= REFUGE_CLEAR_M]
-    return clear[0] if clear else max(candidates, key=lambda c: distance_to_track(c, peer))
+    if clear:
+        return clear[0]
+    peer_at = np.asarray(peer.position, dtype=float)
+    now_apart = float(np.linalg.norm(here - peer_at))
+    backing_off = [c for c in candidates if float(np.linalg.norm(c - peer_at)) >= now_apart]
+    return max(backing_off, key=lambda c: distance_to_track(c, peer)) if backing_off else here
 
 
 def refuge_in_the_way(refuge: np.ndarray, peer: Neighbour) -> bool:

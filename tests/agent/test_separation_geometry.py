@@ -45,15 +45,27 @@ def test_the_refuge_is_the_nearest_step_well_off_the_other_drones_way() -> None:
     # A peer holding still, heading for a point just past us: stepping up by s is only s off its segment, enough
     # (>= REFUGE_CLEAR_M) when s is; a side step is as good, and up comes first.
     holding = Neighbour(1, (2.0, 1.0, 1.5), (0.0, 0.0, 0.0), heading_to=(2.0, 3.0, 1.5))
-    refuge = choose_refuge(refuge_candidates(here, holding), holding)
+    refuge = choose_refuge(refuge_candidates(here, holding), holding, here)
     assert distance_to_track(refuge, holding) >= REFUGE_CLEAR_M
     assert np.linalg.norm(refuge - here) == pytest.approx(s if s >= REFUGE_CLEAR_M else 2 * s)
     # With only candidates on its way (the map forbids the others), the one farthest off it.
     on_the_way = [here + [0.0, s, 0.0], here + [0.0, 0.0, 0.3]]
-    assert np.allclose(choose_refuge(on_the_way, holding), here + [0.0, 0.0, 0.3])
+    assert np.allclose(choose_refuge(on_the_way, holding, here), here + [0.0, 0.0, 0.3])
     # A peer hovering with nowhere to go: the first candidate (vertical), whatever the distances.
     hovering = Neighbour(1, (1.0, 2.0, 1.5), (0.0, 0.0, 0.0))
-    assert np.allclose(choose_refuge(refuge_candidates(here, hovering), hovering), here + [0.0, 0.0, s])
+    assert np.allclose(choose_refuge(refuge_candidates(here, hovering), hovering, here), here + [0.0, 0.0, s])
+
+
+def test_with_no_refuge_clear_of_the_way_a_drone_never_steps_towards_the_drone_it_gives_way_to() -> None:
+    # gen:1 at 20x15 m, two drones leaving their take-off pocket head-on: drone 2 gave way to drone 1 by a step
+    # 0.6 m towards it (the candidate farthest off drone 1's segment of the moment, on its next one), and they
+    # touched 2 s later.
+    here = np.array([11.29, 10.05, 1.07])
+    coming = Neighbour(1, (10.12, 10.03, 1.12), (0.4, 0.0, 0.1), heading_to=(10.5, 9.9, 1.1))
+    towards = np.array([10.72, 10.33, 1.05])
+    assert distance_to_track(towards, coming) < REFUGE_CLEAR_M
+    # its map let it fly straight to no other step (the take-off pocket): it stays where it is
+    assert np.allclose(choose_refuge([towards], coming, here), here)
 
 
 def test_a_refuge_is_in_the_way_once_the_peer_turns_onto_a_segment_through_it() -> None:
