@@ -424,6 +424,10 @@ class ExplorationCore:
                 members,
                 reports,
             )
+            if not self.done:  # a round with nothing for anyone: an idle member heads home (`left_out_at`)
+                effects.publish.append(
+                    TargetAssignment(leader=self.id, epoch=self.epoch, round=self.round, members=members)
+                )
             return
         self.empty_since = None
         choice = assign_targets(

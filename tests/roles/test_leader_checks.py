@@ -31,7 +31,8 @@ def _core(drone: int = 1, limits: ReportLimits = LIMITS, **settings: Any) -> Exp
 
 
 def _lead(core: ExplorationCore, now: float, grid: Map | None = None, **fields: Any) -> list[TargetAssignment]:
-    """One leader decision for the cluster [1, 2] (member 2 at MEMBER_AT); the assignments it published."""
+    """One leader decision for the cluster [1, 2] (member 2 at MEMBER_AT); the assignments it published that
+    name a target or say done (not a round with nothing for anyone)."""
     situation = Situation(
         here=LEADER_AT,
         leader=1,
@@ -41,7 +42,8 @@ def _lead(core: ExplorationCore, now: float, grid: Map | None = None, **fields: 
         map=grid or Map(),
         tracks=fields.pop("tracks", {}),
     )
-    return [m for m in core.decide(now, situation).publish if isinstance(m, TargetAssignment)]
+    published = core.decide(now, situation).publish
+    return [m for m in published if isinstance(m, TargetAssignment) and (m.drones or m.done)]
 
 
 def _track(*points: Vec3) -> np.ndarray:

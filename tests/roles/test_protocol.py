@@ -410,3 +410,19 @@ def test_a_leader_that_finds_nothing_for_itself_or_for_anyone_says_so() -> None:
     assert other.target is None and other.left_out_at == 2.0
     other.decide(3.0, _situation([], cluster=[1, 2], positions=near_east))  # no candidate at all
     assert other.left_out_at == 3.0
+
+
+def test_a_leader_with_nothing_for_anyone_tells_its_members_so_until_it_is_done() -> None:
+    """Without this round an idle member heard nothing until `done` (3-6 s later) or its own `idle_home_s`."""
+    leader = _core(drone=1)
+    members = [1, 2]
+    effects = leader.decide(1.0, _situation([], cluster=members, positions={2: (5.0, 1.0, 1.5)}))
+    [empty] = [m for m in effects.publish if isinstance(m, TargetAssignment)]
+    assert empty.members == members and empty.drones == [] and not empty.done
+    member = _core(drone=2)
+    member.on_assignment(1.1, 1, empty, leader=1)
+    assert member.left_out_at == 1.1 and not member.done
+    leader.on_report(1.5, 2, _report(2, 1), leader=1)  # a fresh report, a loop later: done
+    effects = leader.decide(1.0 + LOOP + 0.1, _situation([], cluster=members, positions={2: (5.0, 1.0, 1.5)}))
+    assert leader.done
+    assert [m.done for m in effects.publish if isinstance(m, TargetAssignment)] == [True]
