@@ -97,6 +97,12 @@ CROSS_TRACK_M = 0.1  # the carrot waits while the drone is farther than this off
 # led by a carrot at the corner the drone slows as it nears it (speed ~ distance), so the last CROSS_TRACK_M took
 # it seconds at a crawl
 CORNER_CUT_M = 0.5
+# A turn no sharper than this is cut wherever the map shows the straight way to the carrot clear, and the carrot's
+# lead is kept through it (`gentle_turns`): the drone's heading changes little, so it does not swing wide at speed.
+# A planned path bends every 0.5-1 m round the obstacles it keeps its clearance from (62 % of its segments were
+# under 1 m on a generated building, 37 % of its turns under 30 degrees), and slowing to CORNER_CUT_M at each bend
+# flew drones home at 0.8 m/s against 1.4 m/s.
+GENTLE_TURN_DEG = 30.0
 SLOW_M_S = 0.2  # a peer slower than this, going nowhere, has no track to step off: the yielder climbs or descends
 REFUGE_CLEAR_M = PASS_CLEARANCE_M + 0.2  # a refuge this far off the other's segment lets it pass
 REJOIN_TOLERANCE_M = 0.1  # a drone flying its step aside back is at the segment again this close to it
@@ -351,10 +357,13 @@ class Flight:
         lead = carried_lead(self.ap.telemetry.position, self._carrot, path[0]) if path else 0.0
         self._carrot = None
         self.path_ahead = list(path)
+        gentle, run_on = gentle_turns(self.ap.telemetry.position, path)
         try:
             for i, waypoint in enumerate(path):
                 last = i == len(path) - 1
-                if not await self._fly_segment_to(waypoint, stop, interrupt, lead=lead, through=not last):
+                if not await self._fly_segment_to(
+                    waypoint, stop, interrupt, lead=lead, through=not last, gentle=gentle[i], run_on=run_on[i]
+                ):
                     return False
                 lead = 0.0
                 self.path_ahead.pop(0)
@@ -391,12 +400,16 @@ class Flight:
         tolerance: float | None = None,
         lead: float = 0.0,
         through: bool = False,
+        gentle: bool = False,
+        run_on: float = 0.0,
     ) -> bool:
         """Fly the straight segment from the carrot (else the drone) to `goal`, reached within `tolerance` (by
         default the waypoint tolerance), the carrot starting `lead` metres along it; False when interrupted or a
         yield lasted too long. A segment flown `through` its end (a path goes on from it) is done as soon as
         the carrot is there: the next segment's carrot takes over while the drone is still on its way to the
-        corner, and cuts it only where the map shows the cut clear (`carrot_may_advance`)."""
+        corner, and cuts it only where the map shows the cut clear (`carrot_may_advance`). `gentle`: the segment
+        starts with a gentle turn (`gentle_turns`); `run_on`: how far the path runs on from its end through gentle
+        turns, which the carrot's lead counts as if the segment went on."""
         tolerance = self.settings.waypoint_tolerance_m if tolerance is None else tolerance
         here = np.array(self.ap.telemetry.position)
         start = np.array(self._carrot) if self._carrot is not None else here
@@ -468,8 +481,8 @@ class Flight:
             if following and travelled < length:
                 ahead = min(length, travelled + speed * SETPOINT_PERIOD_S)
                 proposed = start + segment * (ahead / length)
-                lookahead = lookahead_before(float(np.linalg.norm(target - position)))
-                cut_is_clear = self._may_cut_to(position, proposed, start)
+                lookahead = lookahead_before(float(np.linalg.norm(target - position)) + run_on)
+                cut_is_clear = self._may_cut_to(position, proposed, start, gentle)
                 if carrot_may_advance(position, velocity, carrot, start, target, cut_is_clear, lookahead):
                     travelled, carrot = ahead, proposed
             self._carrot = vec3(carrot)
@@ -479,19 +492,19 @@ class Flight:
                 return True
             await self._tick(stop, deadline, flying_to)
 
-    def _may_cut_to(self, position: np.ndarray, carrot: np.ndarray, corner: np.ndarray) -> bool:
+    def _may_cut_to(self, position: np.ndarray, carrot: np.ndarray, corner: np.ndarray, gentle: bool = False) -> bool:
         """The map shows the straight way from the drone to `carrot` in open space (`is_roomy`: the planner's
         wider clearance), or the drone is within CORNER_CUT_M of the `corner` it turns at (the segment's start:
-        on a path's first segment, where the drone was when it got the path) and the way is clear (`is_clear`,
-        the planner's clearance). A carrot led round a corner only while this holds draws the drone
-        through the fan of those ways (between the path and the chord, as it turns towards the carrot), every one
-        of them checked. Narrow places (doorways, wall ends) are never roomy: there the drone turns on the path
-        or, slowed down by then, within CORNER_CUT_M of its corner."""
+        on a path's first segment, where the drone was when it got the path), or the turn there is `gentle`, and
+        the way is clear (`is_clear`, the planner's clearance). A carrot led round a corner only while this holds
+        draws the drone through the fan of those ways (between the path and the chord, as it turns towards the
+        carrot), every one of them checked. Narrow places (doorways, wall ends) are never roomy: there the drone
+        turns on the path or, slowed down by then, within CORNER_CUT_M of its corner."""
         if not self.has_map:
             return False
         if self.is_roomy is not None and self.is_roomy(vec3(position), vec3(carrot)):
             return True
-        near = float(np.linalg.norm(position - corner)) <= CORNER_CUT_M
+        near = gentle or float(np.linalg.norm(position - corner)) <= CORNER_CUT_M
         return near and self.is_clear(vec3(position), vec3(carrot))
 
     async def _fly_back_to(self, left_at: Vec3, stop: asyncio.Event, interrupt: asyncio.Event | None) -> bool:
@@ -843,6 +856,31 @@ def carried_lead(here: Vec3, carrot: Vec3 | None, first_waypoint: Vec3) -> float
         return 0.0
     along = float(np.dot(np.subtract(carrot, here), first)) / length
     return min(max(along, 0.0), lookahead_before(length), length)
+
+
+def gentle_turns(start: Vec3, path: list[Vec3]) -> tuple[list[bool], list[float]]:
+    """For each segment of `path` (the one ending at each waypoint, the first from `start`, where the drone is):
+    whether it starts with a turn of at most GENTLE_TURN_DEG (the first never does: the drone's way in is not
+    on the path), and how far the path runs on from its end through such turns (up to the distance at which the
+    carrot's lead starts to taper, beyond which it makes no difference)."""
+    legs = np.diff(np.asarray([start, *path], dtype=float), axis=0)  # legs[i]: segment i
+    lengths = np.linalg.norm(legs, axis=1)
+    n = len(path)
+    gentle = [i > 0 and _turn_deg(legs[i - 1], legs[i]) <= GENTLE_TURN_DEG for i in range(n)]
+    run_on = [0.0] * n
+    for i in range(n - 2, -1, -1):
+        if gentle[i + 1]:
+            run_on[i] = min(float(lengths[i + 1]) + run_on[i + 1], LOOKAHEAD_NEAR_M + LOOKAHEAD_TAPER_M)
+    return gentle, run_on
+
+
+def _turn_deg(incoming: np.ndarray, outgoing: np.ndarray) -> float:
+    """The angle between two legs' directions; 0 when either has no length (no direction to turn from)."""
+    a, b = float(np.linalg.norm(incoming)), float(np.linalg.norm(outgoing))
+    if a < 1e-9 or b < 1e-9:
+        return 0.0
+    cosine = float(np.dot(incoming, outgoing)) / (a * b)
+    return math.degrees(math.acos(min(1.0, max(-1.0, cosine))))
 
 
 def lookahead_before(remaining: float) -> float:

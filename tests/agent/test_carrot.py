@@ -8,12 +8,15 @@ import pytest
 
 from swarm.agent.flight import (
     CORNER_CUT_M,
+    GENTLE_TURN_DEG,
     LOOKAHEAD_M,
     LOOKAHEAD_NEAR_M,
     LOOKAHEAD_OPEN_M,
+    LOOKAHEAD_TAPER_M,
     Flight,
     carried_lead,
     carrot_may_advance,
+    gentle_turns,
     lookahead_before,
 )
 from swarm.config import Vec3, load_config
@@ -86,6 +89,10 @@ def test_near_its_corner_a_drone_may_cut_it_where_the_map_shows_the_way_clear() 
     assert _flight(clear, is_roomy=lambda a, b: True)._may_cut_to(farther, carrot, corner)
     assert not _flight(lambda a, b: False)._may_cut_to(near, carrot, corner)  # the way is not clear
     assert not _flight(None)._may_cut_to(near, carrot, corner)  # no map: never
+    # a gentle turn is cut from farther off too, where the way is clear, never without a map
+    assert flight._may_cut_to(farther, carrot, corner, gentle=True)
+    assert not _flight(lambda a, b: False)._may_cut_to(farther, carrot, corner, gentle=True)
+    assert not _flight(None)._may_cut_to(farther, carrot, corner, gentle=True)
 
 
 def test_the_look_ahead_is_long_in_the_open_and_short_near_a_segments_end() -> None:
@@ -94,3 +101,25 @@ def test_the_look_ahead_is_long_in_the_open_and_short_near_a_segments_end() -> N
     assert lookahead_before(0.0) == pytest.approx(LOOKAHEAD_M)
     ramp = [lookahead_before(d) for d in np.linspace(0.0, 5.0, 51)]
     assert all(b >= a for a, b in zip(ramp, ramp[1:]))  # never longer nearer the end
+
+
+def test_gentle_turns_are_those_of_at_most_gentle_turn_deg_and_the_lead_runs_on_through_them() -> None:
+    def bend(at: Vec3, length: float, degrees: float) -> Vec3:
+        a = np.radians(degrees)
+        return (at[0] + length * np.cos(a), at[1] + length * np.sin(a), at[2])
+
+    start: Vec3 = (0.0, 0.0, 1.5)
+    w0 = bend(start, 1.0, 0.0)
+    w1 = bend(w0, 0.8, GENTLE_TURN_DEG - 1.0)  # gentle
+    w2 = bend(w1, 0.7, 2 * GENTLE_TURN_DEG)  # GENTLE_TURN_DEG + 1 from the last leg: sharp
+    w3 = bend(w2, 0.6, 2 * GENTLE_TURN_DEG + 10.0)  # gentle: 10 degrees more
+    gentle, run_on = gentle_turns(start, [w0, w1, w2, w3])
+    assert gentle == [False, True, False, True]  # the first segment's way in is not on the path
+    assert run_on[0] == pytest.approx(0.8)  # on through w0's gentle turn, to w1, where the turn is sharp
+    assert run_on[1] == 0.0
+    assert run_on[2] == pytest.approx(0.6)
+    assert run_on[3] == 0.0  # the path ends there
+    straight = [(float(x), 0.0, 1.5) for x in range(1, 12)]
+    _, long_run = gentle_turns(start, straight)
+    assert long_run[0] == pytest.approx(LOOKAHEAD_NEAR_M + LOOKAHEAD_TAPER_M)  # as far as the lead looks
+    assert gentle_turns(start, [start, w1])[0] == [False, True]  # from a leg of no length: no turn to make
