@@ -266,6 +266,9 @@ class Exploration:
                 # explorer's next target takes two decisions (its report, its leader's assignment), and waiting
                 # for them after the look left every drone hovering for most of a second at every target.
                 self.log("target_reached", viewpoint=_r(target.viewpoint))
+                # idle from here, as far as decisions go: the one this arrival wakes counts the target looked at,
+                # and when it finds nothing for this drone, the drone heads home after the look
+                idle_since = time.monotonic()
                 self._apply(self.core.looked_at(target))
                 await flight.face(target.point, self.settings.dwell_s, stop)
                 self.core.look_finished(target)

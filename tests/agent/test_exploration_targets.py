@@ -536,6 +536,45 @@ async def test_a_drone_its_leader_found_nothing_for_heads_home_at_once(left_out:
     assert len([e for e in events if e["event"] == "heading_home"]) == (1 if left_out else 0)
 
 
+async def test_a_round_with_nothing_for_a_drone_made_while_it_looks_at_its_last_target_sends_it_home() -> None:
+    """The arrival wakes a decision that counts the target looked at; when it finds nothing for the drone, the
+    drone heads home after the look, not a loop later (3.4 s in each of 4 bench missions)."""
+    events: list[dict[str, Any]] = []
+    exploration = _exploration(events, **{"explore.idle_home_s": 600.0})
+    exploration.position = lambda: (3.0, 3.0, 1.5)
+    exploration.grid = SimpleNamespace(  # type: ignore[assignment]  # only these are read
+        planning_grid=OccupancyGrid(np.zeros(3), 0.2, np.zeros((25, 25, 15), bool)), in_pocket=lambda here: False
+    )
+    above_home = (0.0, 0.0, exploration.config.agent.altitude_m)
+    last = Target((4.0, 1.0, 1.5), (4.5, 1.0, 1.5), "leader")
+    nothing = TargetAssignment(leader=1, epoch=1, round=7, members=[1, 2], drones=[1], **_one_target())
+
+    class Looking(_FakeFlight):
+        async def fly_path(self, path: list[Any], stop: asyncio.Event, interrupt: asyncio.Event | None = None) -> bool:
+            self.paths.append(path)
+            if path[-1] == above_home:
+                exploration._finish("done")
+            return True
+
+        async def face(
+            self, point: Any, seconds: float, stop: asyncio.Event, interrupt: asyncio.Event | None = None
+        ) -> None:
+            if point == last.point:  # the look: the round the arrival woke comes in meanwhile
+                exploration._apply(exploration.core.on_assignment(time.monotonic(), 1, nothing, leader=1))
+            await asyncio.sleep(0)
+
+    flight = Looking(exploration)
+    _give(exploration, last)
+    exploration.decide_forever = lambda: asyncio.sleep(3600)  # type: ignore[method-assign,assignment,return-value]
+    await asyncio.wait_for(exploration.fly(flight, asyncio.Event()), timeout=10.0)  # type: ignore[arg-type]
+    await exploration.close()
+    assert [p[-1] for p in flight.paths][:2] == [last.viewpoint, above_home]
+    assert [e["event"] for e in events if e["event"] in ("target_reached", "heading_home")] == [
+        "target_reached",
+        "heading_home",
+    ]
+
+
 def _one_target() -> dict[str, Any]:
     return {"viewpoints": as_points([(9.0, 9.0, 1.5)]), "points": as_points([(9.5, 9.0, 1.5)])}
 
