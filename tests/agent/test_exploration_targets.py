@@ -20,7 +20,7 @@ import pytest
 from swarm.agent.exploration import PARKED_PEER_S, Exploration, Target
 from swarm.agent.flight import PASS_CLEARANCE_M, Flight, Neighbour
 from swarm.bus.phase import Phase
-from swarm.config import ExploreSettings, load_config
+from swarm.config import ExploreSettings, Vec3, load_config
 from swarm.explore.frontiers import ExplorationGrid
 from swarm.explore.grid import OccupancyGrid
 from swarm.explore.planner import path_is_free
@@ -502,14 +502,8 @@ async def test_a_drone_its_leader_found_nothing_for_heads_home_at_once(left_out:
     """Idle between two targets, a drone waits (`idle_home_s`, here far longer than the test); once a round of
     its leader's made since it became idle found nothing for it, it heads home at once."""
     events: list[dict[str, Any]] = []
-    exploration = _exploration(events, **{"explore.idle_home_s": 600.0})
-    exploration.position = lambda: (3.0, 3.0, 1.5)
-    exploration.grid = SimpleNamespace(  # type: ignore[assignment]  # only these are read
-        planning_grid=OccupancyGrid(np.zeros(3), 0.2, np.zeros((25, 25, 15), bool)), in_pocket=lambda here: False
-    )
-    above_home = (0.0, 0.0, exploration.config.agent.altitude_m)
+    exploration, above_home = _idle_in_the_open(events)
     late = Target((4.0, 1.0, 1.5), (4.5, 1.0, 1.5), "leader")
-    nothing = TargetAssignment(leader=1, epoch=1, round=7, members=[1, 2], drones=[1], **_one_target())
 
     class Waiting(_FakeFlight):
         async def fly_path(self, path: list[Any], stop: asyncio.Event, interrupt: asyncio.Event | None = None) -> bool:
@@ -521,7 +515,7 @@ async def test_a_drone_its_leader_found_nothing_for_heads_home_at_once(left_out:
             self, point: Any, seconds: float, stop: asyncio.Event, interrupt: asyncio.Event | None = None
         ) -> None:
             if left_out:
-                exploration._apply(exploration.core.on_assignment(time.monotonic(), 1, nothing, leader=1))
+                exploration._apply(exploration.core.on_assignment(time.monotonic(), 1, NOTHING_FOR_2, leader=1))
             else:
                 _give(exploration, late)  # the next target, after a wait
             await asyncio.sleep(0)
@@ -540,14 +534,8 @@ async def test_a_round_with_nothing_for_a_drone_made_while_it_looks_at_its_last_
     """The arrival wakes a decision that counts the target looked at; when it finds nothing for the drone, the
     drone heads home after the look, not a loop later (3.4 s in each of 4 bench missions)."""
     events: list[dict[str, Any]] = []
-    exploration = _exploration(events, **{"explore.idle_home_s": 600.0})
-    exploration.position = lambda: (3.0, 3.0, 1.5)
-    exploration.grid = SimpleNamespace(  # type: ignore[assignment]  # only these are read
-        planning_grid=OccupancyGrid(np.zeros(3), 0.2, np.zeros((25, 25, 15), bool)), in_pocket=lambda here: False
-    )
-    above_home = (0.0, 0.0, exploration.config.agent.altitude_m)
+    exploration, above_home = _idle_in_the_open(events)
     last = Target((4.0, 1.0, 1.5), (4.5, 1.0, 1.5), "leader")
-    nothing = TargetAssignment(leader=1, epoch=1, round=7, members=[1, 2], drones=[1], **_one_target())
 
     class Looking(_FakeFlight):
         async def fly_path(self, path: list[Any], stop: asyncio.Event, interrupt: asyncio.Event | None = None) -> bool:
@@ -560,7 +548,7 @@ async def test_a_round_with_nothing_for_a_drone_made_while_it_looks_at_its_last_
             self, point: Any, seconds: float, stop: asyncio.Event, interrupt: asyncio.Event | None = None
         ) -> None:
             if point == last.point:  # the look: the round the arrival woke comes in meanwhile
-                exploration._apply(exploration.core.on_assignment(time.monotonic(), 1, nothing, leader=1))
+                exploration._apply(exploration.core.on_assignment(time.monotonic(), 1, NOTHING_FOR_2, leader=1))
             await asyncio.sleep(0)
 
     flight = Looking(exploration)
@@ -575,8 +563,27 @@ async def test_a_round_with_nothing_for_a_drone_made_while_it_looks_at_its_last_
     ]
 
 
-def _one_target() -> dict[str, Any]:
-    return {"viewpoints": as_points([(9.0, 9.0, 1.5)]), "points": as_points([(9.5, 9.0, 1.5)])}
+def _idle_in_the_open(events: list[dict[str, Any]]) -> tuple[Exploration, Vec3]:
+    """Drone 2 at (3, 3, 1.5) in an empty map, waiting far longer for `idle_home_s` than any test; and the point
+    above its home."""
+    exploration = _exploration(events, **{"explore.idle_home_s": 600.0})
+    exploration.position = lambda: (3.0, 3.0, 1.5)
+    exploration.grid = SimpleNamespace(  # type: ignore[assignment]  # only these are read
+        planning_grid=OccupancyGrid(np.zeros(3), 0.2, np.zeros((25, 25, 15), bool)), in_pocket=lambda here: False
+    )
+    return exploration, (0.0, 0.0, exploration.config.agent.altitude_m)
+
+
+# leader 1's round for the cluster [1, 2] with a target for itself only
+NOTHING_FOR_2 = TargetAssignment(
+    leader=1,
+    epoch=1,
+    round=7,
+    members=[1, 2],
+    drones=[1],
+    viewpoints=as_points([(9.0, 9.0, 1.5)]),
+    points=as_points([(9.5, 9.0, 1.5)]),
+)
 
 
 class _CountingViews:
