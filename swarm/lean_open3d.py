@@ -3,7 +3,7 @@
 Open3D's `open3d.visualization` imports `draw_plotly`, which imports plotly, dash, IPython and requests at once,
 whether or not anyone draws. No Swarm process draws with plotly, and in every one of them (each agent, the
 simulator, the observer) that import cost about 20 MB of memory and 0.7 s of CPU at start (an agent's imports:
-175 -> 154 MB RSS, 2.3 -> 1.6 s): on 2 cores, ten agents starting together spent 7 s of CPU on a web viewer.
+175 -> 154 MB RSS, 2.3 -> 1.6 s): on 2 cores, ten agents starting together would spend 7 s of CPU on a web viewer.
 `defer_plotly()` puts a stand-in for that one module where Python looks first (`sys.modules`); its three
 functions import the real module on first call, so `open3d.visualization.draw_plotly(...)` still works for a
 user at a prompt.
