@@ -87,6 +87,8 @@ class AgentSampler:
                     rss, fds = proc.memory_info().rss, proc.num_fds()
             except psutil.Error:
                 continue
+            if rss <= 0:
+                continue  # exited, not reaped yet: a zombie holds no memory, and a warm RSS of 0 divides by zero
             sample = self.samples.setdefault(child.pid, AgentSample(child.name, child.pid, now))
             if now - sample.first_seen < WARMUP_S:
                 continue

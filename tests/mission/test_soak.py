@@ -3,16 +3,20 @@ patches lost. The 20-minute soak itself is run by hand (README); here one real m
 
 from __future__ import annotations
 
+import contextlib
 import random
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
 
 import pytest
 from rich.console import Console
 
 from swarm.config import FaultSpec, load_config
-from swarm.mission.soak import MAX_GROWTH, PatchAudit, audit, random_fault, soak, summarise
+from swarm.mission import soak as soak_module
+from swarm.mission.soak import MAX_GROWTH, AgentSampler, PatchAudit, audit, random_fault, soak, summarise
 from tests.helpers import SwarmPorts
 
 
@@ -62,6 +66,42 @@ def test_the_soak_passes_only_when_every_mission_completes_nothing_is_lost_and_m
     missions: list[dict], passed: bool
 ) -> None:
     assert summarise(missions)["passed"] is passed
+
+
+def test_an_agent_that_exited_but_is_not_reaped_yet_is_not_sampled(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A zombie reads an RSS of 0: taken as the warm sample, it made the growth a division by zero (a one-mission
+    soak failed so when an agent exited just as its warm-up ended)."""
+    clock = [100.0]
+    monkeypatch.setattr(soak_module.time, "monotonic", lambda: clock[0])
+    rss = [0]
+
+    class Zombie:  # psutil.Process of an exited agent: only what the sampler reads
+        def __init__(self, pid: int) -> None:
+            pass
+
+        def oneshot(self) -> Any:
+            return contextlib.nullcontext()
+
+        def memory_info(self) -> Any:
+            return SimpleNamespace(rss=rss[0])
+
+        def num_fds(self) -> int:
+            return 9
+
+    monkeypatch.setattr(soak_module.psutil, "Process", Zombie)
+    agent = SimpleNamespace(pid=4242, name="agent-2", poll=lambda: None)
+    state = SimpleNamespace(agents={2: agent})
+    sampler = AgentSampler()
+    rss[0] = 150 * 2**20
+    sampler(state)  # type: ignore[arg-type]  # first seen: warming up
+    clock[0] += soak_module.WARMUP_S + 1.0
+    rss[0] = 0
+    sampler(state)  # type: ignore[arg-type]
+    [sample] = sampler.samples.values()
+    assert sample.warm_rss is None and sample.as_dict()["rss_growth"] is None
+    rss[0] = 160 * 2**20
+    sampler(state)  # type: ignore[arg-type]
+    assert sample.warm_rss == 160 * 2**20 and sample.as_dict()["rss_growth"] == 0.0
 
 
 def test_a_patch_is_lost_when_a_survivor_lacks_it_holds_other_bytes_or_its_seq_is_a_hole() -> None:
