@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import random
 import subprocess
 import sys
@@ -43,13 +44,28 @@ class SwarmPorts:
 EPHEMERAL_PORTS_FROM = 32768  # Linux's default ip_local_port_range starts here: outgoing connections take these
 
 
+PORTS_FROM = 20000  # test ports start here, clear of the defaults (14540, 14580, 7447)
+
+
+def worker_ports() -> tuple[int, int]:
+    """This pytest-xdist worker's share [lo, hi) of the test ports (PORTS_FROM up to the ephemeral range). A port
+    is found free when a test starts and bound later: with both workers choosing from one range, a simulator
+    found its port taken by the other worker's test ("UDP port 29800 (vehicle 1) is already in use")."""
+    count = max(1, int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")))
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0")[2:]
+    index = int(worker) % count if worker.isdigit() else 0
+    span = (EPHEMERAL_PORTS_FROM - PORTS_FROM) // count
+    return PORTS_FROM + index * span, PORTS_FROM + (index + 1) * span
+
+
 def free_swarm_ports() -> SwarmPorts:
     """Bases for a test mission's ports, below the ephemeral range: a port found free there can be taken by any
     outgoing connection before the mission binds it. The sensor router (bus base + SENSOR_PORT_OFFSET) is checked
     too."""
     while True:
-        start = random.randrange(20000, EPHEMERAL_PORTS_FROM - 300 - SENSOR_PORT_OFFSET, 100)
-        stop = EPHEMERAL_PORTS_FROM - SENSOR_PORT_OFFSET - 20
+        lo, hi = worker_ports()
+        start = random.randrange(lo, hi - 300 - SENSOR_PORT_OFFSET, 100)
+        stop = hi - SENSOR_PORT_OFFSET - 20
         vehicle = find_free_base("127.0.0.1", 16, "udp", start, stop)
         gcs = find_free_base("127.0.0.1", 16, "udp", vehicle + 20, stop)
         bus = find_free_base("127.0.0.1", 17, "tcp", gcs + 20, stop)

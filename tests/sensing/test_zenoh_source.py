@@ -22,7 +22,7 @@ from swarm.mission.ports import find_free_base
 from swarm.sensing import messages as m
 from swarm.sensing.frames import mount_transform
 from swarm.sensing.zenoh_source import ZenohSensorSource, topic_key
-from tests.helpers import EPHEMERAL_PORTS_FROM, loopback_zenoh
+from tests.helpers import loopback_zenoh, worker_ports
 
 K = np.array([[8.0, 0.0, 7.5], [0.0, 8.0, 5.5], [0.0, 0.0, 1.0]])
 
@@ -99,7 +99,8 @@ def test_frames_arrive_with_the_pose_at_their_stamp_and_junk_is_counted(
 
 @pytest.mark.bus
 def test_the_sensor_session_waits_for_a_router_that_comes_up_late_and_gives_up_on_one_that_never_does() -> None:
-    port = find_free_base("127.0.0.1", 1, "tcp", random.randrange(20000, EPHEMERAL_PORTS_FROM - 100))
+    lo, hi = worker_ports()
+    port = find_free_base("127.0.0.1", 1, "tcp", random.randrange(lo, hi - 100), stop=hi)
     endpoint = f"tcp/127.0.0.1:{port}"
     mount = mount_transform((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
     never = ZenohSensorSource(SensorStreamSettings(connect=[endpoint], connect_timeout_s=1.0), mount)

@@ -17,16 +17,17 @@ from swarm.config import SwarmConfig, load_config
 from swarm.mission.ports import find_free_base
 from swarm.sim.server import SimServer
 from swarm.sim.worlds import World
-from tests.helpers import EPHEMERAL_PORTS_FROM
+from tests.helpers import worker_ports
 
 PORT_BLOCK = 40  # vehicle ports at base .. base+19, GCS ports at base+20 .. base+39
 
 
 def free_port_block(size: int = PORT_BLOCK) -> int:
     """A base port such that base .. base+size-1 are free UDP ports (never the 14540/14580 defaults), below the
-    ephemeral range (`tests.helpers.EPHEMERAL_PORTS_FROM`)."""
-    start = random.randrange(20000, EPHEMERAL_PORTS_FROM - 2 * size, size)
-    return find_free_base("127.0.0.1", size, "udp", start, stop=EPHEMERAL_PORTS_FROM - size, step=size)
+    ephemeral range, in this test worker's share of them (`tests.helpers.worker_ports`)."""
+    lo, hi = worker_ports()
+    start = random.randrange(lo, hi - 2 * size, size)
+    return find_free_base("127.0.0.1", size, "udp", start, stop=hi - size, step=size)
 
 
 def sim_config(base_port: int, **overrides: Any) -> SwarmConfig:
