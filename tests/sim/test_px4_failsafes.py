@@ -120,9 +120,12 @@ async def test_offboard_refused_without_setpoints_and_the_reason_reaches_mavsdk(
     with running_sim(config, box_world) as server:
         sdk, drone = await connect(gcs_port(config.sim, 1))
         texts: list[str] = []
+        # one plugin, destroyed before the instance: a plugin left to the garbage collector was destroyed in an
+        # executor thread after `sdk.destroy()`, and MAVSDK aborted the process (a pytest worker crashed)
+        telemetry = TelemetryAsync(drone)
 
         async def collect() -> None:
-            async for status in TelemetryAsync(drone).subscribe_status_text():
+            async for status in telemetry.subscribe_status_text():
                 texts.append(status.text)
 
         collector = asyncio.create_task(collect())
@@ -136,12 +139,13 @@ async def test_offboard_refused_without_setpoints_and_the_reason_reaches_mavsdk(
             await MavlinkDirectAsync(drone).send_message(message)
             text = await until(lambda: next((t for t in texts if "Offboard refused" in t), None), 5, "STATUSTEXT")
             assert text == "Offboard refused: setpoints must stream at 2 Hz, no setpoint yet"  # chunks joined
-            assert await TelemetryAsync(drone).flight_mode() != FlightMode.OFFBOARD
+            assert await telemetry.flight_mode() != FlightMode.OFFBOARD
             assert vehicle(server)["mode"] == "HOLD"
             await ActionAsync(drone).disarm()
         finally:
             collector.cancel()
             await asyncio.gather(collector, return_exceptions=True)
+            telemetry.destroy()
             sdk.destroy()
 
 
