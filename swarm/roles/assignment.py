@@ -210,6 +210,34 @@ def _within(views: np.ndarray, point: Vec3, radius: float) -> np.ndarray:
     return within
 
 
+def _left_to_passing(
+    rows: list[int],
+    heading: np.ndarray,
+    via: np.ndarray,
+    dist: np.ndarray,
+    allowed: np.ndarray,
+    views: np.ndarray,
+    keep_radius: float,
+) -> np.ndarray:
+    """(members, cands) True where another member, busy member `rows[b]` flying to `heading[b]`, reaches the
+    candidate sooner by way of its target (`via[b]`: its way to go plus the way on from there) than this member
+    flies to it directly: the candidate is on the other's way, and it takes it next. A member's own current
+    target is never taken from it here (the current-target bonus decides that), nor is a candidate left to a
+    member that cannot reach it. Equal speeds are assumed: a way in metres is a time."""
+    out = np.zeros(dist.shape, dtype=bool)
+    for b, row in enumerate(rows):
+        sooner = (via[b][None, :] < dist) & allowed[row][None, :] & ~_within(views, _vec3(heading[b]), keep_radius)
+        sooner[row] = False
+        out |= sooner
+    for b, row in enumerate(rows):
+        out[row] &= ~_within(views, _vec3(heading[b]), keep_radius)
+    return out
+
+
+def _vec3(row: np.ndarray) -> Vec3:
+    return float(row[0]), float(row[1]), float(row[2])
+
+
 def assign_targets(
     candidates: Sequence[Candidate],
     positions: Mapping[int, Vec3],
@@ -245,7 +273,10 @@ def assign_targets(
     it could not plan a path to (`unreachable`): that candidate stays for the others. A candidate whose
     scheduled gain falls under `min_gain` is left for this round: what a drone already sent near it will see
     leaves it not worth another drone's trip (at the end of the office mission, three drones were sent one by
-    one to leftover floor frontiers 2-4 m apart in the same far corner)."""
+    one to leftover floor frontiers 2-4 m apart in the same far corner). Nor is a member sent to a candidate
+    that another member, by way of its current target, will reach first (`_left_to_passing`): that one picks it
+    up next, and this one is free for something else or for home (at the end of a generated building, the
+    leader flew 30 m and 35 s to a 7 m^3 leftover 5 m from where another drone was heading)."""
     members = sorted(positions)
     result: dict[int, Candidate | None] = {m: None for m in members}
     pool = sorted(candidates, key=_order_key)
@@ -253,7 +284,11 @@ def assign_targets(
         return result
     views, points = _array([c.viewpoint for c in pool]), _array([c.point for c in pool])
     owners = np.array([c.owner for c in pool])
-    dist = np.asarray(distances(_array([positions[m] for m in members]), views), dtype=float)  # (members, cands)
+    busy = [(row, (current or {})[m]) for row, m in enumerate(members) if m in (current or {})]
+    heading = _array([target for _, target in busy])
+    # one search from the members' positions to the candidates and to the busy members' own targets
+    reach = np.asarray(distances(_array([positions[m] for m in members]), np.vstack([views, heading])), dtype=float)
+    dist = reach[:, : len(pool)]  # (members, cands)
     factor = np.ones_like(dist)  # the bonuses: they do not change within the round
     allowed = np.ones(dist.shape, dtype=bool)
     for row, member in enumerate(members):
@@ -263,6 +298,10 @@ def assign_targets(
             if other != member and other in positions:  # another drone is on its way there: leave it to it
                 factor[row] = np.where(_within(views, theirs, keep_radius), factor[row] / current_bonus, factor[row])
         allowed[row] = ~_near_any(views, _array((unreachable or {}).get(member, [])), unreachable_radius)
+    if busy and len(members) > 1:
+        left = reach[[row for row, _ in busy], len(pool) + np.arange(len(busy))]  # each busy member's way to go
+        via = left[:, None] + np.asarray(distances(heading, views), dtype=float)  # (busy, cands)
+        allowed &= ~_left_to_passing([row for row, _ in busy], heading, via, dist, allowed, views, keep_radius)
     d_tot = dist.sum(axis=0)[None, :] - dist  # each member's d_tot: the other members' distances
     work = np.array([c.gain for c in pool], dtype=float)
     waiting = np.ones(len(members), dtype=bool)

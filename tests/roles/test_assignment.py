@@ -300,3 +300,59 @@ def test_a_member_is_not_given_a_viewpoint_it_could_not_reach_and_another_member
         [near_1], {1: positions[1]}, lam=0.2, sigma=3.0, unreachable={1: [(2.0, 0.4, 1.0)]}, unreachable_radius=0.5
     )
     assert stuck == {1: None}  # nothing it can reach: no target rather than the one it cannot
+
+
+def _leftover_round(current: dict[int, tuple[float, float, float]] | None, **kwargs: object) -> dict[int, object]:
+    """Drone 1 idle at the origin; drone 2 at (8, 0) on its way to its target at (10, 0); a leftover 2.8 m on
+    from there."""
+    heading_2 = cand(10.0, 0.0, gain=5.0, owner=2)
+    leftover = cand(12.0, 2.0, gain=7.0)
+    positions = {1: (0.0, 0.0, 1.0), 2: (8.0, 0.0, 1.0)}
+    got = assign_targets(
+        [heading_2, leftover], positions, lam=0.2, sigma=1e-6, current=current, current_bonus=3.0, **kwargs
+    )
+    return {k: (None if c is None else ("heading_2" if c == heading_2 else "leftover")) for k, c in got.items()}
+
+
+def test_a_leftover_on_a_busy_members_way_is_left_to_it_and_not_sent_far() -> None:
+    # Drone 2 reaches the leftover 2 + 2.8 m from now; drone 1 would fly 12.2 m to it. Without knowing where
+    # drone 2 is heading, the leader sends drone 1 (the tail of a generated building: 30 m for a 7 m^3 leftover).
+    assert _leftover_round(None) == {1: "leftover", 2: "heading_2"}
+    assert _leftover_round({2: (10.0, 0.0, 1.0)}) == {1: None, 2: "heading_2"}
+
+
+def test_a_member_closer_than_the_busy_ones_way_round_still_takes_the_leftover() -> None:
+    # Drone 2 heads away from the leftover (to (2, 0), 6 m back): 6 + 10.2 m by way of its target, drone 1's 12.2 m
+    # direct is sooner.
+    heading_away = cand(2.0, 0.0, gain=5.0, owner=2)
+    leftover = cand(12.0, 2.0, gain=7.0)
+    got = assign_targets(
+        [heading_away, leftover],
+        {1: (0.0, 0.0, 1.0), 2: (8.0, 0.0, 1.0)},
+        lam=0.2,
+        sigma=1e-6,
+        current={2: heading_away.viewpoint},
+        current_bonus=3.0,
+    )
+    assert got == {1: leftover, 2: heading_away}
+
+
+def test_a_members_own_target_is_not_taken_from_it_by_one_passing_nearer() -> None:
+    # Drone 1 is already on its way to the leftover: drone 2 passing nearer does not make it turn round (the
+    # current-target bonus alone decides whether another member takes it).
+    assert _leftover_round({1: (12.0, 2.0, 1.0), 2: (10.0, 0.0, 1.0)}) == {1: "leftover", 2: "heading_2"}
+
+
+def test_a_leftover_is_not_left_to_a_busy_member_that_cannot_reach_it() -> None:
+    got = _leftover_round({2: (10.0, 0.0, 1.0)}, unreachable={2: [(12.0, 2.0, 1.0)]}, unreachable_radius=0.5)
+    assert got == {1: "leftover", 2: "heading_2"}
+
+
+def test_the_way_round_counts_when_a_leftover_is_left_to_a_busy_member() -> None:
+    # Through the map, drone 2's way on from its target to the leftover is 20 m (a wall between): drone 1 goes.
+    def through_wall(starts: np.ndarray, goals: np.ndarray) -> np.ndarray:
+        straight = np.linalg.norm(starts[:, None, :] - goals[None, :, :], axis=2)
+        walled = (np.abs(starts[:, None, 0] - 10.0) < 0.1) & (np.abs(goals[None, :, 0] - 12.0) < 0.1)
+        return np.where(walled, 20.0, straight)
+
+    assert _leftover_round({2: (10.0, 0.0, 1.0)}, distances=through_wall) == {1: "leftover", 2: "heading_2"}
