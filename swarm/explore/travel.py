@@ -16,11 +16,14 @@ graph does not connect (a start or goal outside the safe space of this map, or i
 straight line too: the map holding the candidate may know a way this one does not.
 
 The search stops at `limit_m` (`SEARCH_LIMIT_M` from the grid): a goal farther than that by the graph gets the
-straight line, and no less than the limit. scipy's Dijkstra holds the GIL, so the agent's event loop waits for
-it: in a 48 x 32 m hall, five starts over the whole graph took 0.2 s on an idle core (the leader's assignment
-0.6 s at the median, 1.5 s at worst, in a 5-drone mission on a slow day); to 15 m it is 0.06 s idle. Past
-15 m the utility's distance factor is under exp(-0.2 * 15) = 0.05 (`explore.utility_lambda`), where the way
-round matters less.
+straight line, and no less than the limit, plus BEYOND_TIE of the straight line, so that of two goals (or two
+starts) beyond the search the nearer by the line ranks first rather than whichever comes first (the leader sent
+itself 20 m down a stairwell to a leftover that another drone, 3 m nearer by the line, was as "far" from).
+
+scipy's Dijkstra holds the GIL, so the agent's event loop waits for it: in a 48 x 32 m hall, five starts over the
+whole graph took 0.2 s on an idle core (the leader's assignment 0.6 s at the median, 1.5 s at worst, in a 5-drone
+mission on a slow day); to 15 m it is 0.06 s idle. Past 15 m the utility's distance factor is under exp(-0.2 * 15) =
+0.05 (`explore.utility_lambda`), where the way round matters less.
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 
 MERGE = 2  # planning cells per coarse cell edge
 SEARCH_LIMIT_M = 15.0  # how far the search goes (module docstring)
+BEYOND_TIE = 1e-3  # beyond the search, this much of the straight line is added: it orders, it does not weigh
 
 # the 13 neighbour offsets with a positive first nonzero component: each undirected edge once
 _HALF_NEIGHBOURS = np.array(
@@ -80,8 +84,8 @@ class TravelGraph:
     ) -> np.ndarray:
         """(S, G) metres from each start to each goal through the graph, at least the straight line; the straight
         line where the graph does not connect them, and where it does only beyond `limit_m` the straight line but
-        at least `limit_m`. `start_nodes` overrides the starts' own nodes (a drone beside a wall is in a blocked
-        cell: the caller gives the node of the safe cell it would start from)."""
+        at least `limit_m` (plus BEYOND_TIE of the straight line). `start_nodes` overrides the starts' own nodes (a
+        drone beside a wall is in a blocked cell: the caller gives the node of the safe cell it would start from)."""
         starts = np.asarray(starts, dtype=float).reshape(-1, 3)
         goals = np.asarray(goals, dtype=float).reshape(-1, 3)
         straight: np.ndarray = np.linalg.norm(starts[:, None, :] - goals[None, :, :], axis=2)
@@ -97,7 +101,7 @@ class TravelGraph:
         block = straight[np.ix_(rows, cols)]
         # Not reached: beyond the limit if both ends are in one component (then at least the limit), else no way.
         connected = self._component[sources[rows]][:, None] == self._component[targets[cols]][None, :]
-        far = np.where(connected, np.maximum(block, limit_m), block)
+        far = np.where(connected, np.maximum(block, limit_m) + BEYOND_TIE * block, block)
         straight[np.ix_(rows, cols)] = np.where(np.isfinite(through), np.maximum(through, block), far)
         return straight
 
