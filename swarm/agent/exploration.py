@@ -317,13 +317,15 @@ class Exploration:
             try:
                 path = await asyncio.to_thread(
                     self._timed_plan,
-                    plan_path_around,
-                    grid.planning_grid,
-                    here,
-                    goal,
-                    around,
-                    PASS_CLEARANCE_M,
-                    max_expansions=PLAN_EXPANSIONS,
+                    lambda: plan_path_around(
+                        grid.planning_grid,
+                        here,
+                        goal,
+                        around,
+                        PASS_CLEARANCE_M,
+                        max_expansions=PLAN_EXPANSIONS,
+                        guide=grid.travel_graph,
+                    ),
                 )
             except NoPathError:
                 pass
@@ -332,7 +334,10 @@ class Exploration:
                 return path[1:] if path[0] == here else path
         try:
             path = await asyncio.to_thread(
-                self._timed_plan, plan_path, grid.planning_grid, here, goal, max_expansions=PLAN_EXPANSIONS
+                self._timed_plan,
+                lambda: plan_path(
+                    grid.planning_grid, here, goal, max_expansions=PLAN_EXPANSIONS, guide=grid.travel_graph
+                ),
             )
         except NoPathError as exc:
             self.log("no_path", goal=_r(goal), reason=str(exc))
@@ -340,9 +345,11 @@ class Exploration:
         self.log("path", waypoints=[_r(p) for p in path])
         return path[1:] if path[0] == here else path
 
-    def _timed_plan(self, planner: Callable[..., list[Vec3]], *args: Any, **kwargs: Any) -> list[Vec3]:
+    def _timed_plan(self, plan: Callable[[], list[Vec3]]) -> list[Vec3]:
+        """Run `plan` (in a worker thread: the guide, the grid's travel graph, is built on first use there, not
+        on the event loop)."""
         with self.clock.measure("planning"):  # a plan that fails (NoPathError) costs as much and counts
-            return planner(*args, **kwargs)
+            return plan()
 
     async def _plan_to_another_viewpoint(self, target: Target, keep_off: Vec3 | None = None) -> list[Vec3] | None:
         """A path to another place this drone's map lets it look at the target's point from, or None. A

@@ -435,12 +435,12 @@ class ExplorationGrid:
         starts = np.asarray(starts, dtype=float).reshape(-1, 3)
         nearest = [self.planning_grid.nearest_free(p, START_SEARCH_RADIUS_M) for p in starts]
         from_cells = np.array([p if n is None else n for p, n in zip(starts, nearest)]).reshape(-1, 3)
-        nodes = self._travel.node_of(from_cells)
+        nodes = self.travel_graph.node_of(from_cells)
         nodes[[n is None for n in nearest]] = -1
-        return self._travel.distances(starts, goals, start_nodes=nodes, limit_m=SEARCH_LIMIT_M)
+        return self.travel_graph.distances(starts, goals, start_nodes=nodes, limit_m=SEARCH_LIMIT_M)
 
     @cached_property
-    def _travel(self) -> TravelGraph:
+    def travel_graph(self) -> TravelGraph:
         return TravelGraph(~self.planning_grid.occupied, self.origin, self.resolution)
 
     def is_frontier_near(self, point: Vec3, radius: float) -> bool:

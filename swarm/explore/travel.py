@@ -105,6 +105,21 @@ class TravelGraph:
         straight[np.ix_(rows, cols)] = np.where(np.isfinite(through), np.maximum(through, block), far)
         return straight
 
+    def distance_field(self, goal: np.ndarray, shape: tuple[int, int, int]) -> np.ndarray:
+        """(shape) metres from each cell of the grid this graph was made from (`shape`, its shape) to `goal`
+        through the graph, between coarse cells' centres (all of a coarse cell's cells get its distance); inf
+        where the graph does not reach, everywhere when the goal's coarse cell is not passable. The planner's
+        A* heuristic (`swarm.explore.planner`): one search from the goal, all the way."""
+        out = np.full(shape, np.inf)
+        node = int(self.node_of(np.asarray(goal, dtype=float))[0])
+        if node < 0:
+            return out
+        reached = dijkstra(self._graph, directed=False, indices=[node])[0] * self.cell
+        coarse = np.where(self._node >= 0, reached[np.maximum(self._node, 0)], np.inf)
+        fine = coarse.repeat(MERGE, 0).repeat(MERGE, 1).repeat(MERGE, 2)
+        out[...] = fine[: shape[0], : shape[1], : shape[2]]
+        return out
+
     @cached_property
     def _component(self) -> np.ndarray:
         """The connected component of each node."""

@@ -4,6 +4,7 @@ import pytest
 from swarm.config import Vec3
 from swarm.explore.grid import OccupancyGrid
 from swarm.explore.planner import NoPathError, path_is_free, path_length, plan_path, plan_path_around
+from swarm.explore.travel import TravelGraph
 from tests.explore.synthetic import clearance, densify, empty_grid, fill, office_grid, room_with_wall
 
 DRONE_RADIUS = 0.3
@@ -255,3 +256,46 @@ def test_cells_near_a_ball_are_blocked_and_the_rest_kept() -> None:
     cells = np.argwhere(np.ones(grid.shape, dtype=bool))
     inside = cells[np.linalg.norm(grid.centre_of(cells) - np.array([2.0, 2.0, 1.0]), axis=1) < 0.5]
     assert len(inside) > 0 and blocked.occupied[tuple(inside.T)].all()
+
+
+def _two_storeys() -> OccupancyGrid:
+    """Two storeys of 16 x 10 m (floors 0-2 m and 2.4-4.4 m) joined by one stairwell at the west end; the goal
+    is straight above the start, 11 m from the stairwell."""
+    grid = empty_grid((16.0, 10.0, 4.4))
+    fill(grid, (0.0, 0.0, 2.0), (16.0, 10.0, 2.4))  # the slab
+    grid.occupied[0:5, 4:21, 10:12] = False  # the stairwell: x 0-1 m, y 0.8-4.2 m
+    return grid
+
+
+def test_a_path_led_by_the_travel_graph_finds_the_stairwell_the_straight_line_misses() -> None:
+    raw = _two_storeys()
+    inflated = raw.inflate(DRONE_RADIUS)
+    start, goal = (12.0, 5.0, 1.0), (12.0, 5.0, 3.4)
+    guide = TravelGraph(~inflated.occupied, inflated.origin, inflated.resolution)
+    # Led by the straight line, A* fills the ground floor under the goal before it finds the stairwell.
+    with pytest.raises(NoPathError, match="gave up"):
+        plan_path(inflated, start, goal, max_expansions=20_000)
+    guided = plan_path(inflated, start, goal, max_expansions=20_000, guide=guide)
+    plain = plan_path(inflated, start, goal)
+    assert guided[0] == start and guided[-1] == goal
+    _assert_collision_free(guided, inflated, raw)
+    assert path_length(guided) <= 1.05 * path_length(plain)  # about as short as the unguided search's
+    level = (12.0, 1.0, 1.0)  # with z_limits the guide (of the whole grid) is not used
+    assert plan_path(inflated, start, level, guide=guide, z_limits=(0.5, 1.5)) == plan_path(
+        inflated, start, level, z_limits=(0.5, 1.5)
+    )
+
+
+def test_the_travel_graphs_distance_field_is_zero_at_the_goal_and_infinite_where_it_cannot_reach() -> None:
+    raw = _two_storeys()
+    inflated = raw.inflate(DRONE_RADIUS)
+    guide = TravelGraph(~inflated.occupied, inflated.origin, inflated.resolution)
+    field = guide.distance_field(np.array([12.0, 5.0, 3.4]), inflated.shape)
+    assert field.shape == inflated.shape
+    goal_cell = inflated.index_of((12.0, 5.0, 3.4))
+    assert goal_cell is not None and field[goal_cell] == 0.0
+    below = inflated.index_of((12.0, 5.0, 1.0))
+    assert below is not None and 20.0 < field[below] < 30.0  # 11 m to the stairwell and back, not 2.4 m up
+    inside_slab = inflated.index_of((8.0, 5.0, 2.2))
+    assert inside_slab is not None and np.isinf(field[inside_slab])
+    assert np.isinf(guide.distance_field(np.array([8.0, 5.0, 2.2]), inflated.shape)).all()  # goal in the slab
