@@ -295,3 +295,24 @@ def _offline_flight(agent_id: int, neighbours: Callable[[], list[Neighbour]]) ->
     settings = config.agent.model_copy(update={"id": agent_id})
     autopilot = Autopilot("udpin://127.0.0.1:9", config.mission.origin)
     return Flight(autopilot, settings, lambda *a, **kw: None, separation_m=1.2, neighbours=neighbours)
+
+
+@pytest.mark.sim
+def test_drones_closing_head_on_at_speed_give_way_before_they_are_within_the_separation() -> None:
+    # gen:9, 3 drones: drone 1 north along a corridor at 1.7 m/s, drone 3 south at 1.4 m/s, 3.8 m apart: a
+    # third of a second after they came within 1.2 m they touched. Now both act while still 3.8 m apart.
+    north, south = np.array([5.5, 12.65, 1.3]), np.array([5.21, 16.41, 1.3])
+    towards_1 = Neighbour(1, (5.5, 12.65, 1.3), (0.0, 1.7, 0.0), heading_to=(5.5, 25.0, 1.3))
+    towards_3 = Neighbour(3, (5.21, 16.41, 1.3), (0.3, -1.4, 0.0), heading_to=(5.5, 7.3, 1.3))
+    yielder = _offline_flight(3, lambda: [towards_1])
+    yielder.ap.telemetry.velocity = towards_3.velocity
+    assert yielder._rival(south, np.array(towards_3.heading_to)) == towards_1  # gives way
+    holder = _offline_flight(1, lambda: [towards_3])
+    holder.ap.telemetry.velocity = towards_1.velocity
+    assert holder._rival(north, np.array(towards_1.heading_to)) == towards_3  # in its way: holds
+    # standing still, 3.8 m apart is no conflict yet; nor is a drone flying by 1.5 m to the side
+    yielder.ap.telemetry.velocity = (0.0, 0.0, 0.0)
+    yielder.neighbours = lambda: [towards_1._replace(velocity=(0.0, 0.0, 0.0))]
+    assert yielder._rival(south, np.array(towards_3.heading_to)) is None
+    yielder.neighbours = lambda: [towards_1._replace(position=(3.7, 12.65, 1.3))]
+    assert yielder._rival(south, np.array(towards_3.heading_to)) is None

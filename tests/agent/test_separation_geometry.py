@@ -12,6 +12,7 @@ from swarm.agent.flight import (
     STEP_ASIDE_M,
     Neighbour,
     choose_refuge,
+    closest_approach,
     distance_to_segment,
     distance_to_track,
     moves_clear_of,
@@ -132,3 +133,12 @@ def test_a_refuge_is_not_reached_through_a_drone() -> None:
     assert all(c[2] > 1.3 for c in kept)  # nothing down through it
     assert any(c[2] < 1.3 for c in candidates)
     assert len(moves_clear_of(here, candidates, [])) == len(candidates)
+
+
+def test_the_closest_approach_is_now_when_drones_move_apart_and_at_most_the_horizon_ahead() -> None:
+    offset = np.array([4.0, 0.0, 0.0])
+    assert closest_approach(offset, np.array([1.0, 0.0, 0.0]), 1.0) == pytest.approx(4.0)  # moving apart
+    assert closest_approach(offset, np.array([-3.0, 0.0, 0.0]), 1.0) == pytest.approx(1.0)  # 1 s of closing
+    assert closest_approach(offset, np.array([-8.0, 0.0, 0.0]), 1.0) == pytest.approx(0.0)  # head-on, within it
+    assert closest_approach(np.array([4.0, 1.5, 0.0]), np.array([-8.0, 0.0, 0.0]), 1.0) == pytest.approx(1.5)
+    assert closest_approach(offset, np.zeros(3), 1.0) == pytest.approx(4.0)  # neither moving
