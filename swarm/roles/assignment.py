@@ -219,16 +219,22 @@ def _left_to_passing(
     views: np.ndarray,
     keep_radius: float,
 ) -> np.ndarray:
-    """(members, cands) True where another member, busy member `rows[b]` flying to `heading[b]`, reaches the
-    candidate sooner by way of its target (`via[b]`: its way to go plus the way on from there) than this member
-    flies to it directly: the candidate is on the other's way, and it takes it next. A member's own current
-    target is never taken from it here (the current-target bonus decides that), nor is a candidate left to a
-    member that cannot reach it. Equal speeds are assumed: a way in metres is a time."""
+    """(members, cands) True where a candidate is left to a busy member: member `rows[b]`, flying to `heading[b]`,
+    reaches its next candidate (the one it reaches soonest by way of its target, `via[b]`: its way to go plus the
+    way on from there) sooner than another member flies to it directly; it takes it next. One candidate per busy
+    member: it can pick up one on its way, not every one beyond its target (leaving them all to it kept a third
+    drone at home while 18 candidates waited). A member's own current target is never taken from it here (the
+    current-target bonus decides that), nor is a candidate left to a member that cannot reach it. Equal speeds
+    are assumed: a way in metres is a time."""
     out = np.zeros(dist.shape, dtype=bool)
     for b, row in enumerate(rows):
-        sooner = (via[b][None, :] < dist) & allowed[row][None, :] & ~_within(views, _vec3(heading[b]), keep_radius)
+        eligible = allowed[row] & ~_within(views, _vec3(heading[b]), keep_radius)
+        if not eligible.any():
+            continue
+        after = int(np.argmin(np.where(eligible, via[b], np.inf)))
+        sooner = via[b, after] < dist[:, after]
         sooner[row] = False
-        out |= sooner
+        out[:, after] |= sooner
     for b, row in enumerate(rows):
         out[row] &= ~_within(views, _vec3(heading[b]), keep_radius)
     return out
@@ -273,9 +279,9 @@ def assign_targets(
     it could not plan a path to (`unreachable`): that candidate stays for the others. A candidate whose
     scheduled gain falls under `min_gain` is left for this round: what a drone already sent near it will see
     leaves it not worth another drone's trip (at the end of the office mission, three drones were sent one by
-    one to leftover floor frontiers 2-4 m apart in the same far corner). Nor is a member sent to a candidate
-    that another member, by way of its current target, will reach first (`_left_to_passing`): that one picks it
-    up next, and this one is free for something else or for home (at the end of a generated building, the
+    one to leftover floor frontiers 2-4 m apart in the same far corner). Nor is a member sent to the candidate
+    that another member will reach next, by way of its current target, and first (`_left_to_passing`): that one
+    picks it up, and this one is free for something else or for home (at the end of a generated building, the
     leader flew 30 m and 35 s to a 7 m^3 leftover 5 m from where another drone was heading)."""
     members = sorted(positions)
     result: dict[int, Candidate | None] = {m: None for m in members}

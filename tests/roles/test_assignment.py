@@ -356,3 +356,21 @@ def test_the_way_round_counts_when_a_leftover_is_left_to_a_busy_member() -> None
         return np.where(walled, 20.0, straight)
 
     assert _leftover_round({2: (10.0, 0.0, 1.0)}, distances=through_wall) == {1: "leftover", 2: "heading_2"}
+
+
+def test_a_busy_member_is_left_only_the_one_candidate_it_reaches_next() -> None:
+    # Three candidates beyond drone 2's target, each sooner by way of it than from idle drone 1: drone 2 can take
+    # one next, not all three; drone 1 takes another (on a generated building, leaving every one to the busy
+    # drones kept the third drone at home while 18 candidates waited).
+    heading_2 = cand(10.0, 0.0, gain=5.0, owner=2)
+    beyond = [cand(12.0, 1.0, gain=7.0), cand(12.0, -3.0, gain=7.0), cand(14.0, 0.0, gain=7.0)]
+    got = assign_targets(
+        [heading_2, *beyond],
+        {1: (0.0, 0.0, 1.0), 2: (8.0, 0.0, 1.0)},
+        lam=0.2,
+        sigma=1e-6,
+        current={2: heading_2.viewpoint},
+        current_bonus=3.0,
+    )
+    assert got[2] == heading_2
+    assert got[1] in beyond[1:]  # not the first: drone 2's next, the nearest to its target
