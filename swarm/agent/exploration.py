@@ -324,7 +324,7 @@ class Exploration:
                         around,
                         PASS_CLEARANCE_M,
                         max_expansions=PLAN_EXPANSIONS,
-                        guide=grid.travel_graph,
+                        guide=lambda: grid.travel_graph,
                     ),
                 )
             except NoPathError:
@@ -336,7 +336,7 @@ class Exploration:
             path = await asyncio.to_thread(
                 self._timed_plan,
                 lambda: plan_path(
-                    grid.planning_grid, here, goal, max_expansions=PLAN_EXPANSIONS, guide=grid.travel_graph
+                    grid.planning_grid, here, goal, max_expansions=PLAN_EXPANSIONS, guide=lambda: grid.travel_graph
                 ),
             )
         except NoPathError as exc:

@@ -275,13 +275,13 @@ def test_a_path_led_by_the_travel_graph_finds_the_stairwell_the_straight_line_mi
     # Led by the straight line, A* fills the ground floor under the goal before it finds the stairwell.
     with pytest.raises(NoPathError, match="gave up"):
         plan_path(inflated, start, goal, max_expansions=20_000)
-    guided = plan_path(inflated, start, goal, max_expansions=20_000, guide=guide)
+    guided = plan_path(inflated, start, goal, max_expansions=20_000, guide=lambda: guide)
     plain = plan_path(inflated, start, goal)
     assert guided[0] == start and guided[-1] == goal
     _assert_collision_free(guided, inflated, raw)
     assert path_length(guided) <= 1.05 * path_length(plain)  # about as short as the unguided search's
     level = (12.0, 1.0, 1.0)  # with z_limits the guide (of the whole grid) is not used
-    assert plan_path(inflated, start, level, guide=guide, z_limits=(0.5, 1.5)) == plan_path(
+    assert plan_path(inflated, start, level, guide=lambda: guide, z_limits=(0.5, 1.5)) == plan_path(
         inflated, start, level, z_limits=(0.5, 1.5)
     )
 
