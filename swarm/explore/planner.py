@@ -70,11 +70,10 @@ def plan_path(
     NoPathError. `z_limits` (min, max) restricts the search to the grid layers whose centre lies within it;
     limits no wider than a cell, such as (z, z), select the one layer containing their middle. Intermediate
     waypoints are cell centres; a free start or goal keeps its own altitude, which may differ from its
-    layer's centre by up to half a cell. `guide`: gives the travel graph of this grid's free cells (made only
-    when wanted: most searches end before); a search that
-    has not ended after GUIDE_AFTER expansions starts again led by the way through it (`_guided_heuristic`),
-    not by the straight line, which in a building with storeys or long walls leads it into every room on the
-    wrong side first (ignored with `z_limits`).
+    layer's centre by up to half a cell. `guide`: gives the travel graph of this grid's free cells, made only
+    when wanted (most searches end before); a search that has not ended after GUIDE_AFTER expansions starts
+    again led by the way through it (`_guided_heuristic`), not by the straight line, which in a building with
+    storeys or long walls leads it into every room on the wrong side first (ignored with `z_limits`).
     """
     search_grid = grid if z_limits is None else _restrict_to_layers(grid, z_limits)
     start_point = _free_endpoint(grid, search_grid, start, "start")

@@ -25,7 +25,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial import cKDTree
 
-from swarm.config import Vec3
+from swarm.config import Vec3, vec3
 
 _BLOCK = 512  # rows of a's points per overlap block: bounds the temporaries at _BLOCK x N_b x 3 floats
 
@@ -227,8 +227,9 @@ def _left_to_passing(
     current-target bonus decides that), nor is a candidate left to a member that cannot reach it. Equal speeds
     are assumed: a way in metres is a time."""
     out = np.zeros(dist.shape, dtype=bool)
+    own = [_within(views, vec3(target), keep_radius) for target in heading]  # each busy member's current target
     for b, row in enumerate(rows):
-        eligible = allowed[row] & ~_within(views, _vec3(heading[b]), keep_radius)
+        eligible = allowed[row] & ~own[b]
         if not eligible.any():
             continue
         after = int(np.argmin(np.where(eligible, via[b], np.inf)))
@@ -236,12 +237,8 @@ def _left_to_passing(
         sooner[row] = False
         out[:, after] |= sooner
     for b, row in enumerate(rows):
-        out[row] &= ~_within(views, _vec3(heading[b]), keep_radius)
+        out[row] &= ~own[b]
     return out
-
-
-def _vec3(row: np.ndarray) -> Vec3:
-    return float(row[0]), float(row[1]), float(row[2])
 
 
 def assign_targets(
