@@ -42,6 +42,7 @@ STATUS_EVERY_LOOPS = 10
 RETURN_ATTEMPTS = 3  # a drone that had to give way too long on its way home plans again
 WAIT_FOR_TARGET_S = 0.5
 IDLE_TURN_DEG = 45.0
+MOVED_ON_M = 0.1  # a drone this far from where its path was planned checks the straight way on from where it is
 
 __all__ = ["Exploration", "Target"]
 
@@ -331,7 +332,7 @@ class Exploration:
                 pass
             else:
                 self.log("path", waypoints=[_r(p) for p in path], around=_r(around))
-                return path[1:] if path[0] == here else path
+                return self._from_where_it_is(path, here)
         try:
             path = await asyncio.to_thread(
                 self._timed_plan,
@@ -343,7 +344,22 @@ class Exploration:
             self.log("no_path", goal=_r(goal), reason=str(exc))
             return None
         self.log("path", waypoints=[_r(p) for p in path])
-        return path[1:] if path[0] == here else path
+        return self._from_where_it_is(path, here)
+
+    def _from_where_it_is(self, path: list[Vec3], planned_from: Vec3) -> list[Vec3]:
+        """The waypoints of `path` (planned from `planned_from`) to fly from where the drone is now. A plan takes
+        up to seconds, and meanwhile the drone flies on to its last carrot: from there the straight way to the
+        path's first waypoint was never checked, so where the map does not show it clear, the flight goes back
+        to where the path starts first (a drone 1.3 m on from there turned straight into a wall's end)."""
+        ahead = path[1:] if path[0] == planned_from else path
+        if not ahead:
+            return ahead
+        now = self.position()
+        assert self.grid is not None
+        if math.dist(now, planned_from) > MOVED_ON_M and not self.grid.planning_grid.segment_is_free(now, ahead[0]):
+            self.log("path_from_start", position=_r(now), start=_r(planned_from))
+            return [planned_from, *ahead]
+        return ahead
 
     def _timed_plan(self, plan: Callable[[], list[Vec3]]) -> list[Vec3]:
         """Run `plan` (in a worker thread: the guide, the grid's travel graph, is built on first use there, not

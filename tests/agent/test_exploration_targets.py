@@ -683,3 +683,33 @@ async def test_a_drone_with_a_path_home_flies_it_and_lands_in_place_only_after_g
     await exploration._return(gives_way, asyncio.Event(), (0.0, 0.0, 0.0))  # type: ignore[arg-type]
     assert gives_way.paths == [planned] * 3  # RETURN_ATTEMPTS plans, never the way back
     assert [e["reason"] for e in events if e["event"] == "land_in_place"] == ["kept giving way"]
+
+
+def test_a_drone_that_flew_on_while_its_path_was_planned_goes_back_to_its_start_unless_the_way_on_is_clear() -> None:
+    """A plan takes up to seconds and the drone flies on to its last carrot meanwhile: from where it is then, the
+    straight way to the path's first waypoint was never checked."""
+    events: list[dict[str, Any]] = []
+    exploration, _ = _round_a_wall_end(1.6, events)  # the wall from x 0 to 1.6 at y 1.0-1.2
+    grid = exploration.grid.planning_grid  # type: ignore[union-attr]
+    start, goal = (2.1, 0.5, 1.5), (0.5, 1.9, 1.5)
+    exploration.position = lambda: start
+    planned = asyncio.run(exploration._plan(goal))
+    assert planned is not None and grid.segment_is_free(start, planned[0])
+
+    def drifting(to: Vec3) -> Any:
+        """The drone is at `start` when the plan starts, and at `to` from then on."""
+        calls = iter([start])
+        return lambda: next(calls, to)
+
+    under_the_wall = (0.7, 0.5, 1.5)  # flew on west, under the wall: the way to the first waypoint crosses it
+    assert not grid.segment_is_free(under_the_wall, planned[0]) and grid.segment_is_free(under_the_wall, start)
+    exploration.position = drifting(under_the_wall)
+    assert asyncio.run(exploration._plan(goal)) == [start, *planned]
+    assert events[-1]["event"] == "path_from_start"
+
+    events.clear()
+    a_little_on = (2.1, 0.7, 1.5)  # from here the way on is clear: flown from here
+    assert grid.segment_is_free(a_little_on, planned[0])
+    exploration.position = drifting(a_little_on)
+    assert asyncio.run(exploration._plan(goal)) == planned
+    assert [e["event"] for e in events] == ["path"]
