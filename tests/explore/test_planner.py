@@ -189,6 +189,23 @@ def test_a_path_round_a_wall_end_keeps_the_wider_clearance_where_there_is_room()
     assert path_length(path) < 1.15 * path_length(taut)
 
 
+def test_a_path_across_a_narrow_place_is_pulled_straight_not_left_a_staircase_of_45_degree_steps() -> None:
+    raw = empty_grid((8.0, 2.4, 3.0))
+    fill(raw, (0.0, 0.0, 0.0), (8.0, 0.19, 3.0))
+    fill(raw, (0.0, 1.6, 0.0), (8.0, 2.4, 3.0))  # a corridor 1.4 m wide: nowhere 0.9 m clear of both walls
+    grid = _with_roomy(raw, 0.25, 0.9)
+    assert not grid.roomy.any()
+    start, goal = (0.5, 0.7, 1.5), (7.5, 1.1, 1.5)
+    path = plan_path(grid, start, goal)
+    # every cell costs the same here: A*'s own path climbs to y 1.1 in 45-degree steps somewhere on the way
+    assert path[0] == start and path[-1] == goal and len(path) <= 3
+    legs = np.diff(np.array(path), axis=0)
+    turns = [np.degrees(np.arccos(a @ b / np.linalg.norm(a) / np.linalg.norm(b))) for a, b in zip(legs, legs[1:])]
+    assert max(turns, default=0.0) < 10.0
+    _assert_collision_free(path, grid)
+    assert clearance(raw, densify(path, 0.02)).min() >= 0.25 - 1e-9
+
+
 def test_a_door_too_narrow_for_the_wider_clearance_is_flown_at_the_minimum() -> None:
     raw = room_with_wall(door_open=True)  # 1.2 m: no cell of it is 0.45 m clear of both jambs
     grid = _with_roomy(raw, 0.25, 0.45)
