@@ -224,6 +224,15 @@ class ExplorationGrid:
         mask[:, :, k0:k1] = self._labels == self._labels[i, j, k - k0]
         return mask
 
+    def connected(self, a: Vec3, b: Vec3) -> bool:
+        """The safe cells nearest `a` and `b` (as `reachable` takes them) are 26-connected through safe cells."""
+        ends = [self.planning_grid.nearest_free(p, START_SEARCH_RADIUS_M) for p in (a, b)]
+        if ends[0] is None or ends[1] is None:
+            return False
+        (i, j, k), (m, n, o) = self.planning_grid.indices_of(np.array(ends))
+        k0 = self._band[0]
+        return bool(self._labels[i, j, k - k0] == self._labels[m, n, o - k0])
+
     def in_pocket(self, position: Vec3) -> bool:
         """The space reachable from `position` is a pocket (under POCKET_M3, or none at all): a drone that stepped
         aside, or whose map grew round it, and that must get out before calling anything unreachable (from a

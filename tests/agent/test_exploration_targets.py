@@ -640,7 +640,9 @@ async def test_with_no_path_home_on_the_map_the_drone_flies_back_the_way_it_came
     home, by the legs it flew, not land where it is."""
     events: list[dict[str, Any]] = []
     exploration = _exploration(events)
-    exploration.grid = SimpleNamespace()  # type: ignore[assignment]  # a map, on which `_plan` finds nothing
+    exploration.grid = SimpleNamespace(  # type: ignore[assignment]  # a map on which `_plan` finds nothing
+        planning_grid=SimpleNamespace(is_free=lambda point: True), connected=lambda a, b: False
+    )
 
     async def no_path(goal: Any, **_: Any) -> None:
         return None
@@ -660,6 +662,21 @@ async def test_with_no_path_home_on_the_map_the_drone_flies_back_the_way_it_came
     await exploration._return(blocked_both_ways, asyncio.Event(), (0.0, 0.0, 0.0))  # type: ignore[arg-type]
     [landed] = [e for e in events if e["event"] == "land_in_place"]
     assert landed["reason"].startswith("no path home")
+
+
+async def test_a_drone_its_map_shut_in_flies_back_only_as_far_as_the_first_waypoint_the_map_leads_home_from() -> None:
+    """The map can close a narrow door behind a drone (its jambs, mapped more fully, leave no safe cell in it):
+    the drone goes back the way it came through the door, then home on the map's way, not the whole way back."""
+    exploration, grid, events = _in_the_room(room_states(known_to_x=8.0, wall_x=4.0, door=False))
+    exploration.position = lambda: (6.0, 3.0, 1.5)  # east of the wall; home is west of it
+    above = (1.0, 3.0, 0.0 + exploration.config.agent.altitude_m)
+    assert not grid.connected(exploration.position(), above)
+    through_the_door = [(6.5, 3.0, 1.5), (5.0, 3.0, 1.5), (4.1, 3.0, 1.5), (3.0, 3.0, 1.5), (2.0, 4.0, 1.5)]
+    flight = _HomewardFlight([*through_the_door, above])
+    await exploration._return(flight, asyncio.Event(), (1.0, 3.0, 0.0))  # type: ignore[arg-type]
+    # (4.1, 3) is in the wall: the first safe waypoint west of it leads home, straight on this map
+    assert flight.paths == [[*through_the_door[:4], above]]
+    assert [e["waypoints"] for e in events if e["event"] == "retrace_home"] == [5]
 
 
 async def test_a_drone_with_a_path_home_flies_it_and_lands_in_place_only_after_giving_way_every_time(

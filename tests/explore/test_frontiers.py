@@ -656,6 +656,8 @@ def test_a_drone_shut_in_a_pocket_of_its_map_is_told_so_and_where_the_open_space
     assert out[0] > 6.8  # out through the slot
     assert grid.reachable(out)[_cell(LEFT)]  # the room's space, not another pocket
     assert grid.escape((4.1, 3.0, -5.0)) is None  # nothing open within ESCAPE_RADIUS_M
+    assert grid.connected(out, LEFT) and grid.connected(LEFT, out)
+    assert not grid.connected(inside, LEFT) and not grid.connected(inside, (4.1, 3.0, -5.0))  # none near the last
 
 
 def test_a_take_off_spot_under_the_cone_the_camera_never_saw_is_a_pocket_with_a_way_out_under_no_obstacle() -> None:
