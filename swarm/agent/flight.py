@@ -9,8 +9,8 @@ way from the drone to it in open space (`is_roomy`, the planner's wider clearanc
 corner inside it without stopping. Elsewhere (doorways, wall ends) the carrot waits while the drone is more than
 `CROSS_TRACK_M` off the new segment until the drone is within `CORNER_CUT_M` of the corner; from there it runs
 on where the map shows the straight way to it clear (`is_clear`, the planner's clearance), so the drone turns
-inside the corner instead of crawling into it; where that way is not clear (into a doorway) it waits. Without a map the drone flies the segments
-themselves.
+inside the corner instead of crawling into it; where that way is not clear (into a doorway) it waits. Without
+a map the drone flies the segments themselves.
 
 Separation: `neighbours()` gives the other airborne drones' positions, velocities and `heading_to` (the end of
 the segment each is flying), from their heartbeats, positions extrapolated to now. The lower id has the right
