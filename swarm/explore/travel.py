@@ -18,7 +18,11 @@ straight line too: the map holding the candidate may know a way this one does no
 The search stops at `limit_m` (`SEARCH_LIMIT_M` from the grid): a goal farther than that by the graph gets the
 straight line, and no less than the limit, plus BEYOND_TIE of the straight line, so that of two goals (or two
 starts) beyond the search the nearer by the line ranks first rather than whichever comes first (the leader sent
-itself 20 m down a stairwell to a leftover that another drone, 3 m nearer by the line, was as "far" from).
+itself 20 m down a stairwell to a leftover that another drone, 3 m nearer by the line, was as "far" from). But
+the line misleads between storeys: a drone upstairs, 12 m from a leftover by the line and 50 m by the
+stairwell, was sent to it over two drones downstairs. So a goal that no start reaches within the limit, with two
+or more starts beyond it, is searched all the way from the goal, for at most FAR_GOALS such goals (the nearest
+by the line) a call: those come in a mission's tail, when every drone is far from the few leftovers.
 
 scipy's Dijkstra holds the GIL, so the agent's event loop waits for it: in a 48 x 32 m hall, five starts over the
 whole graph took 0.2 s on an idle core (the leader's assignment 0.6 s at the median, 1.5 s at worst, in a 5-drone
@@ -37,6 +41,7 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 MERGE = 2  # planning cells per coarse cell edge
 SEARCH_LIMIT_M = 15.0  # how far the search goes (module docstring)
 BEYOND_TIE = 1e-3  # beyond the search, this much of the straight line is added: it orders, it does not weigh
+FAR_GOALS = 3  # goals beyond the search from every start that are searched all the way (module docstring)
 
 # the 13 neighbour offsets with a positive first nonzero component: each undirected edge once
 _HALF_NEIGHBOURS = np.array(
@@ -99,8 +104,16 @@ class TravelGraph:
         reached = dijkstra(self._graph, directed=False, indices=unique, limit=limit_m / self.cell)
         through = reached[inverse][:, targets[cols]] * self.cell
         block = straight[np.ix_(rows, cols)]
-        # Not reached: beyond the limit if both ends are in one component (then at least the limit), else no way.
         connected = self._component[sources[rows]][:, None] == self._component[targets[cols]][None, :]
+        # Goals no start reached within the limit, two or more connected starts beyond it: the whole way, searched
+        # from the goal (the nearest FAR_GOALS of them by the line), so that those starts rank by it.
+        beyond = connected & ~np.isfinite(through)
+        alone = np.flatnonzero(~np.isfinite(through).any(axis=0) & (beyond.sum(axis=0) >= 2))
+        if len(alone):
+            alone = alone[np.argsort(block[:, alone].min(axis=0), kind="stable")][:FAR_GOALS]
+            back = dijkstra(self._graph, directed=False, indices=targets[cols[alone]])
+            through[:, alone] = back[:, sources[rows]].T * self.cell
+        # Not reached: beyond the limit if both ends are in one component (then at least the limit), else no way.
         far = np.where(connected, np.maximum(block, limit_m) + BEYOND_TIE * block, block)
         straight[np.ix_(rows, cols)] = np.where(np.isfinite(through), np.maximum(through, block), far)
         return straight

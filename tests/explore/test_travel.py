@@ -7,7 +7,7 @@ import pytest
 
 from swarm.config import ExploreSettings
 from swarm.explore.frontiers import ExplorationGrid
-from swarm.explore.travel import TravelGraph
+from swarm.explore.travel import FAR_GOALS, TravelGraph
 from swarm.patches.fused import FREE, OCCUPIED
 from tests.explore.synthetic import set_states, state_grid
 
@@ -93,12 +93,29 @@ def test_beyond_the_search_limit_a_goal_gets_the_straight_line_but_no_less_than_
     assert apart[0, 0] == pytest.approx(3.0)
 
 
-def test_of_two_starts_beyond_the_search_limit_the_nearer_by_the_line_is_nearer() -> None:
+def test_a_goal_beyond_the_search_from_every_start_is_searched_all_the_way_for_the_nearest_few() -> None:
     safe = np.ones((50, 30, 12), dtype=bool)
     safe[23:28, :26, :] = False  # a wall with a gap at its north end
     graph = TravelGraph(safe, np.zeros(3), RES)
-    starts, goal = np.array([[4.0, 1.0, 1.0], [3.0, 1.0, 1.0]]), np.array([[6.4, 1.0, 1.0]])
-    unlimited = graph.distances(starts, goal)
-    assert unlimited[0, 0] > 5.0 and unlimited[1, 0] > 5.0
-    near = graph.distances(starts, goal, limit_m=5.0)
-    assert 5.0 <= near[0, 0] < near[1, 0] < 5.0 + 0.01  # both beyond: ranked by the line, still about the limit
+    starts = np.array([[4.0, 1.0, 1.0], [3.0, 1.0, 1.0]])
+    # east of the wall, every one beyond 5 m from both starts by the gap; the farther by the line come last
+    goals = np.array([[6.4 + 0.4 * i, 1.0, 1.0] for i in range(FAR_GOALS + 1)])
+    unlimited = graph.distances(starts, goals)
+    assert (unlimited > 5.0).all()
+    near = graph.distances(starts, goals, limit_m=5.0)
+    assert near[:, :FAR_GOALS] == pytest.approx(unlimited[:, :FAR_GOALS])  # the nearest few: the whole way
+    last = near[:, FAR_GOALS]  # past FAR_GOALS: ranked by the line, still about the limit
+    assert 5.0 <= last[0] < last[1] < 5.0 + 0.01
+
+
+def test_between_storeys_the_drone_on_the_goals_storey_ranks_first_though_the_other_is_nearer_by_the_line() -> None:
+    """A drone straight above a leftover, 2.4 m from it by the line, is 20 m from it by the stairwell."""
+    safe = np.ones((80, 30, 22), dtype=bool)  # 16 x 6 m, two storeys: floors 0-2 m and 2.4-4.4 m
+    safe[:, :, 10:12] = False  # the slab
+    safe[0:5, :, 10:12] = True  # the stairwell at the west end, x 0-1 m
+    graph = TravelGraph(safe, np.zeros(3), RES)
+    goal = np.array([[12.0, 3.0, 1.0]])
+    upstairs, downstairs = [12.0, 3.0, 3.4], [1.0, 3.0, 1.0]  # 2.4 m and 11 m from it by the line
+    d = graph.distances(np.array([upstairs, downstairs]), goal, limit_m=5.0)
+    assert d[1, 0] < d[0, 0]
+    assert d[0, 0] > 20.0 and d[1, 0] == pytest.approx(11.0, rel=0.1)
