@@ -7,10 +7,10 @@ the cruise speed and never runs more than `LOOKAHEAD_OPEN_M` ahead of the drone 
 segment's end). At a corner the carrot runs on into the next segment at once where the map shows the straight
 way from the drone to it in open space (`is_roomy`, the planner's wider clearance), so the drone rounds the
 corner inside it without stopping. Elsewhere (doorways, wall ends) the carrot waits while the drone is more than
-`CROSS_TRACK_M` off the new segment until the drone is within `CORNER_CUT_M` of the corner; from there it runs
-on where the map shows the straight way to it clear (`is_clear`, the planner's clearance), so the drone turns
-inside the corner instead of crawling into it; where that way is not clear (into a doorway) it waits. Without
-a map the drone flies the segments themselves.
+`CROSS_TRACK_M` off the new segment until the drone, slowed down, is within `CORNER_CUT_M` of the corner; from
+there it runs on where the map shows the straight way to it clear (`is_clear`, the planner's clearance), so
+the drone turns near the corner instead of crawling into it. Without a map the drone flies the segments
+themselves.
 
 Separation: `neighbours()` gives the other airborne drones' positions, velocities and `heading_to` (the end of
 the segment each is flying), from their heartbeats, positions extrapolated to now. The lower id has the right
@@ -95,11 +95,11 @@ PASS_CLEARANCE_M = 0.6  # ... that is in its way: this close to the rest of its 
 CROSS_TRACK_M = 0.1  # the carrot waits while the drone is farther than this off its segment (carrot_may_advance)
 # ... unless the drone is this close to the corner and the map shows the way to the carrot clear (`_may_cut_to`):
 # led by a carrot at the corner the drone slows as it nears it (speed ~ distance), so the last CROSS_TRACK_M took
-# it seconds at a crawl. As far as LOOKAHEAD_M: the carrot reaches the corner with the drone that far before it,
-# so where the way is clear the drone turns without slowing for the corner. Against 0.5 m, a route with turns of
-# 35 and 55 degrees and no open space mapped took 5.74 s against 6.64 s in the simulator, 0.14 m inside the path
-# at most against 0.07 m; that is the side the checked straight ways lie on.
-CORNER_CUT_M = LOOKAHEAD_M
+# it seconds at a crawl. Not from farther: cutting from 1 m (the carrot's lead near a corner) took a test route
+# 14 % less time, but in a mission a drone that came at speed through a chain of short legs swung 0.1 m outside a
+# 45-degree corner, 0.03 m from a wall (its momentum is from the legs before: the straight ways checked from it
+# do not bound where it goes).
+CORNER_CUT_M = 0.5
 # A turn no sharper than this is cut wherever the map shows the straight way to the carrot clear, and the carrot's
 # lead is kept through it (`gentle_turns`): the drone's heading changes little, so it does not swing wide at speed.
 # A planned path bends every 0.5-1 m round the obstacles it keeps its clearance from (62 % of its segments were
