@@ -574,8 +574,7 @@ class Flight:
                 return False
             await self.ap.set_setpoint(refuge, self.ap.telemetry.yaw_deg)
             peer = self._neighbour(peer_id)
-            here = np.array(self.ap.telemetry.position)
-            if peer is None or np.linalg.norm(np.asarray(peer.position) - here) > self.separation_m + PASS_HYSTERESIS_M:
+            if peer is None or self._past(peer):
                 return True
             # The refuge was chosen off the peer's segment of the moment; when the peer turns onto its next one
             # (its last, often: home) through our refuge, both would wait there until they time out.
@@ -584,6 +583,16 @@ class Flight:
                 chosen_for = peer.heading_to
             await self._pause(stop)
         return False
+
+    def _past(self, peer: Neighbour) -> bool:
+        """`peer`, given way to, is past: farther than the separation (and PASS_HYSTERESIS_M) and not coming
+        within it over REACTION_S, the test `_rival` gives way by. On the distance alone a drone closing from
+        beyond it was given way to and found past at once, again and again, every few milliseconds."""
+        here = np.asarray(self.ap.telemetry.position, dtype=float)
+        offset = np.asarray(peer.position, dtype=float) - here
+        relative = np.asarray(peer.velocity, dtype=float) - np.asarray(self.ap.telemetry.velocity, dtype=float)
+        far = float(np.linalg.norm(offset)) > self.separation_m + PASS_HYSTERESIS_M
+        return far and closest_approach(offset, relative, REACTION_S) >= self.separation_m
 
     def _take_refuge(self, peer_id: int, peer: Neighbour | None) -> Vec3:
         """Set the carrot on a refuge out of `peer`'s way (where we are, without one), and return it."""

@@ -316,3 +316,19 @@ def test_drones_closing_head_on_at_speed_give_way_before_they_are_within_the_sep
     assert yielder._rival(south, np.array(towards_3.heading_to)) is None
     yielder.neighbours = lambda: [towards_1._replace(position=(3.7, 12.65, 1.3))]
     assert yielder._rival(south, np.array(towards_3.heading_to)) is None
+
+
+@pytest.mark.sim
+def test_a_drone_given_way_to_from_beyond_the_separation_is_past_only_once_it_will_not_come_within_it() -> None:
+    # Given way to because it closed fast from 2.5 m, and at once found past because it was farther than the
+    # separation: the yield ended and began again every few milliseconds (gen:15), the agent's loop spinning.
+    here = (5.21, 16.41, 1.3)
+    closing = Neighbour(1, (5.21, 13.9, 1.3), (0.0, 1.7, 0.0), heading_to=(5.21, 25.0, 1.3))
+    yielder = _offline_flight(3, lambda: [closing])
+    yielder.ap.telemetry.position = here
+    yielder.ap.telemetry.velocity = (0.0, 0.0, 0.0)  # hovering where it stepped aside to
+    assert yielder._rival(np.array(here), np.array(here)) == closing
+    assert not yielder._past(closing)
+    assert yielder._past(closing._replace(velocity=(0.0, 0.0, 0.0)))  # 2.5 m away, still
+    assert yielder._past(closing._replace(position=(5.21, 18.5, 1.3)))  # by us, 2.1 m on and moving away
+    assert not yielder._past(closing._replace(position=(5.21, 17.2, 1.3)))  # by us, but 0.8 m away
