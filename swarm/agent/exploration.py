@@ -312,10 +312,16 @@ class Exploration:
         separation rules must sort it out). Replanning the same path past a drone that waits for this one to
         pass held both for minutes (a refuge beside a doorway, 0.26 m off the way through it).
 
-        `start`: plan from there instead (a point the drone will fly to first)."""
+        `start`: plan from there instead (a point the drone will fly to first). Where the map's safe cells do not
+        join the start and the goal (`ExplorationGrid.connected`), there is no path, and no search."""
         grid = self.grid
         assert grid is not None
         here = self.position() if start is None else start
+        if not grid.connected(here, goal):
+            # The map's safe space does not join them: A* would learn that only by searching all of one side,
+            # 100,000 cells and seconds of hovering in a large building.
+            self.log("no_path", goal=_r(goal), reason="not joined to the start by this map's safe cells")
+            return None
         if around is not None:
             try:
                 path = await asyncio.to_thread(

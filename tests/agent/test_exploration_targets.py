@@ -31,6 +31,11 @@ from swarm.roles.protocol import Effects
 from tests.explore.synthetic import room_states, set_states
 
 
+def _JOINED(a: Vec3, b: Vec3) -> bool:
+    """`ExplorationGrid.connected` of a grid whose safe space is one piece."""
+    return True
+
+
 def _give(exploration: Exploration, target: Target) -> None:
     """A target from the leader, as `_on_assignment` hands it over."""
     effects = Effects()
@@ -78,7 +83,7 @@ def test_from_a_cell_that_is_not_safe_the_flight_starts_at_the_nearest_safe_cell
     blocked[:, :, 9:] = True  # nothing is safe above 1.8 m (under a lintel, say)
     grid = OccupancyGrid(np.zeros(3), 0.2, blocked)
     exploration = _exploration([])
-    exploration.grid = SimpleNamespace(planning_grid=grid)  # type: ignore[assignment]  # only the grid is read
+    exploration.grid = SimpleNamespace(planning_grid=grid, connected=_JOINED)  # type: ignore[assignment]
     goal = (3.0, 1.0, 1.5)
 
     exploration.position = lambda: (1.0, 1.0, 1.5)  # a safe cell: the path's start is the drone itself
@@ -96,7 +101,7 @@ def test_after_giving_a_segment_up_for_a_parked_peer_the_next_path_goes_round_it
     hall = OccupancyGrid(np.zeros(3), 0.2, np.zeros((50, 20, 15), dtype=bool))  # 10 x 4 x 3 m, open
     events: list[dict[str, Any]] = []
     exploration = _exploration(events)
-    exploration.grid = SimpleNamespace(planning_grid=hall)  # type: ignore[assignment]  # only the grid is read
+    exploration.grid = SimpleNamespace(planning_grid=hall, connected=_JOINED)  # type: ignore[assignment]
     exploration.position = lambda: (0.5, 2.0, 1.5)
     goal, peer = (9.5, 2.0, 1.5), Neighbour(2, (5.0, 2.0, 1.5), (0.0, 0.0, 0.0), (5.0, 2.0, 1.5))
     flight = SimpleNamespace(blocked_by=(peer, time.monotonic()))
@@ -109,7 +114,7 @@ def test_after_giving_a_segment_up_for_a_parked_peer_the_next_path_goes_round_it
 
     corridor = OccupancyGrid(np.zeros(3), 0.2, np.ones((50, 20, 15), dtype=bool))
     corridor.occupied[:, 10, 7] = False  # one row of safe cells: no way round
-    exploration.grid = SimpleNamespace(planning_grid=corridor)  # type: ignore[assignment]
+    exploration.grid = SimpleNamespace(planning_grid=corridor, connected=_JOINED)  # type: ignore[assignment]
     exploration.position = lambda: (0.5, 2.1, 1.5)
     plain = asyncio.run(exploration._plan((9.5, 2.1, 1.5), around=(5.0, 2.1, 1.5)))
     assert plain == [(9.5, 2.1, 1.5)]  # the plain path, as before: the separation rules sort it out
@@ -131,7 +136,7 @@ def _round_a_wall_end(wall_to_x: float, events: list[dict[str, Any]]) -> tuple[E
     grid = OccupancyGrid(np.array([0.0, 0.0, 1.4]), 0.2, walls)
     exploration = _exploration(events)
     exploration.grid = SimpleNamespace(  # type: ignore[assignment]  # only these two are read
-        planning_grid=grid, is_frontier_near=lambda point, radius: True
+        planning_grid=grid, is_frontier_near=lambda point, radius: True, connected=_JOINED
     )
     exploration.target = Target((0.5, 1.9, 1.5), (0.3, 2.2, 1.5), "leader")
     return exploration, walls
@@ -200,7 +205,9 @@ async def test_a_target_counts_as_visited_when_its_look_starts_so_the_next_is_de
     after the look, every target cost most of a second of hovering."""
 
     exploration = _exploration([])
-    exploration.grid = SimpleNamespace(planning_grid=OccupancyGrid(np.zeros(3), 0.2, np.zeros((20, 20, 15), bool)))  # type: ignore[assignment]
+    exploration.grid = SimpleNamespace(
+        planning_grid=OccupancyGrid(np.zeros(3), 0.2, np.zeros((20, 20, 15), bool)), connected=_JOINED
+    )  # type: ignore[assignment]
     first = Target((1.0, 1.0, 1.5), (1.5, 1.0, 1.5), "leader")
     second = Target((3.0, 3.0, 1.5), (3.5, 3.0, 1.5), "leader")
     woken_during_look: list[bool] = []
@@ -380,6 +387,9 @@ async def test_a_drone_in_a_pocket_gets_out_before_it_calls_its_target_unreachab
         def escape(self, position: Any) -> Any:
             return out
 
+        def connected(self, a: Any, b: Any) -> bool:
+            return _JOINED(a, b)
+
         def viewpoint_for(self, point: Any, position: Any, keep_off: Any = None, keep_off_m: float = 0.0) -> None:
             return None
 
@@ -427,6 +437,9 @@ async def test_a_drone_with_no_target_in_a_pocket_gets_out_instead_of_waiting() 
         def escape(self, position: Any) -> Any:
             return out
 
+        def connected(self, a: Any, b: Any) -> bool:
+            return _JOINED(a, b)
+
     grid = PocketGrid()
     exploration.grid = grid  # type: ignore[assignment]
 
@@ -460,7 +473,9 @@ async def test_a_drone_left_without_a_target_heads_home_until_a_new_target_comes
     exploration = _exploration(events, **{"explore.idle_home_s": idle_home_s})
     exploration.position = lambda: (3.0, 3.0, 1.5)
     exploration.grid = SimpleNamespace(  # type: ignore[assignment]  # only these are read
-        planning_grid=OccupancyGrid(np.zeros(3), 0.2, np.zeros((25, 25, 15), bool)), in_pocket=lambda here: False
+        planning_grid=OccupancyGrid(np.zeros(3), 0.2, np.zeros((25, 25, 15), bool)),
+        in_pocket=lambda here: False,
+        connected=_JOINED,
     )
     above_home = (0.0, 0.0, exploration.config.agent.altitude_m)
     late = Target((4.0, 1.0, 1.5), (4.5, 1.0, 1.5), "leader")
@@ -569,7 +584,9 @@ def _idle_in_the_open(events: list[dict[str, Any]]) -> tuple[Exploration, Vec3]:
     exploration = _exploration(events, **{"explore.idle_home_s": 600.0})
     exploration.position = lambda: (3.0, 3.0, 1.5)
     exploration.grid = SimpleNamespace(  # type: ignore[assignment]  # only these are read
-        planning_grid=OccupancyGrid(np.zeros(3), 0.2, np.zeros((25, 25, 15), bool)), in_pocket=lambda here: False
+        planning_grid=OccupancyGrid(np.zeros(3), 0.2, np.zeros((25, 25, 15), bool)),
+        in_pocket=lambda here: False,
+        connected=_JOINED,
     )
     return exploration, (0.0, 0.0, exploration.config.agent.altitude_m)
 
@@ -730,3 +747,22 @@ def test_a_drone_that_flew_on_while_its_path_was_planned_goes_back_to_its_start_
     exploration.position = drifting(a_little_on)
     assert asyncio.run(exploration._plan(goal)) == planned
     assert [e["event"] for e in events] == ["path"]
+
+
+def test_a_goal_the_maps_safe_space_does_not_join_to_the_drone_fails_without_a_search(monkeypatch) -> None:
+    """A* learns that a goal is cut off only by searching all of the drone's side: 100,000 cells and seconds of
+    hovering in a large building."""
+    exploration, grid, events = _in_the_room(room_states(known_to_x=8.0, wall_x=4.0, door=False))
+    beyond_the_wall = (6.0, 3.0, 1.5)
+
+    def no_search(*args: Any, **kwargs: Any) -> None:
+        raise AssertionError("searched")
+
+    monkeypatch.setattr("swarm.agent.exploration.plan_path", no_search)
+    assert asyncio.run(exploration._plan(beyond_the_wall)) is None
+    assert events[-1]["event"] == "no_path" and "not joined" in events[-1]["reason"]
+
+    monkeypatch.undo()
+    exploration, grid, events = _in_the_room(room_states(known_to_x=8.0, wall_x=4.0, door=True))
+    path = asyncio.run(exploration._plan(beyond_the_wall))
+    assert path is not None and path[-1] == beyond_the_wall  # through the door
