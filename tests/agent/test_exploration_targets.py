@@ -205,9 +205,9 @@ async def test_a_target_counts_as_visited_when_its_look_starts_so_the_next_is_de
     after the look, every target cost most of a second of hovering."""
 
     exploration = _exploration([])
-    exploration.grid = SimpleNamespace(
+    exploration.grid = SimpleNamespace(  # type: ignore[assignment]
         planning_grid=OccupancyGrid(np.zeros(3), 0.2, np.zeros((20, 20, 15), bool)), connected=_JOINED
-    )  # type: ignore[assignment]
+    )
     first = Target((1.0, 1.0, 1.5), (1.5, 1.0, 1.5), "leader")
     second = Target((3.0, 3.0, 1.5), (3.5, 3.0, 1.5), "leader")
     woken_during_look: list[bool] = []
