@@ -216,33 +216,31 @@ class ExplorationGrid:
     def reachable(self, position: Vec3) -> np.ndarray:
         """Bool mask of the safe cells 26-connected to the safe cell nearest `position`; all False if none."""
         mask = np.zeros(self._free.shape, dtype=bool)
-        start = self.planning_grid.nearest_free(position, START_SEARCH_RADIUS_M)
-        if start is None:
-            return mask
-        i, j, k = self.planning_grid.indices_of(start[None, :])[0]
-        k0, k1 = self._band
-        mask[:, :, k0:k1] = self._labels == self._labels[i, j, k - k0]
+        label = self._label_near(position)
+        if label is not None:
+            k0, k1 = self._band
+            mask[:, :, k0:k1] = self._labels == label
         return mask
 
     def connected(self, a: Vec3, b: Vec3) -> bool:
         """The safe cells nearest `a` and `b` (as `reachable` takes them) are 26-connected through safe cells."""
-        ends = [self.planning_grid.nearest_free(p, START_SEARCH_RADIUS_M) for p in (a, b)]
-        if ends[0] is None or ends[1] is None:
-            return False
-        (i, j, k), (m, n, o) = self.planning_grid.indices_of(np.array(ends))
-        k0 = self._band[0]
-        return bool(self._labels[i, j, k - k0] == self._labels[m, n, o - k0])
+        label = self._label_near(a)
+        return label is not None and label == self._label_near(b)
 
     def in_pocket(self, position: Vec3) -> bool:
         """The space reachable from `position` is a pocket (under POCKET_M3, or none at all): a drone that stepped
         aside, or whose map grew round it, and that must get out before calling anything unreachable (from a
         pocket every plan fails after a few cells, and every frontier would be given up)."""
-        start = self.planning_grid.nearest_free(position, START_SEARCH_RADIUS_M)
-        if start is None:
-            return True
-        i, j, k = self.planning_grid.indices_of(start[None, :])[0]
-        label = self._labels[i, j, k - self._band[0]]
-        return bool(self._component_sizes[label] * self.resolution**3 < POCKET_M3)
+        label = self._label_near(position)
+        return label is None or bool(self._component_sizes[label] * self.resolution**3 < POCKET_M3)
+
+    def _label_near(self, position: Vec3) -> int | None:
+        """The `_labels` component of the safe cell nearest `position` (within START_SEARCH_RADIUS_M), or None."""
+        nearest = self.planning_grid.nearest_free(position, START_SEARCH_RADIUS_M)
+        if nearest is None:
+            return None
+        i, j, k = self.planning_grid.indices_of(nearest[None, :])[0]
+        return int(self._labels[i, j, k - self._band[0]])
 
     def escape(self, position: Vec3) -> Vec3 | None:
         """Centre of the safe cell nearest `position`, within ESCAPE_RADIUS_M, that is not in a pocket and is
