@@ -42,6 +42,7 @@ _NEIGHBOUR_STEPS = np.array(
     [(dx, dy, dz) for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1) if (dx, dy, dz) != (0, 0, 0)]
 )
 _STEP_LENGTHS = np.linalg.norm(_NEIGHBOUR_STEPS, axis=1)  # in cells: 1, sqrt(2) or sqrt(3)
+_CELL_AND_NEIGHBOURS = np.vstack([np.zeros(3, dtype=int), _NEIGHBOUR_STEPS])
 
 
 class NoPathError(Exception):
@@ -161,7 +162,7 @@ def _shortcut_grid(grid: OccupancyGrid, path_cells: list[np.ndarray]) -> Occupan
     allowed = grid.roomy.copy()
     allowed[tuple(cells.T)] = True
     cells = cells[~grid.roomy[tuple(cells.T)]]
-    near = (cells[:, None, :] + np.vstack([np.zeros(3, dtype=int), _NEIGHBOUR_STEPS])[None]).reshape(-1, 3)
+    near = (cells[:, None, :] + _CELL_AND_NEIGHBOURS[None]).reshape(-1, 3)
     near = near[np.all((near >= 0) & (near < grid.shape), axis=1)]
     index = tuple(near.T)
     allowed[index] |= ~grid.occupied[index]
