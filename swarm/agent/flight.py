@@ -538,11 +538,9 @@ class Flight:
         they touched."""
         if self.separation_m <= 0:
             return None
-        own_velocity = np.asarray(self.ap.telemetry.velocity, dtype=float)
         for n in sorted(self.neighbours(), key=lambda n: n.id):
             peer = np.asarray(n.position, dtype=float)
-            relative = np.asarray(n.velocity, dtype=float) - own_velocity
-            distance = closest_approach(peer - position, relative, REACTION_S)
+            distance = self._closest_approach(n, position)
             if n.silent or parked(n):
                 # an obstacle, not a drone to give way to (stepping aside for it never ends: one hovering with
                 # no target stays put): hold only when our segment would touch it; the planner routes around it
@@ -589,10 +587,15 @@ class Flight:
         within it over REACTION_S, the test `_rival` gives way by. On the distance alone a drone closing from
         beyond it was given way to and found past at once, again and again, every few milliseconds."""
         here = np.asarray(self.ap.telemetry.position, dtype=float)
-        offset = np.asarray(peer.position, dtype=float) - here
-        relative = np.asarray(peer.velocity, dtype=float) - np.asarray(self.ap.telemetry.velocity, dtype=float)
-        far = float(np.linalg.norm(offset)) > self.separation_m + PASS_HYSTERESIS_M
-        return far and closest_approach(offset, relative, REACTION_S) >= self.separation_m
+        far = (
+            float(np.linalg.norm(np.asarray(peer.position, dtype=float) - here)) > self.separation_m + PASS_HYSTERESIS_M
+        )
+        return far and self._closest_approach(peer, here) >= self.separation_m
+
+    def _closest_approach(self, n: Neighbour, position: np.ndarray) -> float:
+        """How close `n` comes to us at `position` over REACTION_S, both at our velocities (`closest_approach`)."""
+        relative = np.asarray(n.velocity, dtype=float) - np.asarray(self.ap.telemetry.velocity, dtype=float)
+        return closest_approach(np.asarray(n.position, dtype=float) - position, relative, REACTION_S)
 
     def _take_refuge(self, peer_id: int, peer: Neighbour | None) -> Vec3:
         """Set the carrot on a refuge out of `peer`'s way (where we are, without one), and return it."""
