@@ -51,6 +51,7 @@ def agent_summary_data(agent_id: int = 1, **overrides: Any) -> dict[str, Any]:
         "mavsdk_released": True,
         "sync": sync_stats(),
         "heartbeats_on_wrong_key": 0,
+        "stale_heartbeats": 0,
         "bus_route_refreshes": 0,
         "give_way": 0,
         "battery_min_fraction": 0.8,

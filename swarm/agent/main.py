@@ -423,7 +423,8 @@ class Agent:
         if self.keys.agent_id_of(key) != state.id:
             self.keys_mismatch += 1  # a heartbeat on another drone's key is not that drone's
             return
-        self.peers.heard(state.id, state.position, state.phase, state.epoch, state.velocity, state.heading_to)
+        if not self.peers.heard(state.id, state.position, state.phase, state.epoch, state.velocity, state.heading_to):
+            return  # stale: the peer's token has gone; its holdings must not be pulled from either
         self._last_seen[state.id] = (state.phase, state.position)
         self.sync.on_state(state)
         self._log_leader_change()  # a leader that landed leaves the cluster with no membership event
@@ -493,6 +494,7 @@ class Agent:
                 "mavsdk_released": released,
                 "sync": self.sync.stats(),
                 "heartbeats_on_wrong_key": self.keys_mismatch,
+                "stale_heartbeats": self.peers.stale_heartbeats,
                 "bus_route_refreshes": self.route_refreshes,
                 "give_way": self.flight.yields,
                 "battery_min_fraction": None if math.isnan(battery) else round(battery, 4),

@@ -92,6 +92,7 @@ class AgentSummary(FileModel):
     mavsdk_released: bool
     sync: SyncStats
     heartbeats_on_wrong_key: int
+    stale_heartbeats: int  # from a peer whose token had gone, left out (swarm.roles.membership)
     bus_route_refreshes: int  # subscriptions declared again for a peer heard by token only (swarm.roles)
     give_way: int
     battery_min_fraction: float | None  # the lowest remaining battery the autopilot reported; None: it reported none

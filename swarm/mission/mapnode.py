@@ -198,8 +198,8 @@ class MapNode:
     def _on_state(self, key: str, state: AgentState) -> None:
         if self.bus.keys.agent_id_of(key) != state.id:
             return
-        self.peers.heard(state.id, state.position, state.phase, state.epoch)
-        self.sync.on_state(state)
+        if self.peers.heard(state.id, state.position, state.phase, state.epoch):
+            self.sync.on_state(state)
 
     def _on_join(self, key: str) -> None:
         peer = self.bus.keys.agent_id_of(key)

@@ -5,6 +5,11 @@ goes (Zenoh's lease, about a second after its link dies) or when it falls silent
 first. The cluster is this agent plus every present peer that still takes part in exploration; its leader is the
 lowest id (Mahdoui's rule). Every agent starts as the leader of a cluster of one.
 
+A heartbeat still on its way when the token went (sent just before the peer died, delivered just after its
+token left) does not bring the peer back: after its token goes, a peer's heartbeats of the same epoch are stale
+for `timeout_s`, unless its token comes back first (a healed link) or a new epoch says it restarted. Otherwise
+a killed leader is taken back for the whole silence timeout, and its cluster follows it again.
+
 A peer whose heartbeat says it is down for good (`RETIRED_PHASES` of `swarm.bus.phase`: landed, failed, or
 handed to the autopilot's failsafe) stays present (it still serves and pulls patches while it lingers) but
 leaves the cluster: it no longer decides, so as the lowest id it would leave its explorers waiting for
@@ -94,6 +99,8 @@ class PeerTable:
     tokens_since: dict[int, float] = field(default_factory=dict)
     last_heartbeat: dict[int, float] = field(default_factory=dict)
     track_jumps: int = 0  # heartbeat positions left out of a track, over every peer (the agent's summary)
+    vanished: dict[int, tuple[float, int]] = field(default_factory=dict)  # token gone: when, and the epoch then
+    stale_heartbeats: int = 0  # heartbeats of a peer whose token had gone, left out (see the module docstring)
 
     def heard(
         self,
@@ -103,10 +110,13 @@ class PeerTable:
         epoch: int,
         velocity: Vec3 = (0.0, 0.0, 0.0),
         heading_to: Vec3 | None = None,
-    ) -> None:
-        """A heartbeat arrived from `peer_id`."""
+    ) -> bool:
+        """A heartbeat arrived from `peer_id`; False if it was left out as stale (see the module docstring)."""
         if peer_id == self.own_id:
-            return
+            return False
+        if self._stale(peer_id, epoch):
+            self.stale_heartbeats += 1
+            return False
         peer = self._known(peer_id, "heartbeat")
         peer.last_heard = self.last_heartbeat[peer_id] = self.clock()
         if phase != Phase.CONNECTING:  # before its first telemetry a peer says (0, 0, 0): no place it was
@@ -116,11 +126,23 @@ class PeerTable:
         peer.position, peer.velocity, peer.heading_to = position, velocity, heading_to
         peer.phase, peer.epoch = phase, epoch
         peer.heartbeats += 1
+        return True
+
+    def _stale(self, peer_id: int, epoch: int) -> bool:
+        gone = self.vanished.get(peer_id)
+        if gone is None:
+            return False
+        at, epoch_then = gone
+        if epoch > epoch_then or self.clock() - at > self.timeout_s:
+            del self.vanished[peer_id]
+            return False
+        return True
 
     def token_appeared(self, peer_id: int) -> None:
         if peer_id == self.own_id:
             return
         self.tokens_since.setdefault(peer_id, self.clock())
+        self.vanished.pop(peer_id, None)
         self._known(peer_id, "token").token_alive = True
 
     def _known(self, peer_id: int, cause: str) -> Peer:
@@ -134,7 +156,9 @@ class PeerTable:
 
     def token_vanished(self, peer_id: int) -> None:
         self.tokens_since.pop(peer_id, None)
-        if self.peers.pop(peer_id, None) is not None:
+        peer = self.peers.pop(peer_id, None)
+        if peer is not None:
+            self.vanished[peer_id] = (self.clock(), peer.epoch)
             self._emit("left", peer_id, "token")
 
     def expire(self) -> list[int]:

@@ -105,3 +105,30 @@ def test_a_live_token_with_no_heartbeat_marks_the_peer_deaf_even_after_it_left_o
     table.token_appeared(2)  # our own token
     clock.now += 5.0
     assert table.deaf(after_s=1.5) == [4]
+
+
+def test_a_heartbeat_delivered_after_the_peers_token_went_does_not_bring_it_back() -> None:
+    """A killed leader's last heartbeat can arrive just after its token left: it must not make the leader again."""
+    table, events, clock = make(own=2)
+    table.token_appeared(1)
+    table.heard(1, (0, 0, 1), Phase.FLYING, 7)
+    table.token_vanished(1)
+    clock.now += 0.05
+    assert table.heard(1, (0, 0, 1), Phase.FLYING, 7) is False
+    assert table.leader == 2 and table.stale_heartbeats == 1
+    assert [e[:2] for e in events] == [("joined", 1), ("left", 1)]
+
+
+def test_a_peer_whose_token_went_is_taken_back_by_its_token_a_new_epoch_or_heartbeats_after_the_timeout() -> None:
+    table, _, clock = make(own=2)
+    for peer in (1, 3, 4):
+        table.token_appeared(peer)
+        table.heard(peer, (0, 0, 1), Phase.FLYING, 7)
+        table.token_vanished(peer)
+    table.token_appeared(1)  # the link healed
+    assert table.heard(1, (0, 0, 1), Phase.FLYING, 7)
+    assert table.heard(3, (0, 0, 1), Phase.FLYING, 8)  # restarted
+    assert not table.heard(4, (0, 0, 1), Phase.FLYING, 7)
+    clock.now += 3.1  # past the silence timeout: a heartbeat now was sent after the token went
+    assert table.heard(4, (0, 0, 1), Phase.FLYING, 7)
+    assert table.cluster == [1, 2, 3, 4] and table.stale_heartbeats == 1
