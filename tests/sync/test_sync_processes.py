@@ -74,6 +74,10 @@ def test_missing_patch_is_served_by_the_nearest_holder_not_the_producer(swarm: N
     # node 3 joins late next to node 2: node 1's patches reach it only by pulls, and node 2 is nearer
     swarm.start(NodeSpec(3, patches=0, position=(1.0, 0.0, 1.0)))
     swarm.wait_for(holds_all(produced, [3]), 20, "node 3 holds node 1's patches")
+    # each node writes its status on its own 0.2 s beat: the servers' may not show the serving yet
+    swarm.wait_for(
+        lambda s: sum(s[k]["sync"]["served_to"].get("3", 0) for k in (1, 2)) >= 4, 5, "the servers' statuses"
+    )
     s1, s2, s3 = (swarm.status(k)["sync"] for k in (1, 2, 3))
     assert s3["received_from"] == {"2": 4}
     assert s3["received_by_pull"] == 4
