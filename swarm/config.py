@@ -684,6 +684,12 @@ class ExploreSettings(_Section):
         "frontier (maps still shared); frontier-only: frontiers and targets are exchanged, patches are not; "
         "scripted: the harness's ground-truth routes (no exploration)",
     )
+    assignment: Literal["utility", "tours"] = Field(
+        "utility",
+        description="how a coordinated leader hands out candidates: utility, each member's best gain against "
+        "distance (Mahdoui's rule, swarm.roles.assignment); tours, the candidates divided between members by "
+        "position and each member sent to the first of its own tour (swarm.roles.tours)",
+    )
     loop_s: PositiveFloat = Field(3.0, description="r: assignment period (also runs when a drone reaches its target)")
     view_reuse_s: float = Field(
         1.0,

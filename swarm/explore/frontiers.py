@@ -64,7 +64,7 @@ from scipy import ndimage
 
 from swarm.config import CameraSettings, ExploreSettings, Vec3
 from swarm.explore.grid import OccupancyGrid
-from swarm.explore.travel import SEARCH_LIMIT_M, TravelGraph
+from swarm.explore.travel import LEG_SEARCH_LIMIT_M, SEARCH_LIMIT_M, TravelGraph
 from swarm.patches.fused import FREE, OCCUPIED, UNKNOWN
 from swarm.stages import NO_CLOCK, StageClock
 
@@ -445,6 +445,12 @@ class ExplorationGrid:
         nodes = self.travel_graph.node_of(from_cells)
         nodes[[n is None for n in nearest]] = -1
         return self.travel_graph.distances(starts, goals, start_nodes=nodes, limit_m=SEARCH_LIMIT_M)
+
+    def travel_between(self, points: np.ndarray) -> np.ndarray:
+        """(N, N) metres between safe points (viewpoints) through this map's safe cells, searched to
+        LEG_SEARCH_LIMIT_M: beyond it, the straight line and at least the limit (`TravelGraph.distances`)."""
+        points = np.asarray(points, dtype=float).reshape(-1, 3)
+        return self.travel_graph.distances(points, points, limit_m=LEG_SEARCH_LIMIT_M)
 
     @cached_property
     def travel_graph(self) -> TravelGraph:

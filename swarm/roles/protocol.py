@@ -66,6 +66,7 @@ from swarm.config import ExploreSettings, SwarmConfig, Vec3
 from swarm.explore.frontiers import LOOK_AHEAD_M, Frontier, ViewModel
 from swarm.roles.assignment import Candidate, assign_targets, merge_candidates, remove_overlapped
 from swarm.roles.messages import MAX_CANDIDATES, MAX_VISITED, FrontierReport, TargetAssignment, as_points
+from swarm.roles.tours import assign_tours
 
 KEEP_RADIUS_M = 1.0  # a new target this close to the current one is the same target: no interruption
 REPORT_FRESH_LOOPS = 3.0  # a member's report older than this many loops is ignored by the leader
@@ -115,6 +116,8 @@ class MapQueries(Protocol):
     def is_frontier_near(self, point: Vec3, radius: float) -> bool: ...
 
     def travel_distances(self, starts: np.ndarray, goals: np.ndarray) -> np.ndarray: ...
+
+    def travel_between(self, points: np.ndarray) -> np.ndarray: ...
 
 
 @dataclass(frozen=True)
@@ -430,20 +433,7 @@ class ExplorationCore:
                 )
             return
         self.empty_since = None
-        choice = assign_targets(
-            assignable,
-            positions,
-            lam=self.settings.utility_lambda,
-            sigma=self.settings.sigma_m,
-            current={k: v for k, v in self.assigned_current.items() if k in positions},
-            current_bonus=self.settings.current_target_bonus,
-            own_bonus=self.settings.own_frontier_bonus,
-            keep_radius=KEEP_RADIUS_M,
-            unreachable_radius=radius,
-            unreachable=blocked,
-            min_gain=self._trip_gain(),
-            distances=situation.map.travel_distances,
-        )
+        choice = self._assign(assignable, positions, blocked, situation.map)
         assigned = {k: c for k, c in choice.items() if c is not None}
         self.assigned_current = {k: c.viewpoint for k, c in assigned.items()}
         effects.log(
@@ -469,6 +459,41 @@ class ExplorationCore:
             self.set_target(effects, Target(mine.viewpoint, mine.point, "leader", mine.gain))
         else:
             self.left_out_at = now
+
+    def _assign(
+        self, candidates: list[Candidate], positions: dict[int, Vec3], blocked: dict[int, list[Vec3]], grid: MapQueries
+    ) -> dict[int, Candidate | None]:
+        """One candidate (or None) per member: by utility (`assign_targets`) or by tours (`assign_tours`), as
+        `explore.assignment` says."""
+        s = self.settings
+        current = {k: v for k, v in self.assigned_current.items() if k in positions}
+        if s.assignment == "tours":
+            return assign_tours(
+                candidates,
+                positions,
+                current=current,
+                current_bonus=s.current_target_bonus,
+                keep_radius=KEEP_RADIUS_M,
+                unreachable=blocked,
+                unreachable_radius=s.visited_radius_m,
+                min_gain=self._trip_gain(),
+                distances=grid.travel_distances,
+                between=grid.travel_between,
+            )
+        return assign_targets(
+            candidates,
+            positions,
+            lam=s.utility_lambda,
+            sigma=s.sigma_m,
+            current=current,
+            current_bonus=s.current_target_bonus,
+            own_bonus=s.own_frontier_bonus,
+            keep_radius=KEEP_RADIUS_M,
+            unreachable_radius=s.visited_radius_m,
+            unreachable=blocked,
+            min_gain=self._trip_gain(),
+            distances=grid.travel_distances,
+        )
 
     def _check(self, report: FrontierReport, track: np.ndarray | None) -> _Checked:
         """The report's candidates and looks that pass the leader's checks (the module docstring), counted once

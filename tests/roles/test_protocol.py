@@ -51,6 +51,9 @@ class Map:
     def travel_distances(self, starts: np.ndarray, goals: np.ndarray) -> np.ndarray:
         return np.linalg.norm(np.reshape(starts, (-1, 1, 3)) - np.reshape(goals, (1, -1, 3)), axis=2)
 
+    def travel_between(self, points: np.ndarray) -> np.ndarray:
+        return self.travel_distances(points, points)
+
 
 def _core(drone: int = 1, **settings: Any) -> ExplorationCore:
     return ExplorationCore(ExploreSettings(**settings), drone, epoch=1, now=0.0)
