@@ -684,11 +684,18 @@ class ExploreSettings(_Section):
         "frontier (maps still shared); frontier-only: frontiers and targets are exchanged, patches are not; "
         "scripted: the harness's ground-truth routes (no exploration)",
     )
-    assignment: Literal["utility", "tours"] = Field(
+    assignment: Literal["utility", "tours", "tail-tours"] = Field(
         "utility",
         description="how a coordinated leader hands out candidates: utility, each member's best gain against "
         "distance (Mahdoui's rule, swarm.roles.assignment); tours, the candidates divided between members by "
-        "position and each member sent to the first of its own tour (swarm.roles.tours)",
+        "position and each member sent to the first of its own tour (swarm.roles.tours); tail-tours, utility "
+        "until no candidate is worth tail_gain_m3, tours from then on",
+    )
+    tail_gain_m3: float = Field(
+        20.0,
+        ge=0.0,
+        description="with assignment = tail-tours, a round whose best candidate would see less unknown than this "
+        "is the mission's tail: leftovers, handed out by tours",
     )
     loop_s: PositiveFloat = Field(3.0, description="r: assignment period (also runs when a drone reaches its target)")
     view_reuse_s: float = Field(

@@ -433,13 +433,14 @@ class ExplorationCore:
                 )
             return
         self.empty_since = None
-        choice = self._assign(assignable, positions, blocked, situation.map)
+        rule, choice = self._assign(assignable, positions, blocked, situation.map)
         assigned = {k: c for k, c in choice.items() if c is not None}
         self.assigned_current = {k: c.viewpoint for k, c in assigned.items()}
         effects.log(
             "assignment",
             round=self.round,
             candidates=len(assignable),
+            rule=rule,
             gains={k: round(c.gain, 2) for k, c in assigned.items()},
         )
         drones = sorted(assigned)
@@ -462,13 +463,14 @@ class ExplorationCore:
 
     def _assign(
         self, candidates: list[Candidate], positions: dict[int, Vec3], blocked: dict[int, list[Vec3]], grid: MapQueries
-    ) -> dict[int, Candidate | None]:
-        """One candidate (or None) per member: by utility (`assign_targets`) or by tours (`assign_tours`), as
-        `explore.assignment` says."""
+    ) -> tuple[str, dict[int, Candidate | None]]:
+        """The rule used ("utility" or "tours") and one candidate (or None) per member: by utility
+        (`assign_targets`) or by tours (`assign_tours`), as `explore.assignment` says."""
         s = self.settings
         current = {k: v for k, v in self.assigned_current.items() if k in positions}
-        if s.assignment == "tours":
-            return assign_tours(
+        tail = s.assignment == "tail-tours" and max((c.gain for c in candidates), default=0.0) < s.tail_gain_m3
+        if s.assignment == "tours" or tail:
+            return "tours", assign_tours(
                 candidates,
                 positions,
                 current=current,
@@ -480,7 +482,7 @@ class ExplorationCore:
                 distances=grid.travel_distances,
                 between=grid.travel_between,
             )
-        return assign_targets(
+        return "utility", assign_targets(
             candidates,
             positions,
             lam=s.utility_lambda,

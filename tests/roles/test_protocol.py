@@ -429,3 +429,27 @@ def test_a_leader_with_nothing_for_anyone_tells_its_members_so_until_it_is_done(
     effects = leader.decide(1.0 + LOOP + 0.1, _situation([], cluster=members, positions={2: (5.0, 1.0, 1.5)}))
     assert leader.done
     assert [m.done for m in effects.publish if isinstance(m, TargetAssignment)] == [True]
+
+
+@pytest.mark.parametrize(
+    ("assignment", "big_gain", "rule", "target_x"),
+    [
+        ("utility", 60.0, "utility", 9.0),
+        ("tours", 60.0, "tours", 0.0),
+        ("tail-tours", 60.0, "utility", 9.0),  # a large candidate is left: not the tail yet
+        ("tail-tours", 15.0, "tours", 0.0),  # every candidate under tail_gain_m3 (20): leftovers, by tours
+    ],
+)
+def test_the_leader_hands_out_candidates_by_the_configured_rule(
+    assignment: str, big_gain: float, rule: str, target_x: float
+) -> None:
+    """Two small candidates beside the leader and one larger 8 m on: utility takes the larger, a tour the nearest."""
+    core = _core(drone=1, assignment=assignment)
+    near = [_f((0.0, 1.0, 1.5), (0.0, 0.5, 1.5), gain=3.0), _f((-2.0, 1.0, 1.5), (-2.0, 0.5, 1.5), gain=3.0)]
+    far = _f((9.0, 1.0, 1.5), (9.5, 1.0, 1.5), gain=big_gain)
+    grid = Map()
+    grid.views = {f.viewpoint: f.gain for f in (*near, far)}
+    effects = core.decide(0.0, _situation([*near, far], here=(1.0, 1.0, 1.5), grid=grid))
+    [logged] = [fields for event, fields in effects.events if event == "assignment"]
+    assert logged["rule"] == rule
+    assert core.target is not None and core.target.viewpoint[0] == target_x
