@@ -176,6 +176,7 @@ class Exploration:
             in_pocket=self.grid.in_pocket(here),
             tracks={k: self.peers.peers[k].track_array() for k in members if k in self.peers.peers},
             patches_to_come=self.patches_to_come([k for k in members if k != self.id]),
+            home=self._above_home() if self.settings.return_home else None,
         )
         with self.clock.measure("assignment"):  # the core: reports merged, targets assigned, termination
             effects = self.core.decide(time.monotonic(), situation)

@@ -55,6 +55,7 @@ class FrontierReport(WireMessage):
     unreachable: _Points = EMPTY_POINTS  # viewpoints it recently could not plan a path to: not to be assigned to it
     arrived: bool = False
     in_pocket: bool = False  # its map shuts it in where it is: its empty candidate list says nothing yet
+    home: Vec3 | None = None  # where it flies when the cluster is done (None: it lands where it is); tours end there
 
     @model_validator(mode="after")
     def _shapes(self) -> FrontierReport:

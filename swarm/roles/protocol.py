@@ -170,6 +170,7 @@ class Situation:
     in_pocket: bool = False  # this drone's own cell is shut in by its map: nothing is unreachable from here
     tracks: dict[int, np.ndarray] = field(default_factory=dict)  # (N, 3) each member's heartbeat track
     patches_to_come: int = 0  # patches a member of the cluster holds that this drone's map does not have yet
+    home: Vec3 | None = None  # where this drone flies when the cluster is done (None: it lands where it is)
 
 
 @dataclass
@@ -365,6 +366,7 @@ class ExplorationCore:
                 unreachable=as_points(self._blocked_for_me(now)[-MAX_VISITED:]),
                 arrived=self.arrived,
                 in_pocket=situation.in_pocket,
+                home=situation.home,
             )
         )
         leader = situation.leader
@@ -433,7 +435,12 @@ class ExplorationCore:
                 )
             return
         self.empty_since = None
-        rule, choice = self._assign(assignable, positions, blocked, situation.map)
+        homes = {
+            k: r.home for k, r in reports.items() if r.home is not None and self.limits.inside(np.asarray(r.home)).all()
+        }
+        if situation.home is not None:
+            homes[self.id] = situation.home
+        rule, choice = self._assign(assignable, positions, blocked, homes, situation.map)
         assigned = {k: c for k, c in choice.items() if c is not None}
         self.assigned_current = {k: c.viewpoint for k, c in assigned.items()}
         effects.log(
@@ -462,7 +469,12 @@ class ExplorationCore:
             self.left_out_at = now
 
     def _assign(
-        self, candidates: list[Candidate], positions: dict[int, Vec3], blocked: dict[int, list[Vec3]], grid: MapQueries
+        self,
+        candidates: list[Candidate],
+        positions: dict[int, Vec3],
+        blocked: dict[int, list[Vec3]],
+        homes: dict[int, Vec3],
+        grid: MapQueries,
     ) -> tuple[str, dict[int, Candidate | None]]:
         """The rule used ("utility" or "tours") and one candidate (or None) per member: by utility
         (`assign_targets`) or by tours (`assign_tours`), as `explore.assignment` says."""
@@ -481,6 +493,7 @@ class ExplorationCore:
                 min_gain=self._trip_gain(),
                 distances=grid.travel_distances,
                 between=grid.travel_between,
+                homes=homes,
             )
         return "utility", assign_targets(
             candidates,

@@ -45,10 +45,12 @@ def assign_tours(
     min_gain: float = 0.0,
     distances: Callable[[np.ndarray, np.ndarray], np.ndarray] = _pairwise,
     between: Callable[[np.ndarray], np.ndarray] | None = None,
+    homes: Mapping[int, Vec3] | None = None,
 ) -> dict[int, Candidate | None]:
     """One candidate (or None) per member of `positions`: the first of its tour (module docstring).
     `distances` (starts (M, 3), goals (N, 3)) -> (M, N) metres, as in `assign_targets`; `between` (views (N, 3))
-    -> (N, N) metres among the viewpoints, Euclidean by default. A member is never given a candidate within
+    -> (N, N) metres among the viewpoints, Euclidean by default. A member with a home in `homes` (where it flies
+    when the cluster is done) has a tour that ends there. A member is never given a candidate within
     `unreachable_radius` of a viewpoint it could not plan a path to; candidates under `min_gain` are nobody's."""
     members = sorted(positions)
     result: dict[int, Candidate | None] = {m: None for m in members}
@@ -72,6 +74,7 @@ def assign_tours(
     owner = np.where(reachable, np.argmin(np.where(np.isfinite(claim), claim, np.inf), axis=0), -1)
     among = np.asarray(between(views) if between is not None else _pairwise(views, views), dtype=float)
     among = np.minimum(among, among.T)  # the way there and back is one way: take the shorter estimate
+    to_home = _ways_home(members, homes or {}, views, distances)
     tours = {
         row: _tour(
             reach[row],
@@ -79,6 +82,7 @@ def assign_tours(
             np.flatnonzero(owner == row),
             _current_index(views, heading[row], keep_radius),
             current_bonus,
+            to_home.get(row),
         )
         for row in range(len(members))
     }
@@ -89,6 +93,20 @@ def assign_tours(
     return result
 
 
+def _ways_home(
+    members: list[int],
+    homes: Mapping[int, Vec3],
+    views: np.ndarray,
+    distances: Callable[[np.ndarray, np.ndarray], np.ndarray],
+) -> dict[int, np.ndarray]:
+    """Member row -> (N,) the way from each viewpoint to its home (measured from the home: one search per home)."""
+    rows = [row for row, m in enumerate(members) if m in homes]
+    if not rows:
+        return {}
+    ways = np.asarray(distances(_array([homes[members[row]] for row in rows]), views), dtype=float)
+    return {row: ways.reshape(len(rows), -1)[i] for i, row in enumerate(rows)}
+
+
 def _current_index(views: np.ndarray, target: Vec3 | None, keep_radius: float) -> int | None:
     if target is None:
         return None
@@ -97,20 +115,26 @@ def _current_index(views: np.ndarray, target: Vec3 | None, keep_radius: float) -
 
 
 def _tour(
-    from_start: np.ndarray, among: np.ndarray, stops: np.ndarray, current: int | None, current_bonus: float
+    from_start: np.ndarray,
+    among: np.ndarray,
+    stops: np.ndarray,
+    current: int | None,
+    current_bonus: float,
+    to_end: np.ndarray | None = None,
 ) -> list[int]:
-    """The candidates `stops` as an open tour from the member (`from_start`: its way to each): nearest neighbour
-    then 2-opt. With its `current` target among them, the tour that starts there is kept unless the tour that
-    starts elsewhere is shorter, the way to the current target counted `current_bonus` times shorter."""
+    """The candidates `stops` as a tour from the member (`from_start`: its way to each) and, with `to_end` (the
+    way from each to its home), back home: nearest neighbour then 2-opt. With its `current` target among them,
+    the tour that starts there is kept unless the tour that starts elsewhere is shorter, the way to the current
+    target counted `current_bonus` times shorter."""
     if len(stops) == 0:
         return []
-    free = _two_opt(_nearest_neighbour(from_start, among, stops), from_start, among)
+    free = _two_opt(_nearest_neighbour(from_start, among, stops), from_start, among, to_end)
     if current is None or current not in stops or free[0] == current:
         return free
     rest = np.array([s for s in stops if s != current], dtype=int)
-    kept = _two_opt([current, *_nearest_neighbour(among[current], among, rest)], None, among)
-    kept_length = from_start[current] / current_bonus + _length(kept, among)
-    free_length = from_start[free[0]] + _length(free, among)
+    kept = _two_opt([current, *_nearest_neighbour(among[current], among, rest)], None, among, to_end)
+    kept_length = from_start[current] / current_bonus + _length(kept, among, to_end)
+    free_length = from_start[free[0]] + _length(free, among, to_end)
     return kept if kept_length <= free_length else free
 
 
@@ -126,13 +150,17 @@ def _nearest_neighbour(from_start: np.ndarray, among: np.ndarray, stops: np.ndar
     return order
 
 
-def _length(order: Sequence[int], among: np.ndarray) -> float:
-    return float(sum(among[a, b] for a, b in zip(order, order[1:])))
+def _length(order: Sequence[int], among: np.ndarray, to_end: np.ndarray | None = None) -> float:
+    home = float(to_end[order[-1]]) if to_end is not None and order else 0.0
+    return float(sum(among[a, b] for a, b in zip(order, order[1:]))) + home
 
 
-def _two_opt(order: list[int], from_start: np.ndarray | None, among: np.ndarray) -> list[int]:
-    """Reverse segments of the open tour while that shortens it. With `from_start` (the member's way to each
-    stop) the first stop may change; without, `order[0]` stays first."""
+def _two_opt(
+    order: list[int], from_start: np.ndarray | None, among: np.ndarray, to_end: np.ndarray | None = None
+) -> list[int]:
+    """Reverse segments of the tour while that shortens it. With `from_start` (the member's way to each stop)
+    the first stop may change; without, `order[0]` stays first. With `to_end` the tour ends at home (the way
+    from each stop there); without, it ends at its last stop."""
     route = list(order)
     first = 0 if from_start is not None else 1
     for _ in range(TWO_OPT_PASSES):
@@ -142,8 +170,12 @@ def _two_opt(order: list[int], from_start: np.ndarray | None, among: np.ndarray)
             nodes = np.array(route)
             k = np.arange(i + 1, len(route))
             head = from_start[nodes[k]] if i == 0 and from_start is not None else among[route[i - 1], nodes[k]]
-            after_old = np.where(k + 1 < len(route), among[nodes[k], nodes[np.minimum(k + 1, len(route) - 1)]], 0.0)
-            after_new = np.where(k + 1 < len(route), among[route[i], nodes[np.minimum(k + 1, len(route) - 1)]], 0.0)
+            last = k + 1 == len(route)
+            following = nodes[np.minimum(k + 1, len(route) - 1)]
+            end_old = 0.0 if to_end is None else to_end[nodes[k]]
+            end_new = 0.0 if to_end is None else np.full(len(k), to_end[route[i]])
+            after_old = np.where(last, end_old, among[nodes[k], following])
+            after_new = np.where(last, end_new, among[route[i], following])
             gain = before + after_old - head - after_new
             best = int(np.argmax(gain))
             if gain[best] > 1e-9:

@@ -453,3 +453,16 @@ def test_the_leader_hands_out_candidates_by_the_configured_rule(
     [logged] = [fields for event, fields in effects.events if event == "assignment"]
     assert logged["rule"] == rule
     assert core.target is not None and core.target.viewpoint[0] == target_x
+
+
+@pytest.mark.parametrize(("home", "target_x"), [(None, -2.8), ((-10.0, 1.0, 1.5), 3.0)])
+def test_with_tours_a_member_that_reports_its_home_gets_a_tour_that_ends_there(
+    home: Vec3 | None, target_x: float
+) -> None:
+    core = _core(drone=1, assignment="tours")
+    west, east = _f((-2.8, 1.0, 1.5), (-2.8, 0.5, 1.5)), _f((3.0, 1.0, 1.5), (3.0, 0.5, 1.5))
+    core.on_report(0.0, 2, _report(2, 1, [west, east], position=(0.0, 1.0, 1.5), home=home), leader=1)
+    situation = _situation([], here=(50.0, 1.0, 1.5), cluster=[1, 2], positions={2: (0.0, 1.0, 1.5)})
+    effects = core.decide(0.1, situation)
+    sent = [m for m in effects.publish if isinstance(m, TargetAssignment)][-1]
+    assert sent.target_of(2) is not None and sent.target_of(2)[0][0] == pytest.approx(target_x)

@@ -87,3 +87,10 @@ def test_two_opt_uncrosses_a_tour() -> None:
 
     assert better[0] == 0 and sorted(better) == crossed
     assert length(better) < length(crossed) - 0.1
+
+
+def test_a_tour_that_ends_at_home_leaves_the_candidates_on_the_way_home_for_last() -> None:
+    """Home is 10 m west: east first and back through the west one, not west first and east again."""
+    candidates = [_c(-2.8), _c(3.0)]
+    assert _x(assign_tours(candidates, {1: _at(0.0)})) == {1: -2.8}
+    assert _x(assign_tours(candidates, {1: _at(0.0)}, homes={1: _at(-10.0)})) == {1: 3.0}
