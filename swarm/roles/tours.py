@@ -9,10 +9,11 @@ what is worth a trip (`min_gain`); where to go first is a question of routes:
 1. **Partition.** Each candidate belongs to the member that flies there soonest (`distances`, through the
    leader's map); the member already heading for it counts its way as `current_bonus` times shorter, so two
    members about as far from it do not swap it between rounds.
-2. **Tours.** Each member orders its candidates as an open tour from where it is: nearest neighbour, then 2-opt
-   (`between`, the distances among the viewpoints). Its target is the tour's first candidate; a candidate it
-   is already heading for stays first unless a tour that starts elsewhere is shorter, the way to the current
-   target counted `current_bonus` times shorter again.
+2. **Tours.** Each member orders its candidates as a tour from where it is: nearest neighbour, then 2-opt
+   (`between`, the distances among the viewpoints). The tour ends at the member's home when it has one (where
+   it flies once the cluster is done: the leftovers on its way home come last), else at its last stop. Its
+   target is the tour's first candidate; a candidate it is already heading for stays first unless a tour that
+   starts elsewhere is shorter, the way to the current target counted `current_bonus` times shorter again.
 3. **Balance.** A member with nothing takes, from a tour of two or more, the candidate it reaches soonest
    ahead of the tour's owner (the owner's arrival is its way along its tour); none is taken when the owner
    comes first to all of them. It does not chase what another drone will pick up on its way.
@@ -30,7 +31,7 @@ import numpy as np
 from swarm.config import Vec3
 from swarm.roles.assignment import Candidate, _array, _near_any, _order_key, _pairwise, _within
 
-TWO_OPT_PASSES = 8  # 2-opt passes over a tour at most; each is O(n^2) in numpy, and most tours settle in 2-3
+TWO_OPT_PASSES = 8  # 2-opt passes over a tour at most: n numpy steps of O(n) each; most tours settle in 2-3
 
 
 def assign_tours(
