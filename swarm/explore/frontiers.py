@@ -64,7 +64,7 @@ from scipy import ndimage
 
 from swarm.config import CameraSettings, ExploreSettings, Vec3
 from swarm.explore.grid import OccupancyGrid
-from swarm.explore.travel import LEG_SEARCH_LIMIT_M, SEARCH_LIMIT_M, TravelGraph
+from swarm.explore.travel import SEARCH_LIMIT_M, TravelGraph
 from swarm.patches.fused import FREE, OCCUPIED, UNKNOWN
 from swarm.stages import NO_CLOCK, StageClock
 
@@ -448,9 +448,11 @@ class ExplorationGrid:
 
     def travel_between(self, points: np.ndarray) -> np.ndarray:
         """(N, N) metres between safe points (viewpoints) through this map's safe cells, searched to
-        LEG_SEARCH_LIMIT_M: beyond it, the straight line and at least the limit (`TravelGraph.distances`)."""
+        SEARCH_LIMIT_M: beyond it, the straight line and at least the limit (`TravelGraph.distances`). A shorter
+        search is cheaper (for 169 viewpoints of a generated building: 21 ms to 6 m, 68 ms to 15 m) but puts two
+        viewpoints one above the other, 40 m apart by the stairs, 6 m apart: tours then hopped between storeys."""
         points = np.asarray(points, dtype=float).reshape(-1, 3)
-        return self.travel_graph.distances(points, points, limit_m=LEG_SEARCH_LIMIT_M)
+        return self.travel_graph.distances(points, points, limit_m=SEARCH_LIMIT_M)
 
     @cached_property
     def travel_graph(self) -> TravelGraph:

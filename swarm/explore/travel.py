@@ -42,9 +42,6 @@ MERGE = 2  # planning cells per coarse cell edge
 SEARCH_LIMIT_M = 15.0  # how far the search goes (module docstring)
 BEYOND_TIE = 1e-3  # beyond the search, this much of the straight line is added: it orders, it does not weigh
 FAR_GOALS = 3  # goals beyond the search from every start that are searched all the way (module docstring)
-# Between viewpoints (a leader's tours, swarm.roles.tours) the search stops sooner: a tour's legs are mostly short,
-# and from every viewpoint to 15 m took 68 ms for 169 viewpoints of a generated building, to 6 m 21 ms.
-LEG_SEARCH_LIMIT_M = 6.0
 
 # the 13 neighbour offsets with a positive first nonzero component: each undirected edge once
 _HALF_NEIGHBOURS = np.array(

@@ -65,6 +65,18 @@ def test_the_merge_does_not_open_a_wall_between_safe_cells() -> None:
     assert math.isfinite(d[0, 0])
 
 
+def test_viewpoints_on_two_sides_of_a_wall_are_as_far_apart_as_the_way_round_in_either_direction() -> None:
+    """`travel_between`, the leader's distances among viewpoints for its tours."""
+    grid = ExplorationGrid.from_states(
+        (0.0, 0.0, 0.0), RES, _two_rooms(), ExploreSettings(body_height_m=0.0, min_altitude_m=0.5), 0.0, 2.4
+    )
+    views = np.array([[4.5, 1.0, 1.1], [5.7, 1.0, 1.1], [3.0, 1.0, 1.1]])
+    d = grid.travel_between(views)
+    assert d.shape == (3, 3) and np.allclose(np.diag(d), 0.0)
+    assert d[0, 1] > 2 * 3.6 and d[1, 0] > 2 * 3.6  # round by the door
+    assert d[0, 2] == pytest.approx(1.5, rel=0.15)
+
+
 def test_a_drone_beside_a_wall_starts_from_the_nearest_safe_cell() -> None:
     states = _two_rooms()
     grid = ExplorationGrid.from_states(
