@@ -7,8 +7,11 @@ make the mission's tail: every drone is later sent back across the building for 
 what is worth a trip (`min_gain`); where to go first is a question of routes:
 
 1. **Partition.** Each candidate belongs to the member that flies there soonest (`distances`, through the
-   leader's map); the member already heading for it counts its way as `current_bonus` times shorter, so two
-   members about as far from it do not swap it between rounds.
+   leader's map) or, for a member that will fly home when the cluster is done (`homes`), that adds least to
+   its way home: its way there and on home, less its way home from where it is (a leftover on one drone's way
+   home is that drone's, though another is nearer to it now). The member already heading for a candidate
+   counts this as `current_bonus` times less, so two members about as far from it do not swap it between
+   rounds.
 2. **Tours.** Each member orders its candidates as a tour from where it is: nearest neighbour, then 2-opt
    (`between`, the distances among the viewpoints). The tour ends at the member's home when it has one (where
    it flies once the cluster is done: the leftovers on its way home come last), else at its last stop. Its
@@ -64,7 +67,8 @@ def assign_tours(
         blocked = _near_any(views, _array((unreachable or {}).get(member, [])), unreachable_radius)
         reach[row, blocked] = np.inf
     heading = [None if current is None else current.get(m) for m in members]
-    claim = reach.copy()  # the partition's measure: a member's own current target counts as nearer
+    to_home = _ways_home(members, homes or {}, views, distances)
+    claim = reach + np.maximum(_detours(members, positions, homes or {}, to_home, distances), 0.0)  # partition
     for row, target in enumerate(heading):
         if target is not None:
             mine = _within(views, target, keep_radius)
@@ -75,7 +79,6 @@ def assign_tours(
     owner = np.where(reachable, np.argmin(np.where(np.isfinite(claim), claim, np.inf), axis=0), -1)
     among = np.asarray(between(views) if between is not None else _pairwise(views, views), dtype=float)
     among = np.minimum(among, among.T)  # the way there and back is one way: take the shorter estimate
-    to_home = _ways_home(members, homes or {}, views, distances)
     tours = {
         row: _tour(
             reach[row],
@@ -106,6 +109,26 @@ def _ways_home(
         return {}
     ways = np.asarray(distances(_array([homes[members[row]] for row in rows]), views), dtype=float)
     return {row: ways.reshape(len(rows), -1)[i] for i, row in enumerate(rows)}
+
+
+def _detours(
+    members: list[int],
+    positions: Mapping[int, Vec3],
+    homes: Mapping[int, Vec3],
+    to_home: dict[int, np.ndarray],
+    distances: Callable[[np.ndarray, np.ndarray], np.ndarray],
+) -> np.ndarray:
+    """(M, N or 1) what a candidate adds to a member's way home beyond its way there: the way on from it home less
+    the member's way home from where it is now (0 for a member without a home)."""
+    if not to_home:
+        return np.zeros((len(members), 1))
+    rows = sorted(to_home)
+    starts, ends = _array([positions[members[r]] for r in rows]), _array([homes[members[r]] for r in rows])
+    direct = np.diag(np.asarray(distances(starts, ends), dtype=float).reshape(len(rows), len(rows)))
+    out = np.zeros((len(members), len(to_home[rows[0]])))
+    for i, row in enumerate(rows):
+        out[row] = to_home[row] - direct[i]
+    return out
 
 
 def _current_index(views: np.ndarray, target: Vec3 | None, keep_radius: float) -> int | None:

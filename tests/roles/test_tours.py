@@ -94,3 +94,12 @@ def test_a_tour_that_ends_at_home_leaves_the_candidates_on_the_way_home_for_last
     candidates = [_c(-2.8), _c(3.0)]
     assert _x(assign_tours(candidates, {1: _at(0.0)})) == {1: -2.8}
     assert _x(assign_tours(candidates, {1: _at(0.0)}, homes={1: _at(-10.0)})) == {1: 3.0}
+
+
+def test_a_leftover_on_one_drones_way_home_is_that_drones_though_another_is_nearer() -> None:
+    """Drone 1 flies home 20 m west past the leftover (4 m off); drone 2, 3 m from it, is 3 m from its own home."""
+    leftover = [_c(-4.0)]
+    positions = {1: _at(0.0), 2: _at(-4.0, 3.0)}
+    assert _x(assign_tours(leftover, positions)) == {1: None, 2: -4.0}
+    homes = {1: _at(-20.0), 2: _at(-4.0, 6.0)}
+    assert _x(assign_tours(leftover, positions, homes=homes)) == {1: -4.0, 2: None}
