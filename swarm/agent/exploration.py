@@ -164,7 +164,8 @@ class Exploration:
             self.grid, frontiers = await self.mapping.explore_view(home[2], self.top_z, here, self.obstacles())
             self._view = (time.monotonic(), frontiers)
         assert self.grid is not None  # set with the view
-        self._check_path()
+        if self._check_path() and self.flight is not None:
+            await self.flight.brake()
         members = self.peers.cluster
         situation = Situation(
             here=here,
@@ -198,10 +199,11 @@ class Exploration:
                 in_pocket=situation.in_pocket,
             )
 
-    def _check_path(self) -> None:
-        """Replan when the map now shows the path ahead blocked."""
+    def _check_path(self) -> bool:
+        """Replan when the map now shows the path ahead blocked; True when the straight way from the drone to
+        its carrot, the setpoint it is flying to right now, is blocked too (the caller brakes)."""
         if self.grid is None or self.target is None:
-            return
+            return False
         here = self.position()
         ahead = self._path_ahead()  # not the waypoints already passed: a line back to them can cross a wall
         # The drone flies to the carrot, then along the path from there: round a corner it may be well inside
@@ -209,10 +211,14 @@ class Exploration:
         carrot = self.flight.setpoint if self.flight is not None and ahead else None
         way = [carrot, *ahead] if carrot is not None else ahead
         # from a cell that is not safe, the path's first leg leads to a safe one: only the rest can be blocked
-        legs = [here, *way] if self.grid.planning_grid.is_free(here) else way
-        if ahead and not path_is_free(self.grid.planning_grid, legs):
-            self.log("path_blocked", target=_r(self.target.viewpoint))
-            self.retarget.set()
+        from_here = self.grid.planning_grid.is_free(here)
+        legs = [here, *way] if from_here else way
+        if not ahead or path_is_free(self.grid.planning_grid, legs):
+            return False
+        brake = from_here and carrot is not None and not path_is_free(self.grid.planning_grid, [here, carrot])
+        self.log("path_blocked", target=_r(self.target.viewpoint), brake=brake)
+        self.retarget.set()
+        return brake
 
     def _path_ahead(self) -> list[Vec3]:
         return self.flight.path_ahead if self.flight is not None else []

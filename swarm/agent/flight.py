@@ -204,6 +204,13 @@ class Flight:
         """The position setpoint the drone was last led by on a path (the carrot), or None."""
         return self._carrot
 
+    async def brake(self) -> None:
+        """Hold where the drone is now, not at its carrot: the map shows the way there blocked (the map changed
+        under the path; a wall seen edge-on is mapped late). Called while the path is interrupted for a new one:
+        until that comes, the autopilot keeps the last setpoint, and the drone flew on into the wall (gen:2)."""
+        self._carrot = vec3(self.ap.telemetry.position)
+        await self.ap.set_setpoint(self._carrot, self.ap.telemetry.yaw_deg)
+
     def _set_phase(self, phase: Phase) -> None:
         """Change phase as the lifecycle allows (`swarm.agent.lifecycle.ALLOWED`). An illegal change is a bug:
         logged loudly, and taken all the same (landing and failsafe are never refused; the heartbeat says what

@@ -28,6 +28,7 @@ from swarm.patches.fused import OCCUPIED
 from swarm.roles.membership import PeerTable
 from swarm.roles.messages import TargetAssignment, as_points
 from swarm.roles.protocol import Effects
+from tests.agent.fake_autopilot import FakeAutopilot
 from tests.explore.synthetic import room_states, set_states
 
 
@@ -175,6 +176,31 @@ def test_a_drone_cutting_a_corner_is_checked_along_its_carrot_not_straight_to_th
     walls[9, 9, 0] = True  # now something on the way ahead, at (1.9, 1.9)
     exploration._check_path()
     assert [e["event"] for e in events] == ["path_blocked"]
+
+
+def test_a_drone_whose_way_to_its_carrot_is_now_blocked_brakes_and_one_blocked_farther_on_does_not() -> None:
+    """The map changed under the path: a wall mapped late, between the drone and the setpoint it flies to now.
+    Until the new path comes the autopilot keeps that setpoint, so the drone must brake (gen:2: it flew on into
+    the wall, 0.85 s after the block was seen)."""
+    events: list[dict[str, Any]] = []
+    exploration, walls = _round_a_wall_end(1.6, events)
+    exploration.position = lambda: (1.9, 1.9, 1.5)  # round the wall's end, flying west on the last leg
+    exploration.flight = SimpleNamespace(path_ahead=[(0.5, 1.9, 1.5)], setpoint=(1.3, 1.9, 1.5))  # type: ignore[assignment]
+    walls[3, 9, 0] = True  # at (0.7, 1.9): beyond the carrot
+    assert exploration._check_path() is False
+    assert events[-1]["event"] == "path_blocked" and events[-1]["brake"] is False
+    walls[3, 9, 0], walls[7, 9, 0] = False, True  # at (1.5, 1.9): between the drone and its carrot
+    assert exploration._check_path() is True
+    assert events[-1]["event"] == "path_blocked" and events[-1]["brake"] is True
+
+
+def test_braking_holds_the_drone_where_it_is_and_the_next_path_starts_there() -> None:
+    autopilot = FakeAutopilot()
+    flight = Flight(autopilot, load_config().agent, lambda *a, **kw: None)  # type: ignore[arg-type]
+    autopilot.telemetry.position = (3.0, 2.0, 1.5)
+    flight._carrot = (4.2, 2.0, 1.5)
+    asyncio.run(flight.brake())
+    assert flight.setpoint == (3.0, 2.0, 1.5) and autopilot.visited[-1] == (3.0, 2.0, 1.5)
 
 
 class _FakeFlight:
