@@ -210,6 +210,19 @@ def _within(views: np.ndarray, point: Vec3, radius: float) -> np.ndarray:
     return within
 
 
+def blocked_for(
+    members: Sequence[int],
+    views: np.ndarray,
+    unreachable: Mapping[int, Sequence[Vec3] | np.ndarray] | None,
+    radius: float,
+) -> np.ndarray:
+    """(members, views) True where a viewpoint lies within `radius` of one the member could not plan a path to:
+    never that member's target (`assign_targets`, `swarm.roles.tours.assign_tours`)."""
+    return np.array(
+        [_near_any(views, _array((unreachable or {}).get(m, [])), radius) for m in members], dtype=bool
+    ).reshape(len(members), len(views))
+
+
 def _left_to_passing(
     rows: list[int],
     heading: np.ndarray,
@@ -293,14 +306,13 @@ def assign_targets(
     reach = np.asarray(distances(_array([positions[m] for m in members]), np.vstack([views, heading])), dtype=float)
     dist = reach[:, : len(pool)]  # (members, cands)
     factor = np.ones_like(dist)  # the bonuses: they do not change within the round
-    allowed = np.ones(dist.shape, dtype=bool)
+    allowed = ~blocked_for(members, views, unreachable, unreachable_radius)
     for row, member in enumerate(members):
         target = None if current is None else current.get(member)
         factor[row] = _bonus(member, views, owners, target, current_bonus, own_bonus, keep_radius)
         for other, theirs in (current or {}).items():
             if other != member and other in positions:  # another drone is on its way there: leave it to it
                 factor[row] = np.where(_within(views, theirs, keep_radius), factor[row] / current_bonus, factor[row])
-        allowed[row] = ~_near_any(views, _array((unreachable or {}).get(member, [])), unreachable_radius)
     if busy and len(members) > 1:
         left = reach[[row for row, _ in busy], len(pool) + np.arange(len(busy))]  # each busy member's way to go
         via = left[:, None] + np.asarray(distances(heading, views), dtype=float)  # (busy, cands)

@@ -32,7 +32,7 @@ from collections.abc import Callable, Mapping, Sequence
 import numpy as np
 
 from swarm.config import Vec3
-from swarm.roles.assignment import Candidate, _array, _near_any, _order_key, _pairwise, _within
+from swarm.roles.assignment import Candidate, _array, _order_key, _pairwise, _within, blocked_for
 
 TWO_OPT_PASSES = 8  # 2-opt passes over a tour at most: n numpy steps of O(n) each; most tours settle in 2-3
 
@@ -63,12 +63,10 @@ def assign_tours(
         return result
     views = _array([c.viewpoint for c in pool])
     reach = np.asarray(distances(_array([positions[m] for m in members]), views), dtype=float).reshape(len(members), -1)
-    for row, member in enumerate(members):
-        blocked = _near_any(views, _array((unreachable or {}).get(member, [])), unreachable_radius)
-        reach[row, blocked] = np.inf
+    reach[blocked_for(members, views, unreachable, unreachable_radius)] = np.inf
     heading = [None if current is None else current.get(m) for m in members]
     to_home = _ways_home(members, homes or {}, views, distances)
-    claim = reach + np.maximum(_detours(members, positions, homes or {}, to_home, distances), 0.0)  # partition
+    claim = reach + np.maximum(_detours(members, positions, homes or {}, to_home, len(pool), distances), 0.0)
     for row, target in enumerate(heading):
         if target is not None:
             mine = _within(views, target, keep_radius)
@@ -116,18 +114,15 @@ def _detours(
     positions: Mapping[int, Vec3],
     homes: Mapping[int, Vec3],
     to_home: dict[int, np.ndarray],
+    candidates: int,
     distances: Callable[[np.ndarray, np.ndarray], np.ndarray],
 ) -> np.ndarray:
-    """(M, N or 1) what a candidate adds to a member's way home beyond its way there: the way on from it home less
+    """(M, N) what each candidate adds to a member's way home beyond its way there: the way on from it home less
     the member's way home from where it is now (0 for a member without a home)."""
-    if not to_home:
-        return np.zeros((len(members), 1))
-    rows = sorted(to_home)
-    starts, ends = _array([positions[members[r]] for r in rows]), _array([homes[members[r]] for r in rows])
-    direct = np.diag(np.asarray(distances(starts, ends), dtype=float).reshape(len(rows), len(rows)))
-    out = np.zeros((len(members), len(to_home[rows[0]])))
-    for i, row in enumerate(rows):
-        out[row] = to_home[row] - direct[i]
+    out = np.zeros((len(members), candidates))
+    for row, way_on in to_home.items():
+        direct = distances(_array([positions[members[row]]]), _array([homes[members[row]]]))
+        out[row] = way_on - float(np.asarray(direct, dtype=float).reshape(-1)[0])
     return out
 
 
