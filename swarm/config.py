@@ -790,8 +790,9 @@ class ExploreSettings(_Section):
         6.0,
         ge=0.0,
         le=600.0,
-        description="with return_home, a drone left without a target this long heads home "
-        "while the others finish (a new target stops it), so that it lands soon after its cluster is done",
+        description="with return_home, a drone left without a target this long, through two decisions for it, "
+        "heads home while the others finish (a new target stops it), so that it lands soon after its cluster is "
+        "done (at once when a decision found nothing for it; after five times this when no decision comes)",
     )
 
 

@@ -47,13 +47,16 @@ Invariants:
   hears it.
 - `left_out_at` is when a decision for this drone (its leader's assignment, or its own as leader or on its own)
   last found no target for it: not a wait between two targets but nothing to do, so an idle drone heads home at
-  once instead of after `idle_home_s` (`swarm.agent.exploration`).
+  once instead of after `idle_home_s` (`swarm.agent.exploration`). `rounds_since(t)` counts the decisions for this
+  drone since `t`: on a loaded machine a round can take longer than `idle_home_s`, and a drone waiting for one is
+  not idle (`should_head_home`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol
@@ -83,6 +86,7 @@ UNREACHABLE_GIVE_UP = 3  # ... and after this many failures not until the map ne
 MAP_CHANGE_M3 = 0.3  # the unknown volume round a given-up viewpoint moved this much: the map changed, try again
 LOOK_HALF_ANGLE_DEG = 30.0  # a look covers candidates this far either side of its direction (a third of the FOV)
 BLIND_M = 0.1  # a point this close to straight above or below its viewpoint has no direction to look in
+ROUNDS_KEPT = 4  # times of the latest decisions for this drone kept, for `rounds_since`
 OWN_GAIN_PER_MEMBER = 32  # a member's candidates the leader ray-casts on its own map per decision (0.35 ms each)
 
 Source = Literal["leader", "self"]
@@ -243,6 +247,7 @@ class ExplorationCore:
         self.report_seq = 0
         self.empty_since: float | None = None  # as leader: when the cluster's candidates first ran out
         self.left_out_at: float | None = None  # when a decision for this drone last found nothing for it
+        self._rounds: deque[float] = deque(maxlen=ROUNDS_KEPT)  # when the latest decisions for this drone came
         self._woke_at: dict[int, float] = {}  # as leader: member -> when its arrival last woke a decision
         self.loops = 0
         self.targets_assigned = 0
@@ -252,6 +257,11 @@ class ExplorationCore:
     @property
     def visited(self) -> list[Vec3]:
         return [v for v, _ in self.looks]
+
+    def rounds_since(self, t: float) -> int:
+        """Decisions for this drone since `t` (up to ROUNDS_KEPT): its leader's rounds heard, and its own as
+        leader, on its own, or as an explorer whose leader went quiet."""
+        return sum(1 for at in self._rounds if at >= t)
 
     # -- messages in ------------------------------------------------------------------------------------------
 
@@ -279,6 +289,7 @@ class ExplorationCore:
         self.last_assignment[assignment.leader] = (now, assignment)
         if assignment.leader != leader or self.done:
             return effects  # not (or no longer) our leader: ignore
+        self._rounds.append(now)
         if assignment.done:
             self.finish(effects, f"leader {assignment.leader} declared the cluster done")
             return effects
@@ -306,8 +317,10 @@ class ExplorationCore:
         self.own = self._candidates(situation.frontiers)
         self._drop_explored_target(situation.map, effects)
         if self.strategy == "uncoordinated":
+            self._rounds.append(now)
             self._choose_own(now, effects, situation)
         elif situation.leader == self.id:
+            self._rounds.append(now)
             self._lead(now, situation, effects)
         else:
             self._explore(now, situation, effects)
@@ -376,6 +389,7 @@ class ExplorationCore:
         heard = self.last_assignment.get(leader) if leader is not None else None
         waited = now - max(self.following[1], heard[0] if heard else 0.0)
         if waited > self.settings.explorer_timeout_s and (self.target is None or self.target.source == "self"):
+            self._rounds.append(now)
             self._choose_own(now, effects, situation)
 
     def _lead(self, now: float, situation: Situation, effects: Effects) -> None:

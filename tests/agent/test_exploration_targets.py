@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from swarm.agent.exploration import PARKED_PEER_S, Exploration, Target
+from swarm.agent.exploration import IDLE_WITHOUT_ROUNDS, PARKED_PEER_S, Exploration, Target, should_head_home
 from swarm.agent.flight import PASS_CLEARANCE_M, Flight, Neighbour
 from swarm.bus.phase import Phase
 from swarm.config import ExploreSettings, Vec3, load_config
@@ -536,6 +536,25 @@ async def test_a_drone_left_without_a_target_heads_home_until_a_new_target_comes
     else:
         assert ends == [late.viewpoint, above_home]  # not idle long enough: waited in place for the target
         assert headed_home == []
+
+
+@pytest.mark.parametrize(
+    ("idle_s", "left_out", "rounds", "heads_home"),
+    [
+        (0.5, True, 1, True),  # a round since it became idle had nothing for it
+        (5.9, False, 3, False),  # between two targets: not idle long enough
+        (6.0, False, 2, True),  # idle_home_s through two rounds that did not give it a target
+        (6.0, False, 1, False),  # the only round since may have been decided before it became idle
+        (20.0, False, 0, False),  # its leader's round is slow (a loaded machine): it waits for it
+        (6.0 * IDLE_WITHOUT_ROUNDS, False, 0, True),  # rounds that never come
+    ],
+)
+def test_an_idle_drone_heads_home_when_decisions_found_nothing_for_it_not_when_they_are_slow(
+    idle_s: float, left_out: bool, rounds: int, heads_home: bool
+) -> None:
+    """Hall, 5 drones, 2 cores: decisions took 8-10 s at the median, and on `idle_home_s` (6 s) alone drones
+    between two targets flew home and back, the leader four times in two minutes with 100 candidates left."""
+    assert should_head_home(idle_s, left_out, rounds, idle_home_s=6.0) is heads_home
 
 
 @pytest.mark.parametrize("left_out", [True, False])

@@ -402,6 +402,22 @@ def test_a_round_with_nothing_for_a_member_says_so_and_one_with_a_target_or_for_
     assert core.left_out_at == 3.0
 
 
+def test_rounds_for_a_drone_are_its_leaders_rounds_heard_and_its_own_as_leader() -> None:
+    """What an idle drone counts before it heads home on time alone (`should_head_home`): decisions that were
+    made for it, not the seconds a slow leader took."""
+    member = _core(drone=2)
+    member.on_assignment(1.0, 1, _round([2], [1, 2]), leader=1)
+    member.on_assignment(2.0, 3, _round([1], [1, 2]), leader=1)  # sent by 3, naming 1: not a round of its leader
+    member.on_assignment(3.0, 1, _round([1], [1, 2], round_=2), leader=4)  # 1 is no longer its leader
+    assert member.rounds_since(0.0) == 1 and member.rounds_since(1.5) == 0
+    member.on_assignment(4.0, 1, _round([1], [1, 3], round_=3), leader=1)  # a round it is not in still came
+    assert member.rounds_since(1.5) == 1
+    leader = _core(drone=1)
+    leader.decide(5.0, _situation([EAST]))
+    leader.decide(6.0, _situation([EAST]))
+    assert leader.rounds_since(5.0) == 2 and leader.rounds_since(5.5) == 1 and leader.rounds_since(6.5) == 0
+
+
 def test_a_leader_that_finds_nothing_for_itself_or_for_anyone_says_so() -> None:
     leader = _core(drone=1)
     leader.decide(1.0, _situation([EAST]))
