@@ -18,6 +18,7 @@ its flight early.
 from __future__ import annotations
 
 import asyncio
+import functools
 import math
 import time
 from collections.abc import Callable
@@ -91,6 +92,14 @@ class Exploration:
         self.decision_ms: list[float] = []  # decisions on a new view (`view_reuse_s`)
         self._view: tuple[float, list[Frontier]] | None = None  # when the last view was taken, its frontiers
         self.views_reused = 0  # decisions made on the last view (taken under `view_reuse_s` before)
+        # The core decides in the decision thread, not on the event loop (a leader's round took up to 2.9 s on a
+        # loaded machine, and its peers, hearing no heartbeat for 3 s, took it for lost). The core is not
+        # thread-safe: while it decides, inputs from the bus wait in `_deferred`, and the flight waits
+        # (`_core_ready`) before it tells the core anything.
+        self._deciding = False
+        self._core_free = asyncio.Event()
+        self._core_free.set()
+        self._deferred: list[Callable[[], Effects]] = []
 
     @property
     def target(self) -> Target | None:
@@ -117,11 +126,24 @@ class Exploration:
 
     def _on_report(self, key: str, report: FrontierReport) -> None:
         sender = self.bus.keys.agent_id_of(key)
-        self._apply(self.core.on_report(time.monotonic(), sender, report, self.peers.leader))
+        self._to_core(lambda: self.core.on_report(time.monotonic(), sender, report, self.peers.leader))
 
     def _on_assignment(self, key: str, assignment: TargetAssignment) -> None:
         sender = self.bus.keys.agent_id_of(key)
-        self._apply(self.core.on_assignment(time.monotonic(), sender, assignment, self.peers.leader))
+        self._to_core(lambda: self.core.on_assignment(time.monotonic(), sender, assignment, self.peers.leader))
+
+    def _to_core(self, call: Callable[[], Effects]) -> None:
+        """Give the core an input now, or, while it decides in the decision thread, as soon as it has decided
+        (in order of arrival; the time and leader it is given are those of then)."""
+        if self._deciding:
+            self._deferred.append(call)
+        else:
+            self._apply(call())
+
+    async def _core_ready(self) -> None:
+        """Wait until the core is not deciding (the flight's inputs to it, on the event loop, come after)."""
+        while self._deciding:
+            await self._core_free.wait()
 
     def _apply(self, effects: Effects) -> None:
         """Carry out what the core decided: log, publish (reliable: a lost one is replaced next loop), wake."""
@@ -181,9 +203,19 @@ class Exploration:
             patches_to_come=self.patches_to_come([k for k in members if k != self.id]),
             home=self._above_home() if self.settings.return_home else None,
         )
-        with self.clock.measure("assignment"):  # the core: reports merged, targets assigned, termination
-            effects = self.core.decide(time.monotonic(), situation)
+        self._deciding = True
+        self._core_free.clear()
+        try:
+            effects = await self.mapping.in_decision_thread(self._core_decides, time.monotonic(), situation)
+        finally:
+            self._deciding = False
+            self._core_free.set()
+        if self.returning:
+            self.target = None  # a low battery sent it home while the core decided: it takes no target
         self._apply(effects)
+        deferred, self._deferred = self._deferred, []
+        for call in deferred:
+            self._apply(call())
         elapsed = time.perf_counter() - started
         if reused:
             self.clock.record("decision_on_last_view", elapsed)
@@ -200,6 +232,10 @@ class Exploration:
                 path=len(self._path_ahead()),
                 in_pocket=situation.in_pocket,
             )
+
+    def _core_decides(self, now: float, situation: Situation) -> Effects:
+        with self.clock.measure("assignment"):  # the core: reports merged, targets assigned, termination
+            return self.core.decide(now, situation)
 
     def _check_path(self) -> bool:
         """Replan when the map now shows the path ahead blocked; True when the straight way from the drone to
@@ -273,6 +309,7 @@ class Exploration:
                 path = await self._plan_to_another_viewpoint(target)
             if path is None:
                 if not await self._out_of_pocket(flight, stop):
+                    await self._core_ready()
                     self._apply(self.core.cannot_reach(time.monotonic(), target, self.grid))
                 continue
             reached = await flight.fly_path(path, stop, interrupt=self.retarget)
@@ -284,8 +321,9 @@ class Exploration:
                 # idle from here, as far as decisions go: the one this arrival wakes counts the target looked at,
                 # and when it finds nothing for this drone, the drone heads home after the look
                 idle_since = time.monotonic()
-                self._apply(self.core.looked_at(target))
+                self._to_core(functools.partial(self.core.looked_at, target))  # the look starts now, deciding or not
                 await flight.face(target.point, self.settings.dwell_s, stop)
+                await self._core_ready()  # before the loop reads the next target: the look is counted first
                 self.core.look_finished(target)
         home = self.home()
         if self.settings.return_home and home is not None:

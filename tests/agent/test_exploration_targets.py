@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+import threading
 import time
 from types import SimpleNamespace
 from typing import Any
@@ -661,6 +662,9 @@ class _CountingViews:
         self.views += 1
         return self.grid, self.grid.frontiers(position)
 
+    async def in_decision_thread(self, call: Any, *args: Any) -> Any:
+        return await asyncio.to_thread(call, *args)
+
 
 @pytest.mark.parametrize("reuse_s, views", [(600.0, 1), (0.0, 3)])
 async def test_decisions_soon_after_a_view_decide_on_it(reuse_s: float, views: int) -> None:
@@ -676,6 +680,38 @@ async def test_decisions_soon_after_a_view_decide_on_it(reuse_s: float, views: i
     summary = exploration.summary()
     assert summary["decisions_on_last_view"] == 3 - views and summary["decision_ms_p50"] is not None
     assert len(exploration.decision_ms) == views  # the decision time is that of decisions on a new view
+
+
+async def test_the_core_decides_off_the_event_loop_and_what_arrives_meanwhile_waits_for_it(monkeypatch) -> None:
+    """A leader's round took up to 2.9 s on a loaded machine, on the event loop: no heartbeat went out, and its
+    peers took it for lost (hall, 5 drones, 2 cores). The core decides in the decision thread now; it is not
+    thread-safe, so an assignment heard meanwhile is handed to it once it has decided, and the flight waits."""
+    exploration = _exploration([], **{"explore.view_reuse_s": 0.0})
+    exploration.mapping = _CountingViews()  # type: ignore[assignment]
+    exploration.bus = SimpleNamespace(keys=SimpleNamespace(agent_id_of=lambda key: 1))  # type: ignore[assignment]
+    calls: list[str] = []
+    deciding, release = threading.Event(), threading.Event()
+
+    def slow_decide(now: float, situation: Any) -> Effects:
+        calls.append("decide on the loop" if threading.current_thread() is threading.main_thread() else "decide")
+        deciding.set()
+        release.wait(timeout=10.0)
+        return Effects()
+
+    monkeypatch.setattr(exploration.core, "decide", slow_decide)
+    monkeypatch.setattr(exploration.core, "on_assignment", lambda *args: calls.append("assignment") or Effects())
+    decision = asyncio.create_task(exploration.decide())
+    assert await asyncio.to_thread(deciding.wait, 10.0)
+    exploration._on_assignment("swarm/default/targets/1", NOTHING_FOR_2)  # the event loop runs: this test does
+    flight_waits = asyncio.create_task(exploration._core_ready())
+    await asyncio.sleep(0)
+    assert calls == ["decide"] and not flight_waits.done()
+    release.set()
+    await asyncio.wait_for(decision, timeout=10.0)
+    await asyncio.wait_for(flight_waits, timeout=10.0)
+    assert calls == ["decide", "assignment"]
+    exploration._on_assignment("swarm/default/targets/1", NOTHING_FOR_2)  # not deciding: at once
+    assert calls == ["decide", "assignment", "assignment"]
 
 
 class _HomewardFlight:
