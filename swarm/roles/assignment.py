@@ -45,17 +45,17 @@ class Candidate:
             raise ValueError(f"candidate gain must be finite and >= 0, got {self.gain}")
 
 
-def _order_key(c: Candidate) -> tuple[float, int, tuple[float, ...], tuple[float, ...]]:
+def order_key(c: Candidate) -> tuple[float, int, tuple[float, ...], tuple[float, ...]]:
     """Highest gain first; the rest only makes equal gains come out in the same order on every leader."""
     return (-c.gain, c.owner, tuple(c.viewpoint), tuple(c.point))
 
 
-def _array(vectors: Sequence[Vec3] | np.ndarray) -> npt.NDArray[np.float64]:
+def as_vectors(vectors: Sequence[Vec3] | np.ndarray) -> npt.NDArray[np.float64]:
     """(N, 3) floats, also for an empty input, so the vectorised code needs no special cases."""
     return np.asarray(vectors, dtype=float).reshape(-1, 3)
 
 
-def _pairwise(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def pairwise_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(N_a, N_b) Euclidean distances."""
     distances: np.ndarray = np.linalg.norm(a[:, None, :] - b[None, :, :], axis=2)
     return distances
@@ -89,7 +89,7 @@ def schedule_gain(gain: np.ndarray, points: np.ndarray, assigned: Vec3, sigma: f
     zero there and recovers with distance; that is what spreads the members out."""
     if not sigma > 0.0:
         raise ValueError(f"sigma must be > 0, got {sigma}")
-    sq = np.sum((_array(points) - np.asarray(assigned, dtype=float)) ** 2, axis=1)
+    sq = np.sum((as_vectors(points) - np.asarray(assigned, dtype=float)) ** 2, axis=1)
     scheduled: np.ndarray = np.asarray(gain, dtype=float) * -np.expm1(-sq / (2.0 * sigma * sigma))
     return scheduled
 
@@ -108,7 +108,7 @@ def _suppress_duplicates(ordered: Sequence[Candidate], radius: float) -> list[Ca
     radius. Only kept candidates suppress, so a chain of near neighbours does not wipe out its far end."""
     if not ordered:
         return []
-    views = _array([c.viewpoint for c in ordered])
+    views = as_vectors([c.viewpoint for c in ordered])
     neighbours = cKDTree(views).query_ball_point(views, radius * (1 + 1e-12) + 1e-12)
     kept = np.zeros(len(ordered), dtype=bool)
     for i, close in enumerate(neighbours):
@@ -134,14 +134,14 @@ def merge_candidates(
     (3) near-duplicates: of candidates whose viewpoints are within merge_radius, the highest gain is kept, since
         two members at the same frontier report it twice.
     Sorted by gain desc, then owner, then coordinates, so every leader produces the same list."""
-    pool = sorted([*own, *(c for k in sorted(received) for c in received[k])], key=_order_key)
+    pool = sorted([*own, *(c for k in sorted(received) for c in received[k])], key=order_key)
     if not pool:
         return []
     keep = np.ones(len(pool), dtype=bool)
     if gain_now is not None:
-        now = np.asarray(gain_now(_array([c.point for c in pool])), dtype=float).reshape(len(pool))
+        now = np.asarray(gain_now(as_vectors([c.point for c in pool])), dtype=float).reshape(len(pool))
         keep &= now >= min_gain  # NaN compares False: a gain the map cannot compute is not a target
-    keep &= ~_near_any(_array([c.viewpoint for c in pool]), _array(exhausted), exhausted_radius)
+    keep &= ~_near_any(as_vectors([c.viewpoint for c in pool]), as_vectors(exhausted), exhausted_radius)
     return _suppress_duplicates([c for c, k in zip(pool, keep) if k], merge_radius)
 
 
@@ -164,7 +164,7 @@ def overlapped(points_a: np.ndarray, points_b: np.ndarray, eps: float = 0.5) -> 
     overlapped when one is within eps in x too (on the outline), or when some lie more than eps to p's left in x and
     some more than eps to its right (inside it). Assumes no obstacles inside b's region. Note the first branch also
     removes a frontier point that a and b share."""
-    a, b = _array(points_a), _array(points_b)
+    a, b = as_vectors(points_a), as_vectors(points_b)
     out = np.zeros(len(a), dtype=bool)
     if len(b) == 0:
         return out
@@ -177,7 +177,7 @@ def remove_overlapped(sets: Mapping[int, Sequence[Candidate]], eps: float = 0.5)
     """Alg. 3.2 for n_c >= 2 without maps: the union of all sets minus, for each ordered pair (a, b), a != b,
     a's candidates whose frontier points b's frontier points overlap (the union over pairs is our reading
     of the thesis's intersection for more than two drones). Sorted as `merge_candidates`."""
-    points = {k: _array([c.point for c in cands]) for k, cands in sets.items()}
+    points = {k: as_vectors([c.point for c in cands]) for k, cands in sets.items()}
     kept: list[Candidate] = []
     for a in sorted(sets):
         hit = np.zeros(len(points[a]), dtype=bool)
@@ -185,7 +185,7 @@ def remove_overlapped(sets: Mapping[int, Sequence[Candidate]], eps: float = 0.5)
             if b != a:
                 hit |= overlapped(points[a], points[b], eps)
         kept.extend(c for c, h in zip(sets[a], hit) if not h)
-    return sorted(kept, key=_order_key)
+    return sorted(kept, key=order_key)
 
 
 def _bonus(
@@ -201,11 +201,11 @@ def _bonus(
     candidate appears; preferring own frontiers keeps a drone's direction (thesis 3.7)."""
     factor = np.where(owners == member, own_bonus, 1.0)
     if current is not None:
-        factor = factor * np.where(_within(views, current, keep_radius), current_bonus, 1.0)
+        factor = factor * np.where(within_radius(views, current, keep_radius), current_bonus, 1.0)
     return factor
 
 
-def _within(views: np.ndarray, point: Vec3, radius: float) -> np.ndarray:
+def within_radius(views: np.ndarray, point: Vec3, radius: float) -> np.ndarray:
     within: np.ndarray = np.linalg.norm(views - np.asarray(point, dtype=float), axis=1) <= radius
     return within
 
@@ -219,7 +219,7 @@ def blocked_for(
     """(members, views) True where a viewpoint lies within `radius` of one the member could not plan a path to:
     never that member's target (`assign_targets`, `swarm.roles.tours.assign_tours`)."""
     return np.array(
-        [_near_any(views, _array((unreachable or {}).get(m, [])), radius) for m in members], dtype=bool
+        [_near_any(views, as_vectors((unreachable or {}).get(m, [])), radius) for m in members], dtype=bool
     ).reshape(len(members), len(views))
 
 
@@ -240,7 +240,7 @@ def _left_to_passing(
     current-target bonus decides that), nor is a candidate left to a member that cannot reach it. Equal speeds
     are assumed: a way in metres is a time."""
     out = np.zeros(dist.shape, dtype=bool)
-    own = [_within(views, vec3(target), keep_radius) for target in heading]  # each busy member's current target
+    own = [within_radius(views, vec3(target), keep_radius) for target in heading]  # each busy member's current target
     for b, row in enumerate(rows):
         eligible = allowed[row] & ~own[b]
         if not eligible.any():
@@ -267,7 +267,7 @@ def assign_targets(
     unreachable: Mapping[int, Sequence[Vec3] | np.ndarray] | None = None,
     unreachable_radius: float = 1.0,
     min_gain: float = 0.0,
-    distances: Callable[[np.ndarray, np.ndarray], np.ndarray] = _pairwise,
+    distances: Callable[[np.ndarray, np.ndarray], np.ndarray] = pairwise_distances,
 ) -> dict[int, Candidate | None]:
     """Alg. 3.5 with the best pair first: while a member is without a target, the (member, candidate) pair of
     highest utility over every member still waiting and every unassigned candidate is assigned (the leader
@@ -295,15 +295,15 @@ def assign_targets(
     leader flew 30 m and 35 s to a 7 m^3 leftover 5 m from where another drone was heading)."""
     members = sorted(positions)
     result: dict[int, Candidate | None] = {m: None for m in members}
-    pool = sorted(candidates, key=_order_key)
+    pool = sorted(candidates, key=order_key)
     if not pool or not members:
         return result
-    views, points = _array([c.viewpoint for c in pool]), _array([c.point for c in pool])
+    views, points = as_vectors([c.viewpoint for c in pool]), as_vectors([c.point for c in pool])
     owners = np.array([c.owner for c in pool])
     busy = [(row, (current or {})[m]) for row, m in enumerate(members) if m in (current or {})]
-    heading = _array([target for _, target in busy])
+    heading = as_vectors([target for _, target in busy])
     # one search from the members' positions to the candidates and to the busy members' own targets
-    reach = np.asarray(distances(_array([positions[m] for m in members]), np.vstack([views, heading])), dtype=float)
+    reach = np.asarray(distances(as_vectors([positions[m] for m in members]), np.vstack([views, heading])), dtype=float)
     dist = reach[:, : len(pool)]  # (members, cands)
     factor = np.ones_like(dist)  # the bonuses: they do not change within the round
     allowed = ~blocked_for(members, views, unreachable, unreachable_radius)
@@ -312,7 +312,9 @@ def assign_targets(
         factor[row] = _bonus(member, views, owners, target, current_bonus, own_bonus, keep_radius)
         for other, theirs in (current or {}).items():
             if other != member and other in positions:  # another drone is on its way there: leave it to it
-                factor[row] = np.where(_within(views, theirs, keep_radius), factor[row] / current_bonus, factor[row])
+                factor[row] = np.where(
+                    within_radius(views, theirs, keep_radius), factor[row] / current_bonus, factor[row]
+                )
     if busy and len(members) > 1:
         left = reach[[row for row, _ in busy], len(pool) + np.arange(len(busy))]  # each busy member's way to go
         via = left[:, None] + np.asarray(distances(heading, views), dtype=float)  # (busy, cands)

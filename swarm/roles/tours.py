@@ -32,7 +32,7 @@ from collections.abc import Callable, Mapping, Sequence
 import numpy as np
 
 from swarm.config import Vec3
-from swarm.roles.assignment import Candidate, _array, _order_key, _pairwise, _within, blocked_for
+from swarm.roles.assignment import Candidate, as_vectors, blocked_for, order_key, pairwise_distances, within_radius
 
 TWO_OPT_PASSES = 8  # 2-opt passes over a tour at most: n numpy steps of O(n) each; most tours settle in 2-3
 
@@ -47,7 +47,7 @@ def assign_tours(
     unreachable: Mapping[int, Sequence[Vec3] | np.ndarray] | None = None,
     unreachable_radius: float = 1.0,
     min_gain: float = 0.0,
-    distances: Callable[[np.ndarray, np.ndarray], np.ndarray] = _pairwise,
+    distances: Callable[[np.ndarray, np.ndarray], np.ndarray] = pairwise_distances,
     between: Callable[[np.ndarray], np.ndarray] | None = None,
     homes: Mapping[int, Vec3] | None = None,
 ) -> dict[int, Candidate | None]:
@@ -58,24 +58,26 @@ def assign_tours(
     `unreachable_radius` of a viewpoint it could not plan a path to; candidates under `min_gain` are nobody's."""
     members = sorted(positions)
     result: dict[int, Candidate | None] = {m: None for m in members}
-    pool = sorted((c for c in candidates if c.gain >= min_gain), key=_order_key)
+    pool = sorted((c for c in candidates if c.gain >= min_gain), key=order_key)
     if not pool or not members:
         return result
-    views = _array([c.viewpoint for c in pool])
-    reach = np.asarray(distances(_array([positions[m] for m in members]), views), dtype=float).reshape(len(members), -1)
+    views = as_vectors([c.viewpoint for c in pool])
+    reach = np.asarray(distances(as_vectors([positions[m] for m in members]), views), dtype=float).reshape(
+        len(members), -1
+    )
     reach[blocked_for(members, views, unreachable, unreachable_radius)] = np.inf
     heading = [None if current is None else current.get(m) for m in members]
     to_home = _ways_home(members, homes or {}, views, distances)
     claim = reach + np.maximum(_detours(members, positions, homes or {}, to_home, len(pool), distances), 0.0)
     for row, target in enumerate(heading):
         if target is not None:
-            mine = _within(views, target, keep_radius)
+            mine = within_radius(views, target, keep_radius)
             claim[row, mine] /= current_bonus
     reachable = np.isfinite(claim).any(axis=0)
     if not reachable.any():
         return result
     owner = np.where(reachable, np.argmin(np.where(np.isfinite(claim), claim, np.inf), axis=0), -1)
-    among = np.asarray(between(views) if between is not None else _pairwise(views, views), dtype=float)
+    among = np.asarray(between(views) if between is not None else pairwise_distances(views, views), dtype=float)
     among = np.minimum(among, among.T)  # the way there and back is one way: take the shorter estimate
     tours = {
         row: _tour(
@@ -105,7 +107,7 @@ def _ways_home(
     rows = [row for row, m in enumerate(members) if m in homes]
     if not rows:
         return {}
-    ways = np.asarray(distances(_array([homes[members[row]] for row in rows]), views), dtype=float)
+    ways = np.asarray(distances(as_vectors([homes[members[row]] for row in rows]), views), dtype=float)
     return {row: ways.reshape(len(rows), -1)[i] for i, row in enumerate(rows)}
 
 
@@ -121,7 +123,7 @@ def _detours(
     the member's way home from where it is now (0 for a member without a home)."""
     out = np.zeros((len(members), candidates))
     for row, way_on in to_home.items():
-        direct = distances(_array([positions[members[row]]]), _array([homes[members[row]]]))
+        direct = distances(as_vectors([positions[members[row]]]), as_vectors([homes[members[row]]]))
         out[row] = way_on - float(np.asarray(direct, dtype=float).reshape(-1)[0])
     return out
 
@@ -129,7 +131,7 @@ def _detours(
 def _current_index(views: np.ndarray, target: Vec3 | None, keep_radius: float) -> int | None:
     if target is None:
         return None
-    near = np.flatnonzero(_within(views, target, keep_radius))
+    near = np.flatnonzero(within_radius(views, target, keep_radius))
     return None if len(near) == 0 else int(near[np.argmin(np.linalg.norm(views[near] - np.asarray(target), axis=1))])
 
 
