@@ -92,9 +92,11 @@ class Exploration:
         self.decision_ms: list[float] = []  # decisions on a new view (`view_reuse_s`)
         self._view: tuple[float, list[Frontier]] | None = None  # when the last view was taken, its frontiers
         self.views_reused = 0  # decisions made on the last view (taken under `view_reuse_s` before)
-        # The core decides in the decision thread, not on the event loop (a leader's round took up to 2.9 s on a
-        # loaded machine, and its peers, hearing no heartbeat for 3 s, took it for lost). The core is not
-        # thread-safe: while it decides, inputs from the bus wait in `_deferred`, and the flight waits
+        # The core decides in a worker thread, not on the event loop (a leader's round took up to 2.9 s on a
+        # loaded machine, and its peers, hearing no heartbeat for 3 s, took it for lost); not in the decision
+        # thread either, which is nicer than the process: what it runs holds the GIL in long C calls (Dijkstra),
+        # and the event loop would wait for it while the scheduler keeps the nicer thread off the cores. The core
+        # is not thread-safe: while it decides, inputs from the bus wait in `_deferred`, and the flight waits
         # (`_core_ready`) before it tells the core anything.
         self._deciding = False
         self._core_free = asyncio.Event()
@@ -206,7 +208,7 @@ class Exploration:
         self._deciding = True
         self._core_free.clear()
         try:
-            effects = await self.mapping.in_decision_thread(self._core_decides, time.monotonic(), situation)
+            effects = await asyncio.to_thread(self._core_decides, time.monotonic(), situation)
         finally:
             self._deciding = False
             self._core_free.set()

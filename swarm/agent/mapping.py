@@ -38,7 +38,7 @@ import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
 import numpy as np
 import psutil
@@ -58,8 +58,6 @@ from swarm.patches.signing import Signing
 from swarm.patches.wire import PatchDecodeError
 from swarm.sensing.peers import PeerSighting, mask_peers
 from swarm.stages import NO_CLOCK, StageClock
-
-T = TypeVar("T")
 
 SealedCallback = Callable[[PatchId, bytes], None]
 STREAM_WAIT_S = 0.2  # a stream source is polled this often for the stop event when no frame comes
@@ -325,10 +323,6 @@ class MappingTask:
         snapshot = await loop.run_in_executor(self._worker, self._occupancy)
         view = self._explore_view
         return await loop.run_in_executor(self._decider, view, snapshot, floor_z, top_z, position, obstacles)
-
-    async def in_decision_thread(self, call: Callable[..., T], *args: Any) -> T:
-        """`call(*args)` in the decision thread (after any view in progress there), off the event loop."""
-        return await asyncio.get_running_loop().run_in_executor(self._decider, call, *args)
 
     def _occupancy(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """(origin, planning-grid states, occupied voxels or None) of the map now: copies the caller owns."""

@@ -662,9 +662,6 @@ class _CountingViews:
         self.views += 1
         return self.grid, self.grid.frontiers(position)
 
-    async def in_decision_thread(self, call: Any, *args: Any) -> Any:
-        return await asyncio.to_thread(call, *args)
-
 
 @pytest.mark.parametrize("reuse_s, views", [(600.0, 1), (0.0, 3)])
 async def test_decisions_soon_after_a_view_decide_on_it(reuse_s: float, views: int) -> None:
