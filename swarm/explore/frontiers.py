@@ -618,7 +618,51 @@ def _blocked(states: np.ndarray, occupied_fine: np.ndarray | None, *radii_cells:
     marked = occupied & ~_coarsen(occupied_fine, f)
     if marked.any():
         occupied_fine = occupied_fine | marked.repeat(f, 0).repeat(f, 1).repeat(f, 2)
-    return [_coarsen(fine, f) for fine in _inflate_all(occupied_fine, tuple(r * f for r in radii_cells))]
+    return _inflate_all_coarsened(occupied_fine, tuple(r * f for r in radii_cells), f)
+
+
+def _inflate_all_coarsened(occupied: np.ndarray, radii_cells: Sequence[float], f: int) -> list[np.ndarray]:
+    """`[_coarsen(m, f) for m in _inflate_all(occupied, radii_cells)]` (each axis a multiple of f) without the
+    fine masks: a coarse column ORs the dilation at its f x f fine columns, which is one dilation by the
+    structuring element grown by those offsets, taken at every f-th column only (`_coarse_heights`): the ORs run
+    over f^2 fewer words (the hall's fine grid at 0.1 m, two radii: 74 -> 36 ms on an idle core, the same masks)."""
+    nx, ny, nz = occupied.shape
+    if nz > _BITS or not occupied.any():
+        return [_coarsen(m, f) for m in _inflate_all(occupied, radii_cells)]
+    column = _pack_columns(occupied)
+    top = np.uint64((1 << nz) - 1) if nz < _BITS else np.uint64(np.iinfo(np.uint64).max)
+    cx, cy = nx // f, ny // f
+    out = []
+    for radius_cells in radii_cells:
+        if radius_cells <= 0:
+            out.append(_coarsen(occupied, f))
+            continue
+        heights = _coarse_heights(radius_cells, f)
+        pad = max(max(abs(ex), abs(ey)) for ex, ey in heights)
+        runs = {h: np.pad(_run_bits(column, h) & top, pad) for h in set(heights.values())}
+        grown = np.zeros((cx, cy), dtype=np.uint64)
+        for (ex, ey), h in heights.items():  # coarse column X takes fine column f*X + e (zero beyond the grid)
+            grown |= runs[h][pad + ex : pad + ex + f * cx : f, pad + ey : pad + ey + f * cy : f]
+        fine_z = _unpack_columns(grown, nz)
+        coarse = fine_z[:, :, 0::f].copy()
+        for i in range(1, f):
+            coarse |= fine_z[:, :, i::f]
+        out.append(coarse)
+    return out
+
+
+@lru_cache(maxsize=16)
+def _coarse_heights(radius_cells: float, f: int) -> dict[tuple[int, int], int]:
+    """`_column_heights` grown by the f x f columns of a coarse cell: coarse column X, Y of the dilation coarsened
+    by f is the OR of fine columns f*X + a - dx, f*Y + b - dy (a, b < f; dx, dy of the element), each dilated
+    along z by the element's half-height there; per offset the largest half-height counts (runs only grow)."""
+    grown: dict[tuple[int, int], int] = {}
+    for (dx, dy), h in _column_heights(radius_cells).items():
+        for a in range(f):
+            for b in range(f):
+                key = (a - dx, b - dy)
+                grown[key] = max(grown.get(key, 0), h)
+    return grown
 
 
 def _coarsen(mask: np.ndarray, f: int) -> np.ndarray:
@@ -713,9 +757,16 @@ def _column_heights(radius_cells: float) -> dict[tuple[int, int], int]:
 
 def _pack_columns(mask: np.ndarray) -> np.ndarray:
     """(nx, ny, nz <= 64) bool -> (nx, ny) uint64, bit k set where mask[..., k]."""
-    packed = np.packbits(mask, axis=2, bitorder="little")
-    words = np.zeros(mask.shape[:2] + (8,), dtype=np.uint8)
-    words[:, :, : packed.shape[2]] = packed
+    nx, ny, nz = mask.shape
+    nbytes = -(-nz // 8)
+    if nz % 8:  # whole bytes per column, so that the packing runs over one flat array (3x faster than by axis)
+        whole = np.zeros((nx, ny, nbytes * 8), dtype=bool)
+        whole[:, :, :nz] = mask
+    else:
+        whole = np.ascontiguousarray(mask, dtype=bool)
+    packed = np.packbits(whole.reshape(-1), bitorder="little").reshape(nx, ny, nbytes)
+    words = np.zeros((nx, ny, 8), dtype=np.uint8)
+    words[:, :, :nbytes] = packed
     return words.view("<u8")[:, :, 0]
 
 

@@ -630,6 +630,25 @@ def test_inflation_matches_a_brute_force_dilation(shape: tuple[int, int, int]) -
     assert np.array_equal(_inflate(occupied, 0.5), ndimage.binary_dilation(occupied, structure=np.ones((3, 3, 3))))
 
 
+@pytest.mark.parametrize(("f", "shape"), [(2, (24, 18, 44)), (3, (27, 21, 63)), (1, (9, 7, 17)), (2, (10, 8, 70))])
+def test_inflation_taken_at_coarse_columns_is_the_fine_inflation_coarsened(f: int, shape: tuple[int, int, int]) -> None:
+    """The planning grid's clearance from the 0.1 m voxels (`_blocked`) dilates at the coarse columns only; it must
+    be the fine dilation coarsened, cell for cell, at the grid's edges too (and where it falls back: columns taller
+    than 64 cells)."""
+    from swarm.explore.frontiers import _coarsen, _inflate_all, _inflate_all_coarsened, _pack_columns
+
+    occupied = np.random.default_rng(5).random(shape) < 0.02
+    occupied[0, :, 3] = occupied[-1, 2, :] = True  # obstacles on the grid's faces
+    radii = (1.25 * f, 2.25 * f, 0.0)
+    expected = [_coarsen(m, f) for m in _inflate_all(occupied, radii)]
+    got = _inflate_all_coarsened(occupied, radii, f)
+    assert len(got) == 3 and all(np.array_equal(g, e) for g, e in zip(got, expected))
+    if shape[2] <= 64:  # the packing: bit k of a column's word is its cell k
+        words = _pack_columns(occupied)
+        bits = (words[:, :, None] >> np.arange(shape[2], dtype=np.uint64)) & np.uint64(1)
+        assert np.array_equal(bits.astype(bool), occupied)
+
+
 @pytest.mark.parametrize("f", [1, 2, 3])
 def test_coarsening_keeps_a_cell_with_any_fine_cell_set(f: int) -> None:
     from swarm.explore.frontiers import _coarsen
