@@ -46,7 +46,7 @@ that plan through known free space only. The input is the coarse state grid of t
   cell (a viewpoint on the far side of a thin wall sees nothing); otherwise the nearest reachable cell within
   `reach_m` that has that line of sight; none, and the group is dropped.
 
-Everything is array work (shifted ORs, `ndimage.label`, summed-volume tables, gathers at offsets sorted by
+Everything is array work (shifted ORs, connected components, summed-volume tables, gathers at offsets sorted by
 distance): scipy's exact distance transform alone costs more than the whole budget on a warehouse-sized grid.
 """
 
@@ -58,6 +58,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property, lru_cache
 
+import cc3d
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy import ndimage
@@ -74,7 +75,6 @@ ESCAPE_RADIUS_M = 3.0  # how far a drone in a pocket looks for the open space it
 _ESCAPE_TRIES = 4096  # nearest open cells tried for a straight, known-free way out
 _LINE_OF_SIGHT_STEP = 0.25  # line of sight is sampled every quarter cell: a wall a cell thick is never skipped
 _EPS = 1e-9
-_CONNECT_26 = np.ones((3, 3, 3), dtype=bool)
 _BITS = 64
 VIEW_RAY_SPACING_DEG = 6.0  # the view gain's rays: 195 for a 90 x 74 degree camera, enough to rank candidates
 _VIEW_CHUNK = 16  # candidates ray-cast at once: bounds the temporaries at ~16 x 200 x 40 samples
@@ -477,7 +477,7 @@ class ExplorationGrid:
     def _labels(self) -> np.ndarray:
         """26-connected components of the safe cells, over the flight band's layers only (nothing else is safe)."""
         k0, k1 = self._band
-        labels, _ = ndimage.label(~self.planning_grid.occupied[:, :, k0:k1], structure=_CONNECT_26)
+        labels = _label_26(~self.planning_grid.occupied[:, :, k0:k1])
         return labels
 
     @cached_property
@@ -515,7 +515,7 @@ class ExplorationGrid:
         lo, hi = cells.min(axis=0), cells.max(axis=0) + 1
         crop = np.zeros(tuple(hi - lo), dtype=bool)  # labelling only the frontier's bounding box is cheaper
         crop[tuple((cells - lo).T)] = True
-        labels, _ = ndimage.label(crop, structure=_CONNECT_26)
+        labels = _label_26(crop)
         component = labels[tuple((cells - lo).T)].astype(np.int64)
         bins = np.floor((cells + 0.5) * self.resolution / self.settings.cluster_size_m + _EPS).astype(np.int64)
         key = component
@@ -572,15 +572,24 @@ def _ray_offsets(view: ViewModel, resolution: float, strides: tuple[int, int, in
     return offsets
 
 
+def _label_26(mask: np.ndarray) -> np.ndarray:
+    """The 26-connected components of `mask`, numbered from 1 in raster order (0 elsewhere): `ndimage.label` with
+    a 3x3x3 structure, label for label, from cc3d, 5-6 times faster (the hall's grid: 12.4 -> 2.1 ms). A view
+    labels three masks: the unknown space (specks), the safe cells, and the frontier cells."""
+    labels: np.ndarray = cc3d.connected_components(mask, connectivity=26)
+    return labels
+
+
 def _without_specks(unknown: np.ndarray, min_cells: int) -> np.ndarray:
     """`unknown` minus its 26-connected components of fewer than `min_cells` cells: specks of space the camera
     grazed but never quite covered, inside known space, which would keep a mission alive for nothing."""
     if min_cells <= 1 or not unknown.any():
         return unknown
-    labels, _ = ndimage.label(unknown, structure=_CONNECT_26)
+    labels = _label_26(unknown)
     small = np.bincount(labels.ravel()) < min_cells
     small[0] = False
-    return unknown & ~small[labels]
+    kept: np.ndarray = unknown & ~small[labels]
+    return kept
 
 
 def _mark_free(

@@ -649,6 +649,20 @@ def test_inflation_taken_at_coarse_columns_is_the_fine_inflation_coarsened(f: in
         assert np.array_equal(bits.astype(bool), occupied)
 
 
+@pytest.mark.parametrize(("shape", "density"), [((30, 20, 12), 0.3), ((9, 40, 7), 0.6), ((5, 5, 5), 0.0)])
+def test_components_are_scipys_26_connected_labels_number_for_number(
+    shape: tuple[int, int, int], density: float
+) -> None:
+    """The grid's labels come from cc3d (5-6x faster): the same components, numbered in the same order, as
+    `ndimage.label` with a 3x3x3 structure, on a slice of a grid too (the flight band's layers)."""
+    from swarm.explore.frontiers import _label_26
+
+    mask = np.random.default_rng(6).random(shape) < density
+    expected, _ = ndimage.label(mask, structure=np.ones((3, 3, 3), dtype=bool))
+    assert np.array_equal(_label_26(mask), expected)
+    assert np.array_equal(_label_26(mask[:, :, 1:-1]), ndimage.label(mask[:, :, 1:-1], structure=np.ones((3,) * 3))[0])
+
+
 @pytest.mark.parametrize("f", [1, 2, 3])
 def test_coarsening_keeps_a_cell_with_any_fine_cell_set(f: int) -> None:
     from swarm.explore.frontiers import _coarsen
