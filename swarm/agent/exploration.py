@@ -543,7 +543,7 @@ def should_head_home(idle_s: float, left_out: bool, rounds: int, idle_home_s: fl
 
     Time alone is not enough: on a loaded machine a round can take longer than `idle_home_s` (hall, 5 drones, 2
     cores: 8-10 s at the median), and drones waiting for their next target flew home and back, the leader itself
-    four times in two minutes with 100 candidates left."""
+    four times in two minutes with 60-180 candidates left."""
     if left_out:
         return True
     if idle_s >= IDLE_WITHOUT_ROUNDS * idle_home_s:

@@ -554,7 +554,7 @@ def test_an_idle_drone_heads_home_when_decisions_found_nothing_for_it_not_when_t
     idle_s: float, left_out: bool, rounds: int, heads_home: bool
 ) -> None:
     """Hall, 5 drones, 2 cores: decisions took 8-10 s at the median, and on `idle_home_s` (6 s) alone drones
-    between two targets flew home and back, the leader four times in two minutes with 100 candidates left."""
+    between two targets flew home and back, the leader four times in two minutes with 60-180 candidates left."""
     assert should_head_home(idle_s, left_out, rounds, idle_home_s=6.0) is heads_home
 
 
