@@ -135,8 +135,8 @@ class Exploration:
         self._to_core(lambda: self.core.on_assignment(time.monotonic(), sender, assignment, self.peers.leader))
 
     def _to_core(self, call: Callable[[], Effects]) -> None:
-        """Give the core an input now, or, while it decides in the decision thread, as soon as it has decided
-        (in order of arrival; the time and leader it is given are those of then)."""
+        """Give the core an input now, or, while it decides in its worker thread, as soon as it has decided (in
+        order of arrival; the time and leader it is given are those of then)."""
         if self._deciding:
             self._deferred.append(call)
         else:
@@ -288,6 +288,7 @@ class Exploration:
                 # cone above it, is one): waiting there would wait for ever.
                 if self.grid is not None and await self._out_of_pocket(flight, stop):
                     continue
+                await self._core_ready()  # its rounds are counted by the core, which may be deciding
                 idle = should_head_home(
                     time.monotonic() - idle_since,
                     self._left_out_since(idle_since),

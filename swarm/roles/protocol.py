@@ -261,7 +261,7 @@ class ExplorationCore:
     def rounds_since(self, t: float) -> int:
         """Decisions for this drone since `t` (up to ROUNDS_KEPT): its leader's rounds heard, and its own as
         leader, on its own, or as an explorer whose leader went quiet."""
-        return sum(1 for at in self._rounds if at >= t)
+        return sum(1 for at in list(self._rounds) if at >= t)  # a copy: list() takes it without a thread switch
 
     # -- messages in ------------------------------------------------------------------------------------------
 
