@@ -30,7 +30,7 @@ from typing import Any
 import mavsdk
 from mavsdk.asyncio import ComponentType, Configuration, Mavsdk, MavsdkConnectionError
 from mavsdk.asyncio.plugins.action import ActionAsync, ActionError
-from mavsdk.asyncio.plugins.offboard import OffboardAsync, OffboardError
+from mavsdk.asyncio.plugins.offboard import OffboardAsync, OffboardError, OffboardResult
 from mavsdk.asyncio.plugins.param import ParamAsync, ParamError
 from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 from mavsdk.plugins.offboard import PositionNedYaw
@@ -42,6 +42,7 @@ from swarm.geo import enu_to_ned, geo_to_world, ned_to_enu, yaw_enu_to_ned_deg, 
 _logs_silenced = False
 CALL_SLICE_S = 0.25  # a MAVSDK call's timeout is counted in slices of this (`Autopilot._call`)
 OFFBOARD_MODE_SETTLE_S = 2.0  # after entering offboard, the reported mode may lag this long
+OFFBOARD_START_ATTEMPTS = 3  # starts of offboard refused for a setpoint MAVSDK dropped meanwhile (`start_offboard`)
 
 
 def silence_mavsdk_logs() -> None:
@@ -242,7 +243,7 @@ class Autopilot:
         if self.offboard_active and self._dropped_out_of_offboard():
             self.offboard_active = False  # setpoints stopped for a while (this process was frozen): enter again
         if not self.offboard_active:
-            await self._call("offboard start", self._offboard.start)
+            await self._call("offboard start", lambda: start_offboard(offboard, setpoint))
             self.offboard_active = True
             self._offboard_started = time.monotonic()
 
@@ -372,6 +373,24 @@ class Autopilot:
             self._sdk.destroy()
             self._sdk = None
         return True
+
+
+async def start_offboard(
+    offboard: OffboardAsync, setpoint: PositionNedYaw, attempts: int = OFFBOARD_START_ATTEMPTS
+) -> None:
+    """Enter offboard mode with `setpoint` set. MAVSDK drops the setpoint it streams when a heartbeat shows the
+    vehicle out of offboard more than 3 s after the last start (`OffboardImpl::process_heartbeat`), and `start`
+    then fails with NO_SETPOINT_SET. A heartbeat between our setpoint and our start does that whenever the
+    vehicle is in HOLD, as after this process was frozen (PX4's offboard loss): the drone landed instead of
+    resuming. So such a start sets the setpoint again and starts again; any other refusal is raised."""
+    for attempt in range(1, attempts + 1):
+        try:
+            await offboard.start()
+            return
+        except OffboardError as exc:
+            if exc.result != OffboardResult.NO_SETPOINT_SET or attempt == attempts:
+                raise
+        await offboard.set_position_ned(setpoint)
 
 
 async def _consume(stream: AsyncIterator[Any], handler: Callable[[Any], None]) -> None:
