@@ -70,8 +70,9 @@ def test_a_restarted_agent_rejoins_with_a_new_epoch_and_a_frozen_one_catches_up(
         "the restarted agent does not hold the swarm's whole map"
     )
 
+    # the freeze is seen as a stall of about 10 s (a loaded machine may log a short one before it, at take-off)
     stalls = [e for e in log_events(out / "logs" / "agent-3.log") if e["event"] == "stalled"]
-    assert stalls and stalls[0]["seconds"] >= 9.0, stalls
+    assert any(e["seconds"] >= 9.0 for e in stalls), stalls
     summary_3 = read_summary(out, 3)
     assert summary_3 is not None and held_patch_ids(summary_3) == sealed
     assert report["converged"] is True
