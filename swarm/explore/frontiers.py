@@ -77,6 +77,7 @@ _LINE_OF_SIGHT_STEP = 0.25  # line of sight is sampled every quarter cell: a wal
 _EPS = 1e-9
 _BITS = 64
 VIEW_RAY_SPACING_DEG = 6.0  # the view gain's rays: 195 for a 90 x 74 degree camera, enough to rank candidates
+_DIRECTION_CHUNK = 64  # points whose gain cubes (11^3 cells by default) are gathered at once
 _VIEW_CHUNK = 16  # candidates ray-cast at once: bounds the temporaries at ~16 x 200 x 40 samples
 YAW_BINS = 360  # the view gain turns the camera to the nearest whole degree (its ray offsets are cached per degree)
 LOOK_YAWS = 8  # headings tried for a frontier looked at from its own cell with its unknown straight up or down
@@ -329,15 +330,25 @@ class ExplorationGrid:
         return best
 
     def _unknown_direction(self, points: np.ndarray) -> np.ndarray:
-        """(N, 3) from each point to the middle of the open unknown cells in its gain cube (0 where none)."""
+        """(N, 3) from each point to the middle of the open unknown cells in its gain cube (0 where none): the mean
+        offset of those cells from the point's cell, gathered for every point at once from the unknown cells padded
+        with the cube's half-width (outside the grid is not unknown)."""
         out = np.zeros((len(points), 3))
         half = round(self.settings.gain_radius_m / self.resolution)
-        shape = np.array(self._unknown.shape)
-        for row, cell in enumerate(np.floor((points - self.origin) / self.resolution).astype(np.int64)):
-            lo, hi = np.clip(cell - half, 0, shape), np.clip(cell + half + 1, 0, shape)
-            found = np.argwhere(self._unknown[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]])
-            if len(found):
-                out[row] = (found.mean(axis=0) + lo - cell) * self.resolution
+        offsets = _cube_offsets(half)
+        pad = 2 * half + 1
+        padded = np.pad(self._unknown, pad)
+        strides = np.array([padded.shape[1] * padded.shape[2], padded.shape[2], 1])
+        cells = np.floor((np.asarray(points, dtype=float).reshape(-1, 3) - self.origin) / self.resolution)
+        # a point whose cube misses the grid sees no unknown cell: it is moved to where its cube is all padding
+        cells = np.clip(cells, -half - 1, np.array(self._unknown.shape) + half).astype(np.int64)
+        base, flat_offsets, flat = (cells + pad) @ strides, offsets @ strides, padded.ravel()
+        for start in range(0, len(cells), _DIRECTION_CHUNK):
+            chunk = slice(start, start + _DIRECTION_CHUNK)
+            found = flat[base[chunk, None] + flat_offsets[None, :]]  # (C, cube cells)
+            counts = found.sum(axis=1)
+            sums = found.astype(np.float64) @ offsets
+            out[chunk] = np.where(counts[:, None] > 0, sums / np.maximum(counts, 1)[:, None], 0.0) * self.resolution
         return out
 
     def viewpoint_for(

@@ -131,3 +131,57 @@ def test_between_storeys_the_drone_on_the_goals_storey_ranks_first_though_the_ot
     d = graph.distances(np.array([upstairs, downstairs]), goal, limit_m=5.0)
     assert d[1, 0] < d[0, 0]
     assert d[0, 0] > 20.0 and d[1, 0] == pytest.approx(11.0, rel=0.1)
+
+
+def _random_safe(seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    safe = rng.random((24, 18, 8)) < 0.035  # a quarter of the coarse cells passable: many components
+    safe[:, 8:10, :] = False  # and a wall of whole coarse cells across the grid
+    return safe
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_components_are_the_graphs_own(seed: int) -> None:
+    """The components come from the coarse cells (cc3d), not from the graph: the same partition of the nodes."""
+    from scipy.sparse.csgraph import connected_components
+
+    graph = TravelGraph(_random_safe(seed), np.zeros(3), RES)
+    _, expected = connected_components(graph._graph, directed=False)
+    ours = graph._component
+    assert len(ours) == graph.nodes
+    pairs = set(zip(ours.tolist(), expected.tolist()))
+    assert len(pairs) == len(set(ours.tolist())) == len(set(expected.tolist()))  # one-to-one: the same partition
+    assert len(pairs) > 1
+
+
+def test_a_search_asked_again_is_kept_and_gives_what_a_fresh_graph_gives(monkeypatch: pytest.MonkeyPatch) -> None:
+    import swarm.explore.travel as travel
+
+    safe = _random_safe(3)
+    searched: list[int] = []
+    real = travel.dijkstra
+
+    def counting(*args: object, **kwargs: object) -> np.ndarray:
+        searched.append(len(kwargs["indices"]))  # type: ignore[arg-type]
+        return real(*args, **kwargs)  # type: ignore[no-any-return]
+
+    monkeypatch.setattr(travel, "dijkstra", counting)
+    graph = TravelGraph(safe, np.zeros(3), RES)
+    nodes = np.flatnonzero(graph._coarse.ravel())
+    cells = np.argwhere(graph._coarse)
+    points = (cells[:: max(1, len(cells) // 9)][:9] + 0.5) * graph.cell
+    first = graph.distances(points[:4], points, limit_m=1.5)
+    assert sum(searched) > 0
+    searched.clear()
+    again = graph.distances(points[:4], points, limit_m=1.5)
+    assert searched == []  # every row kept
+    assert np.array_equal(first, again)
+    fresh = TravelGraph(safe, np.zeros(3), RES).distances(points[:4], points, limit_m=1.5)
+    assert np.array_equal(first, fresh)
+    # another limit is another search; rows are kept up to ROWS_KEPT, the most recently used
+    graph.distances(points[:2], points, limit_m=3.0)
+    assert searched
+    for start in points:
+        graph.distances(start[None, :], points[:1])
+    assert len(graph._rows) <= travel.ROWS_KEPT
+    assert len(nodes) == graph.nodes

@@ -144,3 +144,27 @@ def test_a_view_out_of_the_grid_sees_nothing_beyond_its_edge() -> None:
     outwards, inwards = grid.view_gain(np.array([eye, eye]), np.array([(2.9, -1.0, 1.5), (2.9, 1.0, 1.5)]))
     assert outwards == 0.0
     assert inwards > 10.0
+
+
+def test_the_way_to_the_unknown_is_the_mean_offset_of_the_unknown_cells_in_the_gain_cube() -> None:
+    """`_unknown_direction`, gathered for all points at once, against a loop over each point's clipped cube; points
+    in the grid, at its edges and off it (a cube that misses the grid sees nothing)."""
+    from tests.explore.synthetic import warehouse_states
+
+    grid = _grid(warehouse_states(known_to_x=10.0, speckle=0.05, seed=4)[:100, :60, :20])
+    shape = np.array(grid._unknown.shape)
+    half = round(SETTINGS.gain_radius_m / RES)
+    rng = np.random.default_rng(7)
+    size = shape * RES
+    points = np.vstack([rng.uniform(-0.2, 1.2, (40, 3)) * size, [[20.1, 6.0, 2.0], [22.5, 6.0, 2.0]]])
+    expected = np.zeros((len(points), 3))
+    for row, cell in enumerate(np.floor(points / RES).astype(np.int64)):
+        lo, hi = np.clip(cell - half, 0, shape), np.clip(cell + half + 1, 0, shape)
+        found = np.argwhere(grid._unknown[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]])
+        if len(found):
+            expected[row] = (found.mean(axis=0) + lo - cell) * RES
+    got = grid._unknown_direction(points)
+    assert np.allclose(got, expected, atol=1e-12)
+    assert np.count_nonzero(expected.any(axis=1)) >= 10  # some points see unknown cells, some do not
+    assert np.count_nonzero(~expected.any(axis=1)) >= 5
+    assert got[-2].any() and not got[-1].any()  # just off the grid: its cube reaches in; 2.5 m off: it does not
