@@ -102,6 +102,7 @@ class SwarmCoverage:
         self.map_bytes = 0  # the fused map's wire size at the last final update
         self._producer_known: dict[int, np.ndarray] = {}  # reachable cells each producer's map knows (cached)
         self._changed: set[int] = set()  # producers whose map grew since their mask was computed
+        self._cells = self.fused.addresses(self.space.centres)  # every map here has the same lattice and bounds
         self._lock = threading.Lock()
 
     def update(self, t: float, final: bool = False) -> None:
@@ -124,7 +125,7 @@ class SwarmCoverage:
                 if self.fused.add(patch):
                     self.patch_bytes += len(data)
                 self._add_to_producer(patch)
-            known = self.fused.state_at(self.space.centres) != UNKNOWN
+            known = self.fused.state_at(self._cells) != UNKNOWN
             self.fraction = float(np.count_nonzero(known)) / len(known) if len(known) else 0.0
             self.unexplored = unexplored_regions(self.space, known)
             self.timeline.append((round(t, 2), round(self.fraction, 4)))
@@ -146,7 +147,7 @@ class SwarmCoverage:
         """Per-producer explored fractions and the overlap; only maps that grew are queried again (the query
         over every reachable cell is the cost, and most producers add nothing between two updates)."""
         for producer in self._changed:
-            self._producer_known[producer] = self.by_producer[producer].state_at(self.space.centres) != UNKNOWN
+            self._producer_known[producer] = self.by_producer[producer].state_at(self._cells) != UNKNOWN
         self._changed.clear()
         cells = len(self.space.centres)
         for producer, known in sorted(self._producer_known.items()):

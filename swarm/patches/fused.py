@@ -250,15 +250,29 @@ class FusedMap:
         self._tick += 1
         self._changed_at[rows] = self._tick
 
-    def state_at(self, points: np.ndarray) -> np.ndarray:
-        """(N,) uint8 state (UNKNOWN, FREE, OCCUPIED) of the voxels nearest to (N,3) world points."""
+    def addresses(self, points: np.ndarray) -> VoxelAddresses:
+        """Where the voxels nearest to (N,3) world points lie in any map of this lattice and bounds: `state_at`
+        takes them in place of the points, for points asked about again and again (the observer's reachable
+        cells: mapping 626,000 points to their voxels and blocks was most of a query's 60 ms)."""
         keys, flat = self.lattice.voxel_to_block(self.lattice.point_to_voxel(points))
-        weight = np.zeros(len(keys), dtype=np.int64)
-        total = np.zeros(len(keys), dtype=np.int64)
-        held, rows = self._held(keys)
-        cols = flat[held]
-        weight[held] = self._weight[rows, cols]
-        total[held] = self._sum[rows, cols]
+        rel = keys - self._kmin
+        inside = np.flatnonzero(np.all((rel >= 0) & (rel < self._grid.shape), axis=1))
+        block = np.ravel_multi_index(tuple(rel[inside].T), self._grid.shape)
+        return VoxelAddresses(len(keys), inside, block, flat[inside], self._grid.shape, tuple(self._kmin.tolist()))
+
+    def state_at(self, points: np.ndarray | VoxelAddresses) -> np.ndarray:
+        """(N,) uint8 state (UNKNOWN, FREE, OCCUPIED) of the voxels nearest to (N,3) world points (or to the points
+        whose `addresses` these are)."""
+        at = points if isinstance(points, VoxelAddresses) else self.addresses(points)
+        if at.grid_shape != self._grid.shape or at.kmin != tuple(self._kmin.tolist()):
+            raise ValueError("voxel addresses of a map with other bounds")
+        slots = self._grid.ravel()[at.block]
+        held = slots >= 0
+        rows, cols, where = slots[held], at.voxel[held], at.inside[held]
+        weight = np.zeros(at.count, dtype=np.int64)
+        total = np.zeros(at.count, dtype=np.int64)
+        weight[where] = self._weight[rows, cols]
+        total[where] = self._sum[rows, cols]
         return _classify(weight, total, self.known_units)
 
     def block_keys(self) -> np.ndarray:
@@ -518,6 +532,18 @@ class FusedMap:
         vertices, triangles = self.mesh()
         write_ply(path, vertices, triangles)
         return len(vertices), len(triangles)
+
+
+@dataclass(frozen=True)
+class VoxelAddresses:
+    """`FusedMap.addresses`: the voxels of `count` points, those inside the map's bounds only."""
+
+    count: int
+    inside: np.ndarray  # (M,) indices of the points inside the bounds
+    block: np.ndarray  # (M,) their block's flat index in the map's block grid
+    voxel: np.ndarray  # (M,) their voxel's flat index in the block
+    grid_shape: tuple[int, ...]
+    kmin: tuple[int, ...]
 
 
 @dataclass

@@ -157,3 +157,24 @@ def test_changes_only_patches_give_the_states_of_sharing_every_observation(law: 
     own_bytes = sum(len(changes.data(p.id) or b"") for p in patches)
     all_bytes = sum(len(everything.data(p.id) or b"") for p in all_patches)
     assert own_bytes < 0.6 * all_bytes
+
+
+def test_states_at_kept_voxel_addresses_are_the_states_at_the_points(flown) -> None:
+    """`FusedMap.addresses`: the observer maps its reachable cells to voxels once and asks every map about them;
+    the answer is `state_at` of the points, in maps that grow after the addresses were taken, points outside the
+    bounds (unknown) included."""
+    _, _, patches, _ = flown
+    lattice = patches[0].lattice
+    rng = np.random.default_rng(5)
+    points = rng.uniform(BOUNDS[0] - 1.0, BOUNDS[1] + 1.0, (20000, 3))
+    growing = FusedMap(lattice, BOUNDS)
+    at = growing.addresses(points)
+    assert 0 < len(at.inside) < len(points)
+    for patch in patches:
+        growing.add(patch)
+        assert np.array_equal(growing.state_at(at), growing.state_at(points))
+    states = growing.state_at(at)
+    assert np.count_nonzero(states == FREE) > 100 and np.count_nonzero(states == OCCUPIED) > 10
+    assert not states[np.setdiff1d(np.arange(len(points)), at.inside)].any()  # outside: UNKNOWN (0)
+    with pytest.raises(ValueError, match="other bounds"):
+        FusedMap(lattice, (BOUNDS[0], BOUNDS[1] + 3.0)).state_at(at)
