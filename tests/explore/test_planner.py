@@ -316,3 +316,38 @@ def test_the_travel_graphs_distance_field_is_zero_at_the_goal_and_infinite_where
     inside_slab = inflated.index_of((8.0, 5.0, 2.2))
     assert inside_slab is not None and np.isinf(field[inside_slab])
     assert np.isinf(guide.distance_field(np.array([8.0, 5.0, 2.2]), inflated.shape)).all()  # goal in the slab
+
+
+def _cells_cost(grid: OccupancyGrid, cells: list[np.ndarray]) -> float:
+    """What `_astar` charges for a path of cells: each step's length times its cell's step cost."""
+    from swarm.explore.planner import _step_cost_factors
+
+    factors = _step_cost_factors(grid)
+    steps = np.diff(np.array(cells), axis=0)
+    into = np.array(cells[1:]) + 1  # the factors are padded by a cell
+    return float(np.sum(np.linalg.norm(steps, axis=1) * factors[tuple(into.T)]))
+
+
+def test_the_weighted_search_costs_at_most_its_weight_times_the_cheapest_path(monkeypatch: pytest.MonkeyPatch) -> None:
+    """`HEURISTIC_WEIGHT`: across the office (doors, a corridor, roomy cells), each raw A* path of the weighted
+    search costs no more than the weight times the exact search's (here they cost the same)."""
+    import swarm.explore.planner as planner
+
+    weight = planner.HEURISTIC_WEIGHT
+    assert weight > 1.0
+    grid = _with_roomy(office_grid(), 0.25, 0.45)
+    trips = [
+        ((2.0, 2.0, 1.5), (27.0, 17.0, 1.2)),
+        ((3.0, 15.0, 1.0), (27.0, 3.0, 1.6)),
+        ((10.0, 10.0, 1.5), (21.0, 4.0, 1.5)),
+    ]
+    ratios = []
+    for start, goal in trips:
+        a, b = np.array(start), np.array(goal)
+        weighted = _cells_cost(grid, planner._astar(grid, a, b, 2_000_000))
+        monkeypatch.setattr(planner, "HEURISTIC_WEIGHT", 1.0)
+        exact = _cells_cost(grid, planner._astar(grid, a, b, 2_000_000))
+        monkeypatch.setattr(planner, "HEURISTIC_WEIGHT", weight)
+        assert exact <= weighted + 1e-9
+        ratios.append(weighted / exact)
+    assert max(ratios) <= weight + 1e-9
