@@ -14,10 +14,10 @@ tracking becomes a contact. Narrow passages (doorways) still use the minimum.
 
 from __future__ import annotations
 
-import array
 import heapq
 import math
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -205,16 +205,17 @@ def _astar(
     start_flat = int(start_cell @ strides)
     goal_flat = int(goal_cell @ strides)
 
-    # The search loop runs in plain Python on flat buffers: for 26 neighbours, per-element access to
-    # array.array/bytearray beats numpy's per-call overhead about twice over (measured), at 8 bytes a cell.
+    # The search loop runs in plain Python on flat buffers: for 26 neighbours, per-element access through a
+    # memoryview beats numpy's per-call overhead about twice over (measured), and a memoryview of the numpy
+    # arrays copies nothing (array.array copies took 10 ms a search in a hall's grid).
     octile = _octile_distance_to(goal_cell, shape)
     guided = octile if field is None else _guided_heuristic(octile, field)
     guided *= HEURISTIC_WEIGHT
-    heuristic = array.array("d", guided.ravel().tobytes())
-    step_cost = array.array("d", _step_cost_factors(grid).ravel().tobytes())
-    open_cells = bytearray(padded_free.ravel().tobytes())
-    cost = array.array("d", np.full(padded_free.size, np.inf).tobytes())
-    parent = array.array("q", np.full(padded_free.size, -1, dtype=np.int64).tobytes())
+    heuristic = _buffer(guided.ravel())
+    step_cost = _buffer(_step_cost_factors(grid).ravel())
+    open_cells = _buffer(padded_free.ravel().view(np.uint8))  # padded_free is this search's own copy
+    cost = _buffer(np.full(padded_free.size, np.inf))
+    parent = _buffer(np.full(padded_free.size, -1, dtype=np.int64))
     cost[start_flat] = 0.0
     heap = [(heuristic[start_flat], 0.0, start_flat)]
     push, pop = heapq.heappush, heapq.heappop
@@ -242,6 +243,11 @@ def _astar(
     raise NoPathError(f"goal {_fmt(goal)} is unreachable from start {_fmt(start)} ({expansions} cells searched)")
 
 
+def _buffer(array: np.ndarray) -> Any:
+    """A memoryview of a contiguous 1-D array: items read and written at C speed, nothing copied."""
+    return memoryview(array)  # type: ignore[arg-type]  # numpy's stubs do not declare the buffer protocol
+
+
 def _step_cost_factors(grid: OccupancyGrid) -> np.ndarray:
     """Per padded cell, what a step into it costs per unit of length: 1, or NOT_ROOMY_COST where the grid marks
     roomy cells and this is not one (>= 1 everywhere: the octile heuristic stays admissible)."""
@@ -252,18 +258,28 @@ def _step_cost_factors(grid: OccupancyGrid) -> np.ndarray:
 
 
 def _octile_distance_to(goal_cell: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
-    """Shortest 26-connected distance (in cells) from every cell to `goal_cell`, ignoring obstacles.
+    """Shortest 26-connected distance (in cells) from every cell to `goal_cell`, ignoring obstacles:
+    (large - middle) + sqrt2 (middle - small) + sqrt3 small of the three axis distances.
 
     Admissible and consistent for Euclidean step costs, and much tighter than the straight-line distance,
-    which in 3D leaves A* expanding a wide ellipsoid of near-ties.
+    which in 3D leaves A* expanding a wide ellipsoid of near-ties. The x-y extremes are taken on the plane and
+    the rest computed in place: three whole-grid arrays instead of a dozen (a hall's grid: 10 -> 5 ms), the same values.
     """
     dx, dy, dz = (np.abs(np.arange(n, dtype=float) - g) for n, g in zip(shape, goal_cell))
-    dx, dy, dz = dx[:, None, None], dy[None, :, None], dz[None, None, :]
-    large = np.maximum(np.maximum(dx, dy), dz)
-    small = np.minimum(np.minimum(dx, dy), dz)
-    middle = (dx + dy + dz) - large - small
-    distance: np.ndarray = (large - middle) + _SQRT2 * (middle - small) + _SQRT3 * small
-    return distance
+    dx, dy = dx[:, None], dy[None, :]
+    dz = dz[None, None, :]
+    large: np.ndarray = np.maximum(np.maximum(dx, dy)[:, :, None], dz)
+    small = np.minimum(np.minimum(dx, dy)[:, :, None], dz)
+    middle = (dx + dy)[:, :, None] + dz
+    middle -= large
+    middle -= small
+    large -= middle  # large - middle
+    middle -= small
+    middle *= _SQRT2  # sqrt2 (middle - small)
+    large += middle
+    small *= _SQRT3
+    large += small
+    return large
 
 
 def _guided_heuristic(octile: np.ndarray, field: np.ndarray) -> np.ndarray:
@@ -279,7 +295,7 @@ def _guided_heuristic(octile: np.ndarray, field: np.ndarray) -> np.ndarray:
     return guided
 
 
-def _trace(parent: array.array[int], goal_flat: int, shape: tuple[int, ...]) -> list[np.ndarray]:
+def _trace(parent: Any, goal_flat: int, shape: tuple[int, ...]) -> list[np.ndarray]:
     flat = [goal_flat]
     while parent[flat[-1]] >= 0:
         flat.append(parent[flat[-1]])
