@@ -28,6 +28,7 @@ import hashlib
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -449,17 +450,27 @@ class FusedMap:
         weight, total = self._weight[rows], self._sum[rows]
         known = weight >= self.known_units
         occupied = (weight > 0) & (total <= 0)
-        if min_known >= 1.0:
+        if f == 1 and min_known > _EPS:  # a cell is a voxel: nothing to reduce (known >= min_known is known)
+            enough_known, any_occupied = known, occupied
+        elif min_known >= 1.0:
             enough_known = _reduce_cells(known, np.logical_and, r, f)
         else:
             enough_known = _reduce_cells(known.astype(np.uint16), np.add, r, f) >= min_known * f**3 - _EPS
-        any_occupied = _reduce_cells(occupied, np.logical_or, r, f)
+        if f > 1:
+            any_occupied = _reduce_cells(occupied, np.logical_or, r, f)
         cell_states = np.where(
             any_occupied, np.uint8(OCCUPIED), np.where(enough_known, np.uint8(FREE), np.uint8(UNKNOWN))
-        )
-        keys = self._keys[rows].astype(np.int64)
+        ).reshape(len(rows), c, c, c)
+        corner = offset + self._keys[rows].astype(np.int64) * c  # (n, 3) each block's first cell per axis
+        whole = np.all((corner >= 0) & (corner + c <= np.array(shape)), axis=1)
+        # A block wholly inside the grid: its first cell's index plus a fixed table of its cells' offsets.
+        base = (corner[whole, 0] * shape[1] + corner[whole, 1]) * shape[2] + corner[whole, 2]
+        out[(base[:, None] + _cell_offsets(c, shape)[None, :]).reshape(-1)] = cell_states[whole].reshape(-1)
+        if whole.all():
+            return
+        part, states = corner[~whole], cell_states[~whole]
         steps = np.arange(c)
-        gx, gy, gz = (offset[a] + keys[:, a : a + 1] * c + steps for a in range(3))  # (n, c) cell index per axis
+        gx, gy, gz = (part[:, a : a + 1] + steps for a in range(3))  # (n, c) cell index per axis
         # cell_states are [z, y, x] within a block (the voxels' storage order); out is [x, y, z]
         flat = (gx[:, None, None, :] * shape[1] + gy[:, None, :, None]) * shape[2] + gz[:, :, None, None]
         inside = (
@@ -467,10 +478,7 @@ class FusedMap:
             & ((gy >= 0) & (gy < shape[1]))[:, None, :, None]
             & ((gx >= 0) & (gx < shape[0]))[:, None, None, :]
         )
-        if inside.all():
-            out[flat.reshape(-1)] = cell_states.reshape(-1)
-        else:
-            out[flat[inside]] = cell_states[inside]
+        out[flat[inside]] = states[inside]
 
     def mesh(self, within: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Marching-cubes surface of the known voxels: (V,3) float64 world vertices, (F,3) int32 triangles;
@@ -580,6 +588,14 @@ def rows_in(keys: np.ndarray, wanted: np.ndarray) -> np.ndarray:
         np.ascontiguousarray(keys, dtype=np.int32).view(as_rows).ravel(),
         np.ascontiguousarray(wanted, dtype=np.int32).view(as_rows).ravel(),
     )
+
+
+@lru_cache(maxsize=8)
+def _cell_offsets(c: int, shape: tuple[int, int, int]) -> np.ndarray:
+    """(c^3,) flat offsets in an [x, y, z] grid of `shape` of a block's c^3 cells, in the block's [z, y, x] order."""
+    z, y, x = np.meshgrid(np.arange(c), np.arange(c), np.arange(c), indexing="ij")
+    offsets: np.ndarray = ((x * shape[1] + y) * shape[2] + z).reshape(-1).astype(np.int64)
+    return offsets
 
 
 def _reduce_cells(voxels: np.ndarray, combine: np.ufunc, r: int, f: int) -> np.ndarray:

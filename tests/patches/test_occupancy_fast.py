@@ -125,7 +125,7 @@ CASES = {
 @pytest.mark.parametrize("known_weight", [1.0, 3.0])
 @pytest.mark.parametrize(
     ("case", "resolution"),
-    [(case, r) for case in CASES for r in (0.2, 0.4) if (case, r) != ("through blocks", 0.4)],  # z -0.2: off 0.4 m
+    [(case, r) for case in CASES for r in (0.1, 0.2, 0.4) if (case, r) != ("through blocks", 0.4)],  # z -0.2: off 0.4 m
 )
 def test_the_fast_path_equals_the_general_path_on_a_fused_map(
     patches: tuple[Lattice, list[Patch]],
