@@ -450,14 +450,14 @@ class FusedMap:
         weight, total = self._weight[rows], self._sum[rows]
         known = weight >= self.known_units
         occupied = (weight > 0) & (total <= 0)
-        if f == 1 and min_known > _EPS:  # a cell is a voxel: nothing to reduce (known >= min_known is known)
-            enough_known, any_occupied = known, occupied
-        elif min_known >= 1.0:
-            enough_known = _reduce_cells(known, np.logical_and, r, f)
+        if f == 1:  # a cell is a voxel: nothing to reduce (min_known is in (0, 1]: a known voxel is enough)
+            any_occupied, enough_known = occupied, known
         else:
-            enough_known = _reduce_cells(known.astype(np.uint16), np.add, r, f) >= min_known * f**3 - _EPS
-        if f > 1:
             any_occupied = _reduce_cells(occupied, np.logical_or, r, f)
+            if min_known >= 1.0:
+                enough_known = _reduce_cells(known, np.logical_and, r, f)
+            else:
+                enough_known = _reduce_cells(known.astype(np.uint16), np.add, r, f) >= min_known * f**3 - _EPS
         cell_states = np.where(
             any_occupied, np.uint8(OCCUPIED), np.where(enough_known, np.uint8(FREE), np.uint8(UNKNOWN))
         ).reshape(len(rows), c, c, c)
