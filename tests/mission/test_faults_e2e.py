@@ -86,7 +86,9 @@ def test_drones_lost_to_a_kill_and_to_telemetry_loss_leave_the_rest_to_finish(
     tmp_path: Path, swarm_ports: SwarmPorts
 ) -> None:
     out = tmp_path / "run"
-    kill, silence = "kill:agent=3@10", "telemetry-loss:agent=2@12+4"
+    # The silence must start well before the box is explored: silence that starts while a drone is already
+    # landing is no failsafe (it lands, exit 0), and three drones can explore the box 12 s after take-off.
+    kill, silence = "kill:agent=3@10", "telemetry-loss:agent=2@6+4"
     report = run_mission(_config(out, swarm_ports, [kill, silence]), live=False)
 
     assert report["status"] == "complete", report["reason"]
