@@ -79,6 +79,10 @@ LOOKAHEAD_OPEN_M = 1.5
 LOOKAHEAD_NEAR_M = 1.5
 LOOKAHEAD_TAPER_M = 1.5
 SETPOINT_PERIOD_S = 0.1
+# The carrot runs on at the cruise speed by the time since the last setpoint, at most this: a loop that ticks
+# late (other agents, the mapping thread) must not slow the drone, and after a stall the carrot must not jump.
+# Advanced by one period per tick, it ran at 1.5 x 0.1 / tick: in a 3-drone mission ticks came every 0.12-0.15 s.
+MAX_TICK_S = 2 * SETPOINT_PERIOD_S
 LAND_TIMEOUT_S = 60.0
 STALL_S = 2.0  # a gap this long between two flight checks means this process was not running
 LANDED_STATE_WAIT_S = 3.0  # after connecting, how long the landed state may stay unknown
@@ -187,6 +191,7 @@ class Flight:
         self.crew_size = crew_size  # drones in the mission, this one included (the crew it waits to hear)
         self.peers_heard: Callable[[], Collection[int]] = peers_heard or (lambda: ())
         self.yields = 0
+        self.tick_periods: list[float] = []  # seconds between two setpoints along segments (`setpoint_periods`)
         # the drone with the right of way that gave a segment up for a peer that would not move: which, and when
         self.blocked_by: tuple[Neighbour, float] | None = None
         self.heading_to: Vec3 | None = None  # the end of the segment being flown (heartbeats carry it)
@@ -436,10 +441,14 @@ class Flight:
         flying_to = f"waypoint {tuple(round(c, 2) for c in goal)}"  # what a missed deadline names
         travelled = min(max(lead, 0.0), length)
         separation = Separation()  # the manoeuvre (swarm.agent.separation): what to do about a drone nearby
+        last_tick = time.monotonic() - SETPOINT_PERIOD_S
         while True:
             if interrupt is not None and interrupt.is_set():
                 separation = step(separation, Cue.INTERRUPTED, time.monotonic())
                 return False
+            now = time.monotonic()
+            self.tick_periods.append(now - last_tick)
+            tick_s, last_tick = min(now - last_tick, MAX_TICK_S), now
             self.heading_to = vec3(target)
             position = np.array(self.ap.telemetry.position)
             rival = self._rival(position, target)
@@ -493,7 +502,7 @@ class Flight:
             following = separation.manoeuvre == Manoeuvre.FOLLOW
             velocity = np.array(self.ap.telemetry.velocity)
             if following and travelled < length:
-                ahead = min(length, travelled + speed * SETPOINT_PERIOD_S)
+                ahead = min(length, travelled + speed * tick_s)
                 proposed = start + segment * (ahead / length)
                 lookahead = lookahead_before(float(np.linalg.norm(target - position)) + run_on)
                 cut_is_clear = self._may_cut_to(position, proposed, start, gentle)
@@ -550,8 +559,11 @@ class Flight:
             distance = self._closest_approach(n, position)
             if n.silent or parked(n):
                 # an obstacle, not a drone to give way to (stepping aside for it never ends: one hovering with
-                # no target stays put): hold only when our segment would touch it; the planner routes around it
-                if distance < self.separation_m and _in_the_way(peer, position, target, SILENT_CLEAR_M):
+                # no target stays put): hold only when our segment would touch it, where it is or where it comes
+                # down to; the planner routes around it
+                sweep = [peer] if n.silent else where_it_will_be(n)
+                touched = any(_in_the_way(p, position, target, SILENT_CLEAR_M) for p in sweep)
+                if distance < self.separation_m and touched:
                     return n._replace(silent=True)
                 continue
             if n.id < self.settings.id and distance < self.separation_m:
@@ -579,7 +591,9 @@ class Flight:
                 return False
             await self.ap.set_setpoint(refuge, self.ap.telemetry.yaw_deg)
             peer = self._neighbour(peer_id)
-            if peer is None or self._past(peer):
+            if peer is None or self._past(peer) or parked(peer):
+                # a peer that stopped with no segment to fly (it hovers at its goal or comes down to land) will
+                # not pass: it is an obstacle now, which `_rival` holds for only when our way on would touch it
                 return True
             # The refuge was chosen off the peer's segment of the moment; when the peer turns onto its next one
             # (its last, often: home) through our refuge, both would wait there until they time out.
@@ -836,6 +850,14 @@ class Flight:
         above = [] if home is None else [(home[0], home[1], home[2] + self.settings.altitude_m)]
         return way_back([*above, *self.reached], self.settings.waypoint_tolerance_m)
 
+    def setpoint_periods(self) -> dict[str, float]:
+        """Seconds between two setpoints along segments, at the median, 95th percentile and worst: how late this
+        process's loop ticked while it led the drone (SETPOINT_PERIOD_S when on time)."""
+        if not self.tick_periods:
+            return {}
+        p50, p95 = np.percentile(self.tick_periods, [50, 95])
+        return {"p50": round(float(p50), 3), "p95": round(float(p95), 3), "max": round(max(self.tick_periods), 3)}
+
     def update_distance(self) -> None:
         """Accumulate travelled distance from telemetry; called at the heartbeat rate."""
         p = self.ap.telemetry.position
@@ -984,10 +1006,19 @@ def moves_clear_of(here: np.ndarray, candidates: list[np.ndarray], neighbours: l
 
 
 def parked(peer: Neighbour) -> bool:
-    """A live drone hovering with no segment to fly (no target, or waiting at home): it will not move off for us.
-    Stepping aside for it, the way a drone gives way to a lower id, only ends when the yield times out, and the
-    same path then meets it again (box, 3 drones: drone 3 gave way to idle drone 2 for 200 s)."""
-    return peer.heading_to is None and float(np.linalg.norm(peer.velocity)) < SLOW_M_S
+    """A live drone with no segment to fly and no horizontal speed: hovering (no target, or waiting at home) or
+    coming straight down to land. It will not move off for us. Stepping aside for it, the way a drone gives way
+    to a lower id, only ends when the yield times out, and the same path then meets it again (box, 3 drones:
+    drone 3 gave way to idle drone 2 for 200 s; a drone whose home is next to a landing one's waited for it to
+    touch down)."""
+    return peer.heading_to is None and math.hypot(peer.velocity[0], peer.velocity[1]) < SLOW_M_S
+
+
+def where_it_will_be(peer: Neighbour, horizon_s: float = TRACK_HORIZON_S) -> list[np.ndarray]:
+    """Where a parked `peer` is and will be over `horizon_s` at its velocity, a second apart: a drone coming
+    down to land sweeps the column under it, and a segment under it is in its way."""
+    here, velocity = np.asarray(peer.position, dtype=float), np.asarray(peer.velocity, dtype=float)
+    return [here + velocity * t for t in np.arange(0.0, horizon_s + 1e-9, 1.0)]
 
 
 def waiting_aside(peer: Neighbour) -> bool:

@@ -199,7 +199,7 @@ class Agent:
         released = False
         try:
             final = await self.flight.run(mission, self.stop, homeward)
-            self.log("flight_ended", phase=final.value)
+            self.log("flight_ended", phase=final.value, setpoint_period_s=self.flight.setpoint_periods())
         finally:
             mapping_stop.set()
             released = await autopilot.close()

@@ -49,6 +49,24 @@ def test_a_silent_drone_is_an_obstacle_held_for_only_when_our_segment_would_touc
     assert flight._rival(here, here) == flying[0]  # the same drone alive and on its way, a lower id: give way
 
 
+@pytest.mark.sim
+def test_a_drone_coming_down_to_land_is_an_obstacle_held_for_only_when_our_way_passes_through_its_descent() -> None:
+    # Homes 1.5 m apart: drone 2 heading home gave way to drone 1 landing next to it, and waited until drone 1
+    # touched down (gen:1, 3 drones: 8 s, then its yield timed out). A drone coming straight down goes nowhere
+    # our way; what matters is whether our segment passes under it.
+    landing = Neighbour(1, (2.0, 0.0, 1.5), (0.0, 0.0, -0.7))
+    flight = _offline_flight(2, lambda: [landing])
+    here = np.array([1.0, 0.0, 1.5])
+    assert flight._rival(here, np.array([1.0, 1.5, 1.5])) is None  # beside its column: carry on
+    assert flight._rival(here, np.array([3.0, 0.0, 1.5])) == landing._replace(silent=True)  # through it: hold
+    low = np.array([1.0, 0.0, 0.5])
+    # under where it is now by 1 m, but where it will be in a second: hold
+    assert flight._rival(low, np.array([3.0, 0.0, 0.5])) == landing._replace(silent=True)
+    drifting = landing._replace(velocity=(0.5, 0.0, -0.7))  # on its way somewhere, a lower id: give way
+    flight.neighbours = lambda: [drifting]
+    assert flight._rival(here, np.array([1.0, 1.5, 1.5])) == drifting
+
+
 async def _encounter(separation_m: float, hover_in_the_way: bool = False) -> tuple[dict, list[Flight], list[bool]]:
     """Drone 1 flies WEST -> EAST at ALTITUDE; drone 2 flies EAST -> WEST on the same line, or, with
     `hover_in_the_way`, hovers (looking about, as a drone waiting for a target does) on drone 1's line."""
