@@ -97,6 +97,7 @@ PRIORITY_PAUSE_FRACTION = 1.0  # the drone with the right of way holds for one c
 PASS_CLEARANCE_M = 0.6  # ... that is in its way: this close to the rest of its segment (a drone that stepped
 # STEP_ASIDE_M off the segment is not, and holding for it would deadlock both)
 CROSS_TRACK_M = 0.1  # the carrot waits while the drone is farther than this off its segment (carrot_may_advance)
+REST_S = 0.5  # ... unless the drone has been at rest this long: it will get no closer (longer than a turn back takes)
 # ... unless the drone is this close to the corner and the map shows the way to the carrot clear (`_may_cut_to`):
 # led by a carrot at the corner the drone slows as it nears it (speed ~ distance), so the last CROSS_TRACK_M took
 # it seconds at a crawl. Not from farther: cutting from 1 m (the carrot's lead near a corner) took a test route
@@ -442,6 +443,7 @@ class Flight:
         travelled = min(max(lead, 0.0), length)
         separation = Separation()  # the manoeuvre (swarm.agent.separation): what to do about a drone nearby
         last_tick = time.monotonic() - SETPOINT_PERIOD_S
+        slow_since: float | None = None  # when the drone came to rest and has stayed so (`still_since`)
         while True:
             if interrupt is not None and interrupt.is_set():
                 separation = step(separation, Cue.INTERRUPTED, time.monotonic())
@@ -500,13 +502,14 @@ class Flight:
                         continue
             carrot = start + segment * (travelled / length) if length > 0 else target
             following = separation.manoeuvre == Manoeuvre.FOLLOW
-            velocity = np.array(self.ap.telemetry.velocity)
+            slow_since = still_since(slow_since, np.array(self.ap.telemetry.velocity), now)
             if following and travelled < length:
                 ahead = min(length, travelled + speed * tick_s)
                 proposed = start + segment * (ahead / length)
                 lookahead = lookahead_before(float(np.linalg.norm(target - position)) + run_on)
                 cut_is_clear = self._may_cut_to(position, proposed, start, gentle)
-                if carrot_may_advance(position, velocity, carrot, start, target, cut_is_clear, lookahead):
+                rest_s = now - slow_since if slow_since is not None else 0.0
+                if carrot_may_advance(position, rest_s, carrot, start, target, cut_is_clear, lookahead):
                     travelled, carrot = ahead, proposed
             self._carrot = vec3(carrot)
             await self.ap.set_setpoint(self._carrot, yaw)
@@ -941,9 +944,16 @@ def lookahead_before(remaining: float) -> float:
     return LOOKAHEAD_M + (LOOKAHEAD_OPEN_M - LOOKAHEAD_M) * taper
 
 
+def still_since(since: float | None, velocity: np.ndarray, now: float) -> float | None:
+    """When the drone came to rest (slower than SLOW_M_S) and has stayed at rest since, else None (moving)."""
+    if float(np.linalg.norm(velocity)) >= SLOW_M_S:
+        return None
+    return now if since is None else since
+
+
 def carrot_may_advance(
     position: np.ndarray,
-    velocity: np.ndarray,
+    rest_s: float,
     carrot: np.ndarray,
     start: np.ndarray,
     target: np.ndarray,
@@ -953,8 +963,12 @@ def carrot_may_advance(
     """The carrot may run on along the segment start-target: it is less than `lookahead` ahead of the drone,
     and the drone is on the segment's line (within CROSS_TRACK_M of it: a drone short of a waypoint on the
     straight way on is on it, one short of a corner is not), or the map shows the straight way from the drone to
-    the carrot's next place clear (`cut_is_clear`: the drone may cut the corner), or it has come to rest off the
-    line (it will get no closer: a steady offset must not stall the segment).
+    the carrot's next place clear (`cut_is_clear`: the drone may cut the corner), or it has been at rest off the
+    line for REST_S (`rest_s`: it will get no closer, and a steady offset must not stall the segment).
+
+    At rest for a while, not for a moment: a drone turning back passes through rest, and a carrot that ran on then
+    drew it along a chord from where its momentum had taken it, past the corner: a drone carried 0.3 m beside a
+    door's jamb by its last path turned at rest there onto the next segment and touched the jamb (gen:1).
 
     Why the drone must be on the segment first: a waypoint counts as reached within `waypoint_tolerance_m`
     (0.3 m), and planned paths keep only `clearance_m` (5 cm more than the airframe) from obstacles. A carrot
@@ -963,7 +977,7 @@ def carrot_may_advance(
     if float(np.linalg.norm(carrot - position)) >= lookahead:
         return False
     on_track = distance_to_line(position, start, target) <= CROSS_TRACK_M
-    return on_track or cut_is_clear or float(np.linalg.norm(velocity)) < SLOW_M_S
+    return on_track or cut_is_clear or rest_s >= REST_S
 
 
 def resume_from(here: Vec3, left_at: Vec3, target: Vec3, is_clear: Callable[[Vec3, Vec3], bool]) -> Vec3:

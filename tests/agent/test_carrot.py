@@ -13,11 +13,14 @@ from swarm.agent.flight import (
     LOOKAHEAD_NEAR_M,
     LOOKAHEAD_OPEN_M,
     LOOKAHEAD_TAPER_M,
+    REST_S,
+    SLOW_M_S,
     Flight,
     carried_lead,
     carrot_may_advance,
     gentle_turns,
     lookahead_before,
+    still_since,
 )
 from swarm.config import Vec3, load_config
 from tests.agent.fake_autopilot import FakeAutopilot
@@ -37,35 +40,43 @@ def test_a_new_carrot_keeps_the_old_ones_lead_in_the_new_direction() -> None:
 def test_the_carrot_waits_for_a_drone_that_is_off_its_segment_after_a_corner() -> None:
     start, target = np.array([10.7, 6.9, 1.5]), np.array([11.7, 6.9, 1.5])  # the level way through a door
     carrot = np.array([10.8, 6.9, 1.5])
-    still = np.zeros(3)
-    descending = np.array([0.5, 0.0, -0.8])
+    moving, at_rest = 0.0, REST_S  # seconds at rest
     above_the_corner = np.array([10.6, 6.9, 1.75])  # 0.25 m above the segment, still coming down
-    assert not carrot_may_advance(above_the_corner, descending, carrot, start, target)
+    assert not carrot_may_advance(above_the_corner, moving, carrot, start, target)
     on_the_segment = np.array([10.75, 6.9, 1.56])
-    assert carrot_may_advance(on_the_segment, descending, carrot, start, target)
+    assert carrot_may_advance(on_the_segment, moving, carrot, start, target)
     # at rest off the segment: it will get no closer, so the segment goes on rather than stalling
-    assert carrot_may_advance(above_the_corner, still, carrot, start, target)
+    assert carrot_may_advance(above_the_corner, at_rest, carrot, start, target)
+    # ... but not at the moment it turns back (it passes through rest), nor before it has rested REST_S
+    assert not carrot_may_advance(above_the_corner, 0.1, carrot, start, target)
     far_behind = np.array([9.7, 6.9, 1.5])  # on the line, but the carrot is a look-ahead away
-    assert not carrot_may_advance(far_behind, still, carrot, start, target)
+    assert not carrot_may_advance(far_behind, at_rest, carrot, start, target)
+
+
+def test_a_drone_is_at_rest_from_when_it_slowed_down_until_it_moves_again() -> None:
+    slow, fast = np.array([0.0, SLOW_M_S / 2, 0.0]), np.array([0.0, 0.0, -2 * SLOW_M_S])
+    assert still_since(None, fast, 10.0) is None
+    assert still_since(None, slow, 10.0) == 10.0  # came to rest now
+    assert still_since(10.0, slow, 10.4) == 10.0  # ... and has stayed so
+    assert still_since(10.0, fast, 10.5) is None  # moving again (climbing counts)
 
 
 def test_the_carrot_runs_on_for_a_drone_short_of_a_waypoint_on_the_straight_way_on() -> None:
     start, target = np.array([2.0, 0.0, 1.5]), np.array([4.0, 0.0, 1.5])
     short_of_it = np.array([1.75, 0.02, 1.5])  # within the waypoint tolerance, not yet at the waypoint
-    assert carrot_may_advance(short_of_it, np.array([1.5, 0.0, 0.0]), start, start, target)
+    assert carrot_may_advance(short_of_it, 0.0, start, start, target)
     short_of_a_right_angle = np.array([2.0, -0.25, 1.5])  # coming along y to turn along x
-    assert not carrot_may_advance(short_of_a_right_angle, np.array([0.0, 1.5, 0.0]), start, start, target)
+    assert not carrot_may_advance(short_of_a_right_angle, 0.0, start, start, target)
 
 
 def test_the_carrot_cuts_a_corner_only_where_the_map_shows_the_cut_in_open_space() -> None:
     start, target = np.array([2.0, 0.0, 1.5]), np.array([2.0, 2.0, 1.5])  # east, then north at (2, 0)
     short_of_the_corner = np.array([1.6, 0.0, 1.5])  # 0.4 m before it, flying east at speed
-    east = np.array([1.2, 0.0, 0.0])
-    assert not carrot_may_advance(short_of_the_corner, east, start, start, target)
-    assert carrot_may_advance(short_of_the_corner, east, start, start, target, cut_is_clear=True)
+    assert not carrot_may_advance(short_of_the_corner, 0.0, start, start, target)
+    assert carrot_may_advance(short_of_the_corner, 0.0, start, start, target, cut_is_clear=True)
     # ... and never more than the look-ahead ahead of the drone
     far_short = np.array([0.5, 0.0, 1.5])
-    assert not carrot_may_advance(far_short, east, start, start, target, cut_is_clear=True, lookahead=1.5)
+    assert not carrot_may_advance(far_short, 0.0, start, start, target, cut_is_clear=True, lookahead=1.5)
 
 
 def _flight(is_clear: object, is_roomy: object = None) -> Flight:
