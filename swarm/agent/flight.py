@@ -111,6 +111,7 @@ CORNER_CUT_M = 0.5
 # under 1 m on a generated building, 37 % of its turns under 30 degrees), and slowing to CORNER_CUT_M at each bend
 # flew drones home at 0.8 m/s against 1.4 m/s.
 GENTLE_TURN_DEG = 30.0
+PARKED_FOR_S = 1.0  # a peer given way to that has been parked this long (`parked`) will not pass: the yield ends
 SLOW_M_S = 0.2  # a peer slower than this, going nowhere, has no track to step off: the yielder climbs or descends
 REFUGE_CLEAR_M = PASS_CLEARANCE_M + 0.2  # a refuge this far off the other's segment lets it pass
 REJOIN_TOLERANCE_M = 0.1  # a drone flying its step aside back is at the segment again this close to it
@@ -589,14 +590,20 @@ class Flight:
         refuge = self._take_refuge(peer_id, peer)
         chosen_for = None if peer is None else peer.heading_to
         end = time.monotonic() + MAX_YIELD_S
+        parked_since: float | None = None
         while time.monotonic() < end:
             if interrupt is not None and interrupt.is_set():
                 return False
             await self.ap.set_setpoint(refuge, self.ap.telemetry.yaw_deg)
             peer = self._neighbour(peer_id)
-            if peer is None or self._past(peer) or parked(peer):
-                # a peer that stopped with no segment to fly (it hovers at its goal or comes down to land) will
-                # not pass: it is an obstacle now, which `_rival` holds for only when our way on would touch it
+            if peer is None or self._past(peer):
+                return True
+            # a peer that stopped with no segment to fly (it hovers at its goal or comes down to land) will not
+            # pass: it is an obstacle now, which `_rival` holds for only when our way on would touch it. Parked
+            # for a while, not between two paths: ended at once, a yield began again 0.2 s later, four times.
+            now = time.monotonic()
+            parked_since = (parked_since or now) if parked(peer) else None
+            if parked_since is not None and now - parked_since >= PARKED_FOR_S:
                 return True
             # The refuge was chosen off the peer's segment of the moment; when the peer turns onto its next one
             # (its last, often: home) through our refuge, both would wait there until they time out.

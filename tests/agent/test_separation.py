@@ -11,16 +11,19 @@ from __future__ import annotations
 
 import asyncio
 import math
+import time
 from collections.abc import Callable
 
 import numpy as np
 import pytest
 
 from swarm.agent.autopilot import Autopilot
-from swarm.agent.flight import STEP_ASIDE_M, Flight, Neighbour
+from swarm.agent.flight import PARKED_FOR_S, STEP_ASIDE_M, Flight, Neighbour
+from swarm.agent.separation import MAX_YIELD_S
 from swarm.bus.phase import Phase
-from swarm.config import Vec3, gcs_port
+from swarm.config import Vec3, gcs_port, load_config
 from swarm.sim.worlds import load_world
+from tests.agent.fake_autopilot import FakeAutopilot
 from tests.agent.mesh_clearance import clear_in
 from tests.sim.support import free_port_block, running_sim, sim_config
 
@@ -350,3 +353,20 @@ def test_a_drone_given_way_to_from_beyond_the_separation_is_past_only_once_it_wi
     assert yielder._past(closing._replace(velocity=(0.0, 0.0, 0.0)))  # 2.5 m away, still
     assert yielder._past(closing._replace(position=(5.21, 18.5, 1.3)))  # by us, 2.1 m on and moving away
     assert not yielder._past(closing._replace(position=(5.21, 17.2, 1.3)))  # by us, but 0.8 m away
+
+
+def test_a_yield_to_a_drone_that_parked_ends_once_it_has_stayed_parked() -> None:
+    # It will not come past: waiting for it to be past lasted until the yield timed out (MAX_YIELD_S); ended as soon
+    # as it parked, a yield to a drone between two paths began again 0.2 s later, four times in a row.
+    landing = Neighbour(1, (0.8, 0.0, 1.0), (0.0, 0.0, -0.7))
+    settings = load_config().agent.model_copy(update={"id": 2})
+    autopilot = FakeAutopilot(in_air=True)
+    flight = Flight(autopilot, settings, lambda *a, **kw: None, separation_m=1.2, neighbours=lambda: [landing])  # type: ignore[arg-type]
+
+    async def yield_to_it() -> tuple[bool, float]:
+        started = time.monotonic()
+        done = await flight._step_aside(1, asyncio.Event(), None)
+        return done, time.monotonic() - started
+
+    done, waited = asyncio.run(yield_to_it())
+    assert done and PARKED_FOR_S <= waited < MAX_YIELD_S
