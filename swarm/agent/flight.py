@@ -481,6 +481,7 @@ class Flight:
                 segment = target - start
                 length = float(np.linalg.norm(segment))
                 deadline = time.monotonic() + 20.0 + 3.0 * length / speed
+                last_tick = time.monotonic() - SETPOINT_PERIOD_S  # the yield set its own setpoints
                 continue
             if separation.manoeuvre == Manoeuvre.REPLAN:
                 assert rival is not None
