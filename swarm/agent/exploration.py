@@ -24,8 +24,10 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
+
 from swarm.agent.events import log_if_failed
-from swarm.agent.flight import PASS_CLEARANCE_M, Flight
+from swarm.agent.flight import PASS_CLEARANCE_M, SILENT_CLEAR_M, Flight, distance_to_segment
 from swarm.agent.mapping import MappingTask
 from swarm.aio import wait_event
 from swarm.bus.bridge import AsyncBus
@@ -309,7 +311,7 @@ class Exploration:
             if path is None:
                 path = await self._plan(target.viewpoint, around=parked)
             if path is None:
-                path = await self._plan_to_another_viewpoint(target)
+                path = await self._plan_to_another_viewpoint(target, keep_off=parked)
             if path is None:
                 if not await self._out_of_pocket(flight, stop):
                     await self._core_ready()
@@ -363,9 +365,11 @@ class Exploration:
         flew through a doorway with its top in the lintel).
 
         `around`: a peer parked in the way. The path keeps PASS_CLEARANCE_M from it when the map allows, so the
-        drone does not hold for it again; otherwise it is the plain path (the map has no other way: the
-        separation rules must sort it out). Replanning the same path past a drone that waits for this one to
-        pass held both for minutes (a refuge beside a doorway, 0.26 m off the way through it).
+        drone does not hold for it again; otherwise it is the plain path, unless that passes within
+        SILENT_CLEAR_M of the peer: then there is no path for now (the drone would only hold for it again,
+        and the peer waits for this drone to pass). Replanning the same path past a drone that waits for this
+        one to pass held both for minutes (a refuge beside a doorway, 0.26 m off the way through it; office, 3
+        drones: a refuge in a doorway, no refuge clear of the way there, 5 minutes until the mission timed out).
 
         `start`: plan from there instead (a point the drone will fly to first). Where the map's safe cells do not
         join the start and the goal (`ExplorationGrid.connected`), there is no path, and no search."""
@@ -405,6 +409,9 @@ class Exploration:
             )
         except NoPathError as exc:
             self.log("no_path", goal=_r(goal), reason=str(exc))
+            return None
+        if around is not None and path_clearance([here, *path], around) < SILENT_CLEAR_M:
+            self.log("no_path", goal=_r(goal), reason=f"the only way passes the drone waiting at {_r(around)}")
             return None
         self.log("path", waypoints=[_r(p) for p in path])
         return self._from_where_it_is(path, here, start is None)
@@ -550,6 +557,14 @@ def should_head_home(idle_s: float, left_out: bool, rounds: int, idle_home_s: fl
     if idle_s >= IDLE_WITHOUT_ROUNDS * idle_home_s:
         return True
     return idle_s >= idle_home_s and rounds >= IDLE_ROUNDS
+
+
+def path_clearance(path: list[Vec3], point: Vec3) -> float:
+    """How close the polyline `path` comes to `point`."""
+    if len(path) < 2:
+        return math.dist(path[0], point) if path else math.inf
+    p, ends = np.asarray(point, dtype=float), np.asarray(path, dtype=float)
+    return min(distance_to_segment(p, a, b) for a, b in zip(ends[:-1], ends[1:]))
 
 
 def _r(p: Vec3) -> list[float]:

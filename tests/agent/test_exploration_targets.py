@@ -118,8 +118,13 @@ def test_after_giving_a_segment_up_for_a_parked_peer_the_next_path_goes_round_it
     corridor.occupied[:, 10, 7] = False  # one row of safe cells: no way round
     exploration.grid = SimpleNamespace(planning_grid=corridor, connected=_JOINED)  # type: ignore[assignment]
     exploration.position = lambda: (0.5, 2.1, 1.5)
-    plain = asyncio.run(exploration._plan((9.5, 2.1, 1.5), around=(5.0, 2.1, 1.5)))
-    assert plain == [(9.5, 2.1, 1.5)]  # the plain path, as before: the separation rules sort it out
+    # no way round: the plain path, where it passes the peer far enough not to hold for it again
+    plain = asyncio.run(exploration._plan((9.5, 2.1, 1.5), around=(5.0, 2.7, 1.5)))
+    assert plain == [(9.5, 2.1, 1.5)]
+    # ... and no path for now where the only way passes through it: the peer waits for this drone to pass, and
+    # this drone would hold for it again (office, 3 drones: both held for 5 minutes, a refuge in a doorway)
+    assert asyncio.run(exploration._plan((9.5, 2.1, 1.5), around=(5.0, 2.1, 1.5))) is None
+    assert events[-1]["event"] == "no_path" and "waiting at [5.0, 2.1, 1.5]" in events[-1]["reason"]
 
     flight.blocked_by = (peer, time.monotonic() - PARKED_PEER_S - 1.0)
     assert exploration._parked_in_the_way(flight) is None  # type: ignore[arg-type]  # too long ago
