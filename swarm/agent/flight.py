@@ -55,6 +55,7 @@ from __future__ import annotations
 import asyncio
 import math
 import time
+from collections import deque
 from collections.abc import Awaitable, Callable, Collection
 from typing import NamedTuple
 
@@ -83,6 +84,7 @@ SETPOINT_PERIOD_S = 0.1
 # late (other agents, the mapping thread) must not slow the drone, and after a stall the carrot must not jump.
 # (Ticks are late by ~2 % in a 3-drone mission on 2 cores: `setpoint_period_s` in the agents' `flight_ended`.)
 MAX_TICK_S = 2 * SETPOINT_PERIOD_S
+TICKS_KEPT = 6000  # setpoint periods kept for the flight's figures: the last 10 minutes of flying segments
 LAND_TIMEOUT_S = 60.0
 STALL_S = 2.0  # a gap this long between two flight checks means this process was not running
 LANDED_STATE_WAIT_S = 3.0  # after connecting, how long the landed state may stay unknown
@@ -193,7 +195,8 @@ class Flight:
         self.crew_size = crew_size  # drones in the mission, this one included (the crew it waits to hear)
         self.peers_heard: Callable[[], Collection[int]] = peers_heard or (lambda: ())
         self.yields = 0
-        self.tick_periods: list[float] = []  # seconds between two setpoints along segments (`setpoint_periods`)
+        # seconds between two setpoints along segments, the last TICKS_KEPT of them (`setpoint_periods`)
+        self.tick_periods: deque[float] = deque(maxlen=TICKS_KEPT)
         # the drone with the right of way that gave a segment up for a peer that would not move: which, and when
         self.blocked_by: tuple[Neighbour, float] | None = None
         self.heading_to: Vec3 | None = None  # the end of the segment being flown (heartbeats carry it)
@@ -862,8 +865,8 @@ class Flight:
         return way_back([*above, *self.reached], self.settings.waypoint_tolerance_m)
 
     def setpoint_periods(self) -> dict[str, float]:
-        """Seconds between two setpoints along segments, at the median, 95th percentile and worst: how late this
-        process's loop ticked while it led the drone (SETPOINT_PERIOD_S when on time)."""
+        """Seconds between two setpoints along segments (the last TICKS_KEPT), at the median, 95th percentile and
+        worst: how late this process's loop ticked while it led the drone (SETPOINT_PERIOD_S when on time)."""
         if not self.tick_periods:
             return {}
         p50, p95 = np.percentile(self.tick_periods, [50, 95])
