@@ -606,7 +606,10 @@ class Flight:
             # pass: it is an obstacle now, which `_rival` holds for only when our way on would touch it. Parked
             # for a while, not between two paths: ended at once, a yield began again 0.2 s later, four times.
             now = time.monotonic()
-            parked_since = (parked_since or now) if parked(peer) else None
+            if not parked(peer):
+                parked_since = None
+            elif parked_since is None:
+                parked_since = now
             if parked_since is not None and now - parked_since >= PARKED_FOR_S:
                 return True
             # The refuge was chosen off the peer's segment of the moment; when the peer turns onto its next one
